@@ -1,0 +1,95 @@
+"""Bilateral filtering of normals (ALGORITHM.md, step 3; paper Section 4.1, eq. (4))."""
+import math
+
+import numpy as np
+from numba import prange
+
+from .config import CHUNK, helper, parallel_kernel
+from .graph import max_degree
+
+# Below this spread (radians) all normals of a list agree and the filter leaves n_i unchanged.
+MIN_SPREAD = 1e-12
+
+
+@helper
+def _filter_point(i, points, normals, indptr, indices, dist2, angle, out):
+    px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+    nix, niy, niz = normals[i, 0], normals[i, 1], normals[i, 2]
+    start = indptr[i]
+    count = indptr[i + 1] - start
+    r2 = 0.0
+    mean = 0.0
+    for t in range(count):
+        j = indices[start + t]
+        dx = points[j, 0] - px
+        dy = points[j, 1] - py
+        dz = points[j, 2] - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        r2 = max(r2, d2)
+        dist2[t] = d2
+        # Angle after flipping n_j to agree with n_i.
+        a = math.acos(min(abs(nix * normals[j, 0] + niy * normals[j, 1] + niz * normals[j, 2]),
+                          1.0))
+        angle[t] = a
+        mean += a
+    mean /= count
+    var = 0.0
+    for t in range(count):
+        var += (angle[t] - mean) ** 2
+    spread = math.sqrt(var / count)
+    if not spread > MIN_SPREAD:
+        out[i, 0] = nix
+        out[i, 1] = niy
+        out[i, 2] = niz
+        return
+    # sigma_c = r_i / 2, sigma_s = spread: exp(-x^2 / (2 sigma^2)).
+    inv_c = 2.0 / r2 if r2 > 0.0 else 0.0
+    inv_s = 0.5 / (spread * spread)
+    sx = sy = sz = 0.0
+    for t in range(count):
+        j = indices[start + t]
+        wgt = math.exp(-dist2[t] * inv_c - angle[t] * angle[t] * inv_s)
+        nx, ny, nz = normals[j, 0], normals[j, 1], normals[j, 2]
+        if nix * nx + niy * ny + niz * nz < 0.0:
+            wgt = -wgt
+        sx += wgt * nx
+        sy += wgt * ny
+        sz += wgt * nz
+    norm = math.sqrt(sx * sx + sy * sy + sz * sz)
+    if norm > 0.0:
+        out[i, 0] = sx / norm
+        out[i, 1] = sy / norm
+        out[i, 2] = sz / norm
+    else:
+        out[i, 0] = nix
+        out[i, 1] = niy
+        out[i, 2] = niz
+
+
+@parallel_kernel
+def filter_normals(points, normals, indptr, indices, out):
+    """Bilateral filter of the normals over each neighbour list, eq. (4).
+
+    Parameters
+    ----------
+    points, normals : (n, 3) float64
+        Positions and unit normals ``n_i``.
+    indptr, indices : CSR neighbour graph (each list contains the point itself)
+    out : (n, 3) float64
+        Output filtered unit normals ``n*_i``, oriented like ``n_i``.
+
+    Notes
+    -----
+    ``n*_i = normalize(sum_j w_c(|p_j - p_i|) w_s(alpha_j) n_j)`` with neighbour normals flipped
+    to agree with ``n_i``, ``alpha_j = acos(n_i . n_j)``, ``sigma_c = r_i / 2`` (``r_i`` the
+    distance to the farthest list member; ``w_c = 1`` when it is 0) and ``sigma_s`` the population
+    standard deviation of the ``alpha_j``. Where ``sigma_s`` is (numerically) zero, or the sum
+    vanishes, ``n*_i = n_i``.
+    """
+    n = points.shape[0]
+    longest = max_degree(indptr)
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        dist2 = np.empty(longest)
+        angle = np.empty(longest)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            _filter_point(i, points, normals, indptr, indices, dist2, angle, out)

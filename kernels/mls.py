@@ -1,0 +1,200 @@
+"""MLS reference plane, weighted cubic fit, projection and residual (ALGORITHM.md, step 1)."""
+import math
+
+import numpy as np
+from numba import prange
+
+from .config import CHUNK, helper, parallel_kernel
+from .graph import max_degree
+from .linalg import (
+    DEGENERATE_RATIO, cholesky_prefix, cholesky_solve, orthonormal_basis, sym3_eigh,
+)
+
+# Relative ridge added to the diagonal of the normal equations.
+RIDGE = 1e-12
+# A Cholesky pivot fails when less than this fraction of its column's weighted energy is left
+# once the earlier basis functions are removed (the column is numerically dependent on them).
+PIVOT_TOL = 1e-9
+
+# Fit degree codes written to ``degree``.
+CUBIC, QUADRATIC, PLANE = 3, 2, 0
+
+
+@helper
+def _basis(x, y, phi):
+    """Monomials of eq. (1) in coefficient order a0..a9; the first six span the quadratic."""
+    phi[0] = 1.0
+    phi[1] = y
+    phi[2] = x
+    phi[3] = x * y
+    phi[4] = y * y
+    phi[5] = x * x
+    phi[6] = x * y * y
+    phi[7] = x * x * y
+    phi[8] = y * y * y
+    phi[9] = x * x * x
+
+
+@helper
+def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov, w, v,
+               a, b, phi, proj, resid, degree):
+    px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+    start = indptr[i]
+    count = indptr[i + 1] - start
+
+    # Gaussian weights and weighted centroid, relative to p_i.
+    sw = cx = cy = cz = 0.0
+    radius2 = 0.0
+    for t in range(count):
+        j = indices[start + t]
+        dx = points[j, 0] - px
+        dy = points[j, 1] - py
+        dz = points[j, 2] - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        radius2 = max(radius2, d2)
+        th = math.exp(-d2 * inv_h2)
+        wts[t] = th
+        xs[t] = dx
+        ys[t] = dy
+        zs[t] = dz
+        sw += th
+        cx += th * dx
+        cy += th * dy
+        cz += th * dz
+    cx /= sw
+    cy /= sw
+    cz /= sw
+
+    # Reference plane H_i: smallest eigenvector of the weighted covariance about the centroid.
+    c00 = c01 = c02 = c11 = c12 = c22 = 0.0
+    for t in range(count):
+        dx = xs[t] - cx
+        dy = ys[t] - cy
+        dz = zs[t] - cz
+        th = wts[t]
+        c00 += th * dx * dx
+        c01 += th * dx * dy
+        c02 += th * dx * dz
+        c11 += th * dy * dy
+        c12 += th * dy * dz
+        c22 += th * dz * dz
+    cov[0, 0] = c00
+    cov[0, 1] = c01
+    cov[0, 2] = c02
+    cov[1, 0] = c01
+    cov[1, 1] = c11
+    cov[1, 2] = c12
+    cov[2, 0] = c02
+    cov[2, 1] = c12
+    cov[2, 2] = c22
+    sym3_eigh(cov, w, v)
+    if w[1] > DEGENERATE_RATIO * w[2]:
+        nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
+    else:  # collinear or coincident weights: no plane of its own, use the point's normal
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+    if nx * normals[i, 0] + ny * normals[i, 1] + nz * normals[i, 2] < 0.0:
+        nx, ny, nz = -nx, -ny, -nz
+    ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
+
+    # Local frame: origin o_i = projection of p_i onto H_i; x, y scaled by the radius r_i.
+    off = cx * nx + cy * ny + cz * nz
+    ox, oy, oz = off * nx, off * ny, off * nz
+    radius = math.sqrt(radius2)
+    inv_r = 1.0 / radius if radius > 0.0 else 1.0
+    for p in range(10):
+        b[p] = 0.0
+        for q in range(p + 1):
+            a[p, q] = 0.0
+    for t in range(count):
+        dx = xs[t] - ox
+        dy = ys[t] - oy
+        dz = zs[t] - oz
+        x = (dx * ux + dy * uy + dz * uz) * inv_r
+        y = (dx * vx + dy * vy + dz * vz) * inv_r
+        z = dx * nx + dy * ny + dz * nz
+        xs[t] = x
+        ys[t] = y
+        zs[t] = z
+        _basis(x, y, phi)
+        th = wts[t]
+        for p in range(10):
+            tp = th * phi[p]
+            b[p] += tp * z
+            for q in range(p + 1):
+                a[p, q] += tp * phi[q]
+    for p in range(10):
+        a[p, p] *= 1.0 + RIDGE
+
+    # Cubic if the whole system is well posed, else the quadratic, else the plane g = 0.
+    rank = cholesky_prefix(a, 10, PIVOT_TOL)
+    if rank == 10:
+        m = 10
+        degree[i] = CUBIC
+    elif rank >= 6:
+        m = 6
+        degree[i] = QUADRATIC
+    else:
+        m = 0
+        degree[i] = PLANE
+    cholesky_solve(a, b, m)
+    for p in range(m, 10):
+        b[p] = 0.0
+
+    # Projection q_i = o_i + g(0, 0) n and the weighted mean residual d_i.
+    proj[i, 0] = px + ox + b[0] * nx
+    proj[i, 1] = py + oy + b[0] * ny
+    proj[i, 2] = pz + oz + b[0] * nz
+    se = 0.0
+    for t in range(count):
+        _basis(xs[t], ys[t], phi)
+        g = 0.0
+        for p in range(m):
+            g += b[p] * phi[p]
+        se += wts[t] * abs(zs[t] - g)
+    resid[i] = se / sw
+
+
+@parallel_kernel
+def mls_fit(points, normals, indptr, indices, h, proj, resid, degree):
+    """Project every point onto its local MLS cubic and measure the fit's residual.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    normals : (n, 3) float64
+        Unit normals; orient the reference planes and stand in for them when the weighted
+        neighbourhood is collinear or coincident.
+    indptr, indices : CSR neighbour graph (each list contains the point itself)
+    h : float
+        Gaussian kernel width, ``theta(d) = exp(-d^2 / h^2)``; must be positive.
+    proj : (n, 3) float64
+        Output: projection ``q_i = o_i + g(0, 0) n`` of each point onto its fitted surface.
+    resid : (n,) float64
+        Output: ``d_i``, the theta-weighted mean of ``|z_j - g(x_j, y_j)|`` over the list.
+    degree : (n,) int8
+        Output: 3 (cubic), 2 (quadratic fallback) or 0 (plane fallback, ``g = 0``).
+
+    Notes
+    -----
+    The reference plane is a one-step simplification of Alexa et al.'s non-linear search: the
+    weighted centroid and the smallest eigenvector of the weighted covariance about it. The
+    10x10 normal equations are factored once; since the first six monomials span the quadratic,
+    the quadratic fallback reuses the leading 6x6 block of the same factor.
+    """
+    n = points.shape[0]
+    longest = max_degree(indptr)
+    inv_h2 = 1.0 / (h * h)
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        wts = np.empty(longest)
+        xs = np.empty(longest)
+        ys = np.empty(longest)
+        zs = np.empty(longest)
+        cov = np.empty((3, 3))
+        w = np.empty(3)
+        v = np.empty((3, 3))
+        a = np.empty((10, 10))
+        b = np.empty(10)
+        phi = np.empty(10)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov, w, v,
+                       a, b, phi, proj, resid, degree)

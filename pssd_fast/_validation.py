@@ -1,0 +1,99 @@
+"""Argument checks, run before any kernel: each error names the bad value and how to fix it."""
+import numbers
+
+import numpy as np
+
+# The cubic of eq. (1) has 10 coefficients: fewer neighbours cannot determine it.
+MIN_K = 10
+
+
+def as_points(points, name="points"):
+    """Return ``points`` as a C-contiguous ``(n, 3) float64`` copy-or-view, checking it first.
+
+    Returns
+    -------
+    array : (n, 3) float64
+    dtype : numpy.dtype
+        The dtype results should be returned in (float32 stays float32, everything else float64).
+    """
+    if isinstance(points, np.ndarray):
+        arr = points
+    else:
+        try:
+            arr = np.asarray(points)
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"{name} must be an array-like of shape (n, 3); got "
+                            f"{type(points).__name__} ({exc})") from None
+    if arr.dtype.kind not in "fiu":
+        kind = {"c": "complex", "O": "object", "b": "boolean"}.get(arr.dtype.kind, str(arr.dtype))
+        raise TypeError(f"{name} must hold real numbers; got dtype {arr.dtype} ({kind}); "
+                        f"convert it with .astype(np.float64)")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        hint = ""
+        if arr.ndim == 2 and arr.shape[0] == 3:
+            hint = "; if this is a (3, n) array of coordinates, pass its transpose .T"
+        raise ValueError(f"{name} must have shape (n, 3); got shape {arr.shape}{hint}")
+    out_dtype = np.dtype(np.float32) if arr.dtype == np.float32 else np.dtype(np.float64)
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{name} contains NaN or Inf in {int(bad.sum())} row(s); the first is "
+                         f"row {first}: {arr[first].tolist()}; drop or repair those rows")
+    return arr, out_dtype
+
+
+def as_normals(normals, n, name="normals"):
+    """Return ``normals`` as a unit-length ``(n, 3) float64`` array matching ``n`` points."""
+    arr, _ = as_points(normals, name)
+    if arr.shape[0] != n:
+        raise ValueError(f"{name} must have one row per point: got {arr.shape[0]} rows for "
+                         f"{n} points")
+    length = np.linalg.norm(arr, axis=1)
+    zero = ~(length > 0.0)
+    if zero.any():
+        first = int(np.flatnonzero(zero)[0])
+        raise ValueError(f"{name} has {int(zero.sum())} zero-length row(s), the first is row "
+                         f"{first}; pass normals=None to estimate them")
+    return arr / length[:, None]
+
+
+def check_k(k, n_points, minimum=MIN_K):
+    """Check the neighbour count against the cubic's needs and the cloud's size."""
+    k = check_int(k, "k", minimum=minimum)
+    if n_points < k + 1:
+        raise ValueError(f"need at least k + 1 = {k + 1} points for k = {k}; got {n_points} "
+                         f"points (lower k or pass a larger cloud)")
+    return k
+
+
+def check_int(value, name, minimum=None):
+    """Return ``value`` as an int, rejecting bools, floats and values below ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be an integer; got {value!r}")
+    value = int(value)
+    if minimum is not None and value < minimum:
+        raise ValueError(f"{name} must be at least {minimum}; got {value}")
+    return value
+
+
+def check_float(value, name, low=None, high=None, positive=False):
+    """Return ``value`` as a finite float within ``[low, high]`` (``> 0`` if ``positive``)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number; got {value!r}")
+    value = float(value)
+    if not np.isfinite(value):
+        raise ValueError(f"{name} must be finite; got {value}")
+    if positive and not value > 0.0:
+        raise ValueError(f"{name} must be positive; got {value}")
+    if (low is not None and value < low) or (high is not None and value > high):
+        raise ValueError(f"{name} must lie in [{low}, {high}]; got {value}")
+    return value
+
+
+def check_choice(value, name, choices):
+    """Check that ``value`` is one of ``choices`` (strings)."""
+    if value not in choices:
+        raise ValueError(f"unknown {name} {value!r}; choose one of "
+                         + ", ".join(repr(c) for c in choices))
+    return value

@@ -1,0 +1,243 @@
+"""The iteration schedule of the robust method and its result object."""
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import stages
+from ._threads import threads
+from ._validation import (
+    as_normals, as_points, check_choice, check_float, check_int, check_k,
+)
+from .graph import knn_graph, morton_order
+
+#: Methods :func:`denoise` offers.
+METHODS = ("robust",)
+
+#: Parameters of the robust method beyond the common ones, with their defaults.
+ROBUST_DEFAULTS = {
+    "h": None,
+    "radius_factor": 10.0,
+    "delta": 0.2,
+    "alpha": 0.3,
+    "beta": 0.3,
+    "likelihood": "exp",
+    "keep_normals": False,
+}
+
+
+@dataclass(frozen=True)
+class DenoiseResult:
+    """Output of :func:`denoise`; arrays are in the caller's point order and float dtype.
+
+    Attributes
+    ----------
+    points : (n, 3) ndarray
+        Denoised positions.
+    normals : (n, 3) ndarray
+        Filtered unit normals ``n*_i`` of the last iteration.
+    likelihood : (n,) ndarray
+        Sampling likelihood ``l_i`` of the last iteration.
+    feature_intensity : (n,) ndarray
+        Feature intensity ``s_i`` of the last iteration.
+    displacement : (n,) ndarray
+        ``|p_noisy - p_denoised|``, the quantity of the paper's Table 1 and Fig. 8.
+    stats : dict
+        ``"iterations"``: one dict per iteration with per-stage wall times in seconds
+        (``"times"``), the derived scales (``h``, ``mean_spacing``, ``region_radius``,
+        ``mean_residual``), fallback counts (``fit_degree`` counts of cubic, quadratic and
+        plane fits; ``degenerate_normals``), region sizes and the mean step; plus the run's
+        settings and ``"total_seconds"``. JSON-serialisable.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    likelihood: np.ndarray
+    feature_intensity: np.ndarray
+    displacement: np.ndarray
+    stats: dict = field(repr=False)
+
+
+def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.5, n_jobs=None,
+            **method_params):
+    """Denoise a point-sampled surface while keeping its sharp features.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Noisy coordinates, float32 or float64 (other real dtypes are computed as float64).
+        Never modified.
+    normals : array_like, shape (n, 3), optional
+        Normals of the input points (any length but zero; only local sign consistency matters).
+        Used in the first iteration (in every iteration with ``keep_normals=True``); otherwise
+        normals are estimated by PCA from the current positions in each iteration, oriented
+        like the previous ones.
+    method : {"robust"}, default "robust"
+        The paper's method.
+    iterations : int, default 2
+        Number of passes (paper: 1 to 3). Each recomputes everything from the current positions.
+    k : int, default 25
+        Neighbourhood size including the point itself (paper Section 2.2: ``k in [20, 35]``);
+        at least 10 and at most ``n - 1``.
+    lam : float, default 0.5
+        ``lambda`` in [0, 1] of Section 4.2: weight of the likelihood term against the feature
+        term in the step ``m_i``.
+    n_jobs : int or None, default None
+        Threads for the kernels: ``None`` or -1 use every thread numba may use (by default one
+        per core), a positive number that many (capped at that maximum). Numba's setting is
+        restored afterwards. The output does not depend on it.
+    **method_params
+        Parameters of the robust method (ALGORITHM.md):
+
+        h : float, optional
+            MLS Gaussian width (Section 2.1); default: mean distance to the k-th neighbour.
+        radius_factor : float, default 10
+            ``R = radius_factor * |E|`` for the region-grown ``N_R`` (Section 3).
+        delta, alpha, beta : float, default 0.2, 0.3, 0.3
+            Thresholds of eq. (3).
+        likelihood : {"exp", "ratio", "residual"}, default "exp"
+            Form of the sampling likelihood, eq. (2) (see :func:`sampling_likelihood`).
+        keep_normals : bool, default False
+            Use the given ``normals`` in every iteration instead of re-estimating them.
+
+    Returns
+    -------
+    DenoiseResult
+
+    Raises
+    ------
+    TypeError
+        Non-numeric or complex points, non-integer ``k``, ``iterations`` or ``n_jobs``, or an
+        unknown keyword in ``method_params``.
+    ValueError
+        Wrong shapes, NaN or Inf, too few points for ``k``, and parameters out of range.
+
+    Notes
+    -----
+    One iteration (paper Sections 2-4): kNN graph; normals; MLS cubic fit giving the projection
+    ``q_i`` and residual ``d_i``; sampling likelihood ``l_i``; feature intensity ``s_i`` from the
+    normal voting tensor over the region-grown ``N_R(i)``; bilateral filtering of the normals to
+    ``n*_i``; and the move ``p*_i = p_i + m_i |q_i - p_i| n*_i``. All quantities of an iteration
+    use the positions at its start (Jacobi updates). The points are processed in Morton order
+    for memory locality and returned in the caller's order.
+
+    References
+    ----------
+    .. [1] "Robust Denoising of Point-Sampled Surfaces" (the paper in ``shared/seed``), with
+       every ambiguity decided in ``docs/ALGORITHM.md``.
+    """
+    check_choice(method, "method", METHODS)
+    params = _robust_params(method_params)
+    pts, dtype = as_points(points)
+    n = pts.shape[0]
+    iterations = check_int(iterations, "iterations", minimum=1)
+    k = check_k(k, n)
+    lam = check_float(lam, "lam", low=0.0, high=1.0)
+    given = None if normals is None else as_normals(normals, n)
+    if params["keep_normals"] and given is None:
+        raise ValueError("keep_normals=True needs normals; pass normals=... or drop keep_normals")
+
+    started = time.perf_counter()
+    order = morton_order(pts)
+    current = pts[order]
+    given = None if given is None else given[order]
+    records = []
+    with threads(n_jobs) as n_threads:
+        prev_normals = None
+        for _ in range(iterations):
+            current, prev_normals, lik, feat, record = _robust_iteration(
+                current, given, prev_normals, k, lam, params)
+            if not params["keep_normals"]:
+                given = None
+            records.append(record)
+
+    inverse = np.empty_like(order)
+    inverse[order] = np.arange(n)
+    out = current[inverse]
+    stats = {
+        "method": method,
+        "n_points": n,
+        "k": k,
+        "lam": lam,
+        "n_iterations": iterations,
+        "params": dict(params),
+        "n_jobs": n_threads,
+        "iterations": records,
+        "total_seconds": time.perf_counter() - started,
+    }
+    return DenoiseResult(
+        points=out.astype(dtype, copy=False),
+        normals=prev_normals[inverse].astype(dtype, copy=False),
+        likelihood=lik[inverse].astype(dtype, copy=False),
+        feature_intensity=feat[inverse].astype(dtype, copy=False),
+        displacement=np.linalg.norm(out - pts, axis=1).astype(dtype, copy=False),
+        stats=stats,
+    )
+
+
+def _robust_params(method_params):
+    """Defaults overlaid with the caller's robust-method parameters, validated."""
+    unknown = sorted(set(method_params) - set(ROBUST_DEFAULTS))
+    if unknown:
+        raise TypeError(f"unknown parameter(s) {', '.join(unknown)} for method 'robust'; "
+                        f"valid: {', '.join(ROBUST_DEFAULTS)}")
+    params = {**ROBUST_DEFAULTS, **method_params}
+    if params["h"] is not None:
+        params["h"] = check_float(params["h"], "h", positive=True)
+    for name in ("radius_factor", "delta", "alpha", "beta"):
+        params[name] = check_float(params[name], name, positive=True)
+    check_choice(params["likelihood"], "likelihood", tuple(stages.LIKELIHOOD_FORMS))
+    if not isinstance(params["keep_normals"], (bool, np.bool_)):
+        raise TypeError(f"keep_normals must be True or False; got {params['keep_normals']!r}")
+    params["keep_normals"] = bool(params["keep_normals"])
+    return params
+
+
+def _robust_iteration(points, given, prev_normals, k, lam, params):
+    """One pass of the robust method over points in Morton order."""
+    times = {}
+    clock = time.perf_counter()
+
+    def lap(name):
+        nonlocal clock
+        now = time.perf_counter()
+        times[name] = now - clock
+        clock = now
+
+    graph = knn_graph(points, k)
+    lap("neighbors")
+    if given is not None:
+        nrm, degenerate = given, np.zeros(points.shape[0], np.bool_)
+    else:
+        hints = stages.outward_hints(points) if prev_normals is None else prev_normals
+        nrm, degenerate = stages._pca(points, graph, hints)
+    lap("normals")
+    h = params["h"] if params["h"] is not None else stages.default_h(graph)
+    proj, resid, degree = stages._mls(points, nrm, graph, h)
+    lap("mls")
+    lik, dbar = stages._likelihood(resid, params["likelihood"])
+    lap("likelihood")
+    spacing = stages.mean_spacing(graph)
+    radius = params["radius_factor"] * spacing
+    feat, region = stages._feature(points, nrm, graph, radius, params["delta"],
+                                   params["alpha"], params["beta"])
+    lap("feature")
+    filtered = stages._filter(points, nrm, graph)
+    lap("filter")
+    moved = stages._move(points, proj, filtered, lik, feat, lam)
+    lap("update")
+
+    counts = np.bincount(degree, minlength=4)
+    record = {
+        "times": times,
+        "h": h,
+        "mean_spacing": spacing,
+        "region_radius": radius,
+        "mean_residual": dbar,
+        "fit_degree": {name: int(counts[code]) for name, code in stages.FIT_DEGREES.items()},
+        "degenerate_normals": int(degenerate.sum()),
+        "region_size_mean": float(region.mean()),
+        "region_size_max": int(region.max()),
+        "mean_step": float(np.linalg.norm(moved - points, axis=1).mean()),
+    }
+    return moved, filtered, lik, feat, record

@@ -1,0 +1,166 @@
+"""The k-nearest-neighbour graph, stored as CSR arrays, built with pykdtree."""
+from typing import NamedTuple
+
+import numpy as np
+from pykdtree.kdtree import KDTree
+
+from ._threads import threads
+from ._validation import as_points, check_k
+from .kernels.graph import put_self_first
+
+_MORTON_BITS = 21  # per axis: 3 * 21 = 63 bits fit an unsigned 64-bit code
+
+
+class NeighborGraph(NamedTuple):
+    """A neighbour graph in CSR form: the list of point ``i`` is ``indices[indptr[i]:indptr[i+1]]``.
+
+    Attributes
+    ----------
+    indptr : (n + 1,) int64
+        Start of each point's list in ``indices``.
+    indices : (nnz,) int32 (int64 beyond 2**31 points)
+        Neighbour indices; each list is sorted by distance and starts with the point itself.
+    distances : (nnz,) float64
+        Euclidean distance from the point to each listed neighbour.
+    """
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    distances: np.ndarray
+
+    @property
+    def n_points(self):
+        """Number of points (rows)."""
+        return self.indptr.shape[0] - 1
+
+    def list_radius(self):
+        """``r_i``: distance from each point to the farthest member of its list, shape (n,)."""
+        return self.distances[self.indptr[1:] - 1]
+
+    def nearest_distance(self):
+        """Distance from each point to its nearest *other* listed point, shape (n,)."""
+        return self.distances[self.indptr[:-1] + 1]
+
+
+def morton_order(points):
+    """Permutation that sorts points along a Z-order (Morton) space-filling curve.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+        Finite coordinates.
+
+    Returns
+    -------
+    (n,) int64
+        ``points[order]`` visits the cloud along the curve, so that neighbours in space are
+        mostly neighbours in memory. Ties keep the input order (stable sort): deterministic.
+    """
+    low = points.min(axis=0)
+    extent = float((points.max(axis=0) - low).max())
+    scale = (2**_MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
+    cells = ((points - low) * scale).astype(np.uint64)
+    code = np.zeros(points.shape[0], np.uint64)
+    for axis in range(3):
+        code |= _spread_bits(cells[:, axis]) << np.uint64(axis)
+    return np.argsort(code, kind="stable")
+
+
+def _spread_bits(x):
+    """Insert two zero bits between each of the low 21 bits of ``x`` (uint64)."""
+    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
+                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
+        x = (x | (x << np.uint64(shift))) & np.uint64(mask)
+    return x
+
+
+def knn_graph(points, k):
+    """kNN graph of already validated, C-contiguous float64 points, in their own order."""
+    n = points.shape[0]
+    dists, idx = KDTree(points).query(points, k=k)
+    index_dtype = np.int32 if n < 2**31 else np.int64
+    indices = np.ascontiguousarray(idx, dtype=index_dtype)
+    dists = np.ascontiguousarray(dists, dtype=np.float64)
+    put_self_first(indices, dists)
+    indptr = np.arange(0, n * k + 1, k, dtype=np.int64)
+    return NeighborGraph(indptr, indices.reshape(-1), dists.reshape(-1))
+
+
+def neighbors(points, k=25, *, n_jobs=None):
+    """Build the k-nearest-neighbour graph of a point cloud.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Coordinates (any real dtype; computed in float64).
+    k : int, default 25
+        List length, counting the point itself (ALGORITHM.md: ``N_k(i)`` includes ``p_i``).
+        At least 10 (the cubic fit's 10 coefficients) and at most ``n - 1``.
+    n_jobs : int or None
+        Threads for the repair kernel (see :func:`pssd_fast.denoise`).
+
+    Returns
+    -------
+    NeighborGraph
+        CSR arrays ``(indptr, indices, distances)`` in the caller's point order; each list is
+        sorted by distance and starts with the point itself, also when exact duplicates tie with
+        it at distance 0.
+
+    Raises
+    ------
+    TypeError, ValueError
+        For malformed points or an invalid ``k``.
+
+    Notes
+    -----
+    The query runs on the points reordered along a Morton curve (better memory locality in
+    the tree and in later kernels); results are mapped back to the caller's order.
+    """
+    pts, _ = as_points(points)
+    k = check_k(k, pts.shape[0])
+    with threads(n_jobs):
+        return caller_order_graph(pts, k)
+
+
+def caller_order_graph(points, k):
+    """:func:`neighbors` on validated float64 points: query in Morton order, map back."""
+    n = points.shape[0]
+    order = morton_order(points)
+    graph = knn_graph(points[order], k)
+    indices = np.empty_like(graph.indices)
+    distances = np.empty_like(graph.distances)
+    indices.reshape(n, k)[order] = order[graph.indices.reshape(n, k)]
+    distances.reshape(n, k)[order] = graph.distances.reshape(n, k)
+    return NeighborGraph(graph.indptr, indices, distances)
+
+
+def check_graph(graph, n_points, min_list=2):
+    """Validate a caller-supplied graph for ``n_points`` points; return it with kernel dtypes."""
+    if not isinstance(graph, tuple) or len(graph) != 3:
+        raise TypeError("graph must be a NeighborGraph (indptr, indices, distances), as returned "
+                        f"by pssd_fast.neighbors; got {type(graph).__name__}")
+    indptr, indices, distances = (np.asarray(a) for a in graph)
+    if indptr.dtype.kind not in "iu" or indices.dtype.kind not in "iu":
+        raise TypeError("graph.indptr and graph.indices must be integer arrays; got "
+                        f"{indptr.dtype} and {indices.dtype}")
+    if indptr.shape != (n_points + 1,):
+        raise ValueError(f"graph.indptr must have shape ({n_points + 1},) for {n_points} points; "
+                         f"got {indptr.shape}: was the graph built for these points?")
+    lengths = np.diff(indptr)
+    if indptr[0] != 0 or (lengths < min_list).any():
+        raise ValueError(f"graph.indptr must start at 0 and give every list at least {min_list} "
+                         "entries")
+    nnz = int(indptr[-1])
+    if indices.shape != (nnz,) or distances.shape != (nnz,):
+        raise ValueError(f"graph.indices and graph.distances must have shape ({nnz},); got "
+                         f"{indices.shape} and {distances.shape}")
+    if nnz and (indices.min() < 0 or indices.max() >= n_points):
+        raise ValueError(f"graph.indices must lie in [0, {n_points}); was the graph built for "
+                         "these points?")
+    if (indices[indptr[:-1]] != np.arange(n_points)).any():
+        raise ValueError("every list of graph must start with the point itself, as "
+                         "pssd_fast.neighbors builds them")
+    index_dtype = np.int32 if n_points < 2**31 else np.int64
+    return NeighborGraph(np.ascontiguousarray(indptr, dtype=np.int64),
+                         np.ascontiguousarray(indices, dtype=index_dtype),
+                         np.ascontiguousarray(distances, dtype=np.float64))

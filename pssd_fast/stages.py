@@ -1,0 +1,299 @@
+"""The stages of the robust method as public functions, for tools that use pssd_fast as a backend.
+
+Each public function takes points in the caller's order (and optionally normals and a
+neighbour graph from :func:`pssd_fast.neighbors`, to share work between stages) and returns new
+arrays in the input's float dtype. The underscore functions are the same stages on validated
+float64 arrays, used by :func:`pssd_fast.denoise`.
+"""
+from typing import NamedTuple
+
+import numpy as np
+
+from ._threads import threads
+from ._validation import as_normals, as_points, check_choice, check_float, check_k
+from .graph import caller_order_graph, check_graph
+from .kernels import bilateral, feature, likelihood, mls, normals, update
+
+#: ``likelihood`` forms of ALGORITHM.md and their kernel codes.
+LIKELIHOOD_FORMS = {"exp": likelihood.EXP, "ratio": likelihood.RATIO,
+                    "residual": likelihood.RESIDUAL}
+#: Length of the list prefix used to grow ``N_R`` (the paper's 9 nearest neighbours).
+GROW_NEIGHBOURS = 9
+#: Fit degree codes of :class:`MLSFit` ``degree``.
+FIT_DEGREES = {"cubic": mls.CUBIC, "quadratic": mls.QUADRATIC, "plane": mls.PLANE}
+
+
+class MLSFit(NamedTuple):
+    """Result of :func:`mls_fit`.
+
+    Attributes
+    ----------
+    projections : (n, 3) ndarray
+        ``q_i``, each point projected onto its local MLS cubic.
+    residuals : (n,) ndarray
+        ``d_i``, the weighted mean distance of the neighbours to the fitted cubic.
+    degree : (n,) int8
+        Degree actually fitted: 3 (cubic), 2 (quadratic fallback) or 0 (plane fallback).
+    h : float
+        The kernel width used.
+    """
+
+    projections: np.ndarray
+    residuals: np.ndarray
+    degree: np.ndarray
+    h: float
+
+
+# --- stages on validated float64 arrays ------------------------------------------------------
+
+def default_h(graph):
+    """Default MLS width: the mean list radius ``r_i`` (1 if every list is a single location)."""
+    h = float(np.mean(graph.list_radius()))
+    return h if h > 0.0 else 1.0
+
+
+def mean_spacing(graph):
+    """``|E|``: mean distance from each point to its nearest other point."""
+    return float(np.mean(graph.nearest_distance()))
+
+
+def outward_hints(points):
+    """Orientation hints pointing away from the cloud's centroid (deterministic, outward for
+    star-shaped objects)."""
+    return points - points.mean(axis=0)
+
+
+def _pca(points, graph, hints):
+    out = np.empty_like(points)
+    degenerate = np.empty(points.shape[0], np.bool_)
+    normals.pca_normals(points, graph.indptr, graph.indices, hints, out, degenerate)
+    return out, degenerate
+
+
+def _mls(points, nrm, graph, h):
+    n = points.shape[0]
+    proj = np.empty_like(points)
+    resid = np.empty(n)
+    degree = np.empty(n, np.int8)
+    mls.mls_fit(points, nrm, graph.indptr, graph.indices, h, proj, resid, degree)
+    return proj, resid, degree
+
+
+def _likelihood(resid, form):
+    dbar = float(np.mean(resid))
+    out = np.empty_like(resid)
+    likelihood.sampling_likelihood(resid, dbar, LIKELIHOOD_FORMS[form], out)
+    return out, dbar
+
+
+def _feature(points, nrm, graph, radius, delta, alpha, beta):
+    n = points.shape[0]
+    out = np.empty(n)
+    size = np.empty(n, np.int64)
+    feature.feature_intensity(points, nrm, graph.indptr, graph.indices, radius, GROW_NEIGHBOURS,
+                              delta, alpha, beta, out, size)
+    return out, size
+
+
+def _filter(points, nrm, graph):
+    out = np.empty_like(points)
+    bilateral.filter_normals(points, nrm, graph.indptr, graph.indices, out)
+    return out
+
+
+def _move(points, proj, filtered, lik, feat, lam):
+    out = np.empty_like(points)
+    update.move_points(points, proj, filtered, lik, feat, lam, out)
+    return out
+
+
+# --- public stage functions -------------------------------------------------------------------
+
+def _graph(points, k, graph):
+    """The caller's graph, validated, or a new one."""
+    if graph is not None:
+        return check_graph(graph, points.shape[0])
+    return caller_order_graph(points, check_k(k, points.shape[0]))
+
+
+def _prepare(points, normals_, k, graph, n_jobs):
+    """Validate inputs; build the graph and estimate normals where not given."""
+    pts, dtype = as_points(points)
+    nrm = None if normals_ is None else as_normals(normals_, pts.shape[0])
+    with threads(n_jobs):
+        graph = _graph(pts, k, graph)
+        if nrm is None:
+            nrm, _ = _pca(pts, graph, outward_hints(pts))
+    return pts, dtype, nrm, graph
+
+
+def estimate_normals(points, *, k=25, graph=None, orient=None, n_jobs=None):
+    """Estimate unit normals by PCA over each point's ``k`` nearest neighbours.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Coordinates, float32 or float64 (other real dtypes are computed as float64).
+    k : int, default 25
+        Neighbourhood size including the point itself (ignored when ``graph`` is given).
+    graph : NeighborGraph, optional
+        Precomputed graph from :func:`pssd_fast.neighbors` for these points.
+    orient : array_like, shape (n, 3), optional
+        Reference directions: each normal is flipped to have a non-negative dot product with its
+        row. By default normals point away from the cloud's centroid (outward for star-shaped
+        objects); PCA alone fixes no sign.
+    n_jobs : int or None
+        Threads (see :func:`pssd_fast.denoise`).
+
+    Returns
+    -------
+    (n, 3) ndarray
+        Unit normals, in the input's float dtype.
+
+    Notes
+    -----
+    ALGORITHM.md step 0: the eigenvector of the smallest eigenvalue of the covariance of the
+    list about its centroid. Collinear or coincident lists have no plane; their normal is an
+    arbitrary but deterministic unit vector.
+    """
+    pts, dtype = as_points(points)
+    n = pts.shape[0]
+    hints = outward_hints(pts) if orient is None else as_points(orient, "orient")[0]
+    if hints.shape[0] != n:
+        raise ValueError(f"orient must have one row per point: got {hints.shape[0]} rows for "
+                         f"{n} points")
+    with threads(n_jobs):
+        out, _ = _pca(pts, _graph(pts, k, graph), hints)
+    return out.astype(dtype, copy=False)
+
+
+def mls_fit(points, normals=None, *, k=25, h=None, graph=None, n_jobs=None):
+    """Fit the local MLS cubic of every point and project the point onto it.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Coordinates.
+    normals : array_like, shape (n, 3), optional
+        Normals orienting the reference planes; estimated by PCA when omitted.
+    k : int, default 25
+        Neighbourhood size including the point itself (the paper's ``k in [20, 35]``).
+    h : float, optional
+        Gaussian width of ``theta(d) = exp(-d^2 / h^2)``; default: the mean over all points of
+        the distance to the farthest of the ``k`` neighbours.
+    graph : NeighborGraph, optional
+        Precomputed graph from :func:`pssd_fast.neighbors`.
+    n_jobs : int or None
+        Threads (see :func:`pssd_fast.denoise`).
+
+    Returns
+    -------
+    MLSFit
+        Projections ``q_i``, residuals ``d_i``, fitted degree and ``h``.
+
+    Notes
+    -----
+    Paper Section 2.1 and eq. (1); ALGORITHM.md step 1. The reference plane is the weighted
+    centroid and smallest eigenvector of the weighted covariance (a one-step simplification of
+    Alexa et al.'s non-linear search). Neighbourhoods that cannot support a cubic (singular or
+    ill-conditioned 10x10 normal equations, e.g. collinear or duplicated points) fall back to
+    the quadratic, then to the plane ``g = 0``.
+    """
+    pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
+    h = default_h(graph) if h is None else check_float(h, "h", positive=True)
+    with threads(n_jobs):
+        proj, resid, degree = _mls(pts, nrm, graph, h)
+    return MLSFit(proj.astype(dtype, copy=False), resid.astype(dtype, copy=False), degree, h)
+
+
+def sampling_likelihood(points, normals=None, *, k=25, h=None, likelihood="exp", graph=None,
+                        n_jobs=None):
+    """Sampling likelihood ``l_i`` of each point (how likely it lies on the sampled surface).
+
+    Parameters
+    ----------
+    points, normals, k, h, graph, n_jobs
+        As in :func:`mls_fit`.
+    likelihood : {"exp", "ratio", "residual"}, default "exp"
+        Form of eq. (2), which is missing from the paper's text (ALGORITHM.md step 1):
+        ``"exp"``: ``exp(-d_i / dbar)``; ``"ratio"``: ``min(dbar / d_i, 1)``; ``"residual"``:
+        ``d_i / dbar`` (the opposite reading); ``dbar`` is the mean of ``d_i`` over the model.
+
+    Returns
+    -------
+    (n,) ndarray
+        ``l_i``; for ``"exp"`` and ``"ratio"`` in (0, 1], 1 on a clean surface.
+    """
+    check_choice(likelihood, "likelihood", tuple(LIKELIHOOD_FORMS))
+    fit = mls_fit(points, normals, k=k, h=h, graph=graph, n_jobs=n_jobs)
+    with threads(n_jobs):
+        out, _ = _likelihood(fit.residuals.astype(np.float64), likelihood)
+    return out.astype(fit.residuals.dtype, copy=False)
+
+
+def feature_intensity(points, normals=None, *, k=25, radius_factor=10.0, delta=0.2, alpha=0.3,
+                      beta=0.3, graph=None, n_jobs=None):
+    """Feature intensity ``s_i`` of eq. (3): about 0 on faces, about 1 on edges and corners.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Coordinates.
+    normals : array_like, shape (n, 3), optional
+        Unit normals; estimated by PCA when omitted. Only local sign consistency matters.
+    k : int, default 25
+        Size of the kNN lists; region growing uses their first 9 entries.
+    radius_factor : float, default 10
+        ``R = radius_factor * |E|``, ``|E|`` the mean nearest-neighbour distance (Section 3).
+    delta, alpha, beta : float, default 0.2, 0.3, 0.3
+        Thresholds of eq. (3).
+    graph : NeighborGraph, optional
+        Precomputed graph from :func:`pssd_fast.neighbors`.
+    n_jobs : int or None
+        Threads (see :func:`pssd_fast.denoise`).
+
+    Returns
+    -------
+    (n,) ndarray
+        ``s_i`` in [0, 1].
+
+    Notes
+    -----
+    Paper Section 3; ALGORITHM.md step 2. ``N_R(i)`` grows breadth-first through 9-nearest-
+    neighbour lists, keeping points within ``R`` of ``p_i``, so it does not jump across thin gaps
+    (Fig. 3). Each member votes ``n'_j`` (Page et al.) into ``T_i = sum u_j n'_j n'_j^T``.
+    """
+    radius_factor = check_float(radius_factor, "radius_factor", positive=True)
+    delta = check_float(delta, "delta", positive=True)
+    alpha = check_float(alpha, "alpha", positive=True)
+    beta = check_float(beta, "beta", positive=True)
+    pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
+    with threads(n_jobs):
+        out, _ = _feature(pts, nrm, graph, radius_factor * mean_spacing(graph), delta, alpha,
+                          beta)
+    return out.astype(dtype, copy=False)
+
+
+def filter_normals(points, normals=None, *, k=25, graph=None, n_jobs=None):
+    """Bilateral filter of the normals, eq. (4).
+
+    Parameters
+    ----------
+    points, normals, k, graph, n_jobs
+        As in :func:`feature_intensity`.
+
+    Returns
+    -------
+    (n, 3) ndarray
+        Filtered unit normals ``n*_i``, oriented like the input normals.
+
+    Notes
+    -----
+    Paper Section 4.1; ALGORITHM.md step 3: spatial Gaussian of width ``r_i / 2`` times a
+    Gaussian of the normal deviation angle whose width is that angle's standard deviation over
+    the list.
+    """
+    pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
+    with threads(n_jobs):
+        out = _filter(pts, nrm, graph)
+    return out.astype(dtype, copy=False)
