@@ -10,10 +10,12 @@ from .linalg import (
     DEGENERATE_RATIO, cholesky_prefix, cholesky_solve, orthonormal_basis, sym3_eigh,
 )
 
-# Relative ridge added to the diagonal of the normal equations.
-RIDGE = 1e-12
 # A Cholesky pivot fails when less than this fraction of its column's weighted energy is left
 # once the earlier basis functions are removed (the column is numerically dependent on them).
+# This threshold is the only regularisation: a diagonal ridge, as ALGORITHM.md first proposed,
+# lifts the pivot of a rank-deficient system above it whenever the null vector has little weight
+# on the last column (seen with 9 distinct locations in a list of duplicates), so the singular
+# cubic was accepted. See docs/DECISIONS.md.
 PIVOT_TOL = 1e-9
 
 # Fit degree codes written to ``degree``.
@@ -122,8 +124,6 @@ def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov
             b[p] += tp * z
             for q in range(p + 1):
                 a[p, q] += tp * phi[q]
-    for p in range(10):
-        a[p, p] *= 1.0 + RIDGE
 
     # Cubic if the whole system is well posed, else the quadratic, else the plane g = 0.
     rank = cholesky_prefix(a, 10, PIVOT_TOL)

@@ -1,0 +1,52 @@
+"""Shared small clouds: random surfaces and the degenerate cases every kernel must survive."""
+import numpy as np
+import pytest
+
+
+def wavy(n=400, noise=0.005, seed=0):
+    """A noisy height field z = 0.1 sin(3x) cos(2y) over the unit square."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 1, (n, 2))
+    z = 0.1 * np.sin(3 * xy[:, 0]) * np.cos(2 * xy[:, 1]) + rng.normal(0, noise, n)
+    return np.column_stack([xy, z])
+
+
+def sphere(n=300, noise=0.01, seed=1):
+    """Noisy points on the unit sphere, shifted off the origin."""
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 3))
+    p /= np.linalg.norm(p, axis=1)[:, None]
+    return p * (1 + rng.normal(0, noise, (n, 1))) + np.array([0.3, -0.2, 0.1])
+
+
+def plane(n=200, seed=2):
+    """Exactly planar points (z = 0): every residual is 0."""
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(0, 1, (n, 2)), np.zeros(n)])
+
+
+def collinear(n=60):
+    """Points on one line: no plane anywhere."""
+    t = np.linspace(0, 1, n)
+    return np.column_stack([t, 2 * t, -t])
+
+
+def duplicates(seed=3):
+    """A noisy surface with every point present three times (ties at distance 0)."""
+    return np.repeat(wavy(80, seed=seed), 3, axis=0)
+
+
+def tiny(seed=4):
+    """Eleven points, the fewest for k = 10."""
+    return wavy(11, seed=seed)
+
+
+CLOUDS = {"wavy": wavy, "sphere": sphere, "plane": plane, "collinear": collinear,
+          "duplicates": duplicates, "tiny": tiny}
+
+
+@pytest.fixture(params=sorted(CLOUDS))
+def cloud(request):
+    """(name, points, k) for each named cloud."""
+    points = CLOUDS[request.param]()
+    return request.param, points, min(25, len(points) - 1)

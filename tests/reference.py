@@ -1,0 +1,223 @@
+"""Slow, obvious implementations of every stage, written from docs/ALGORITHM.md.
+
+Python loops over points, ``np.linalg.eigh`` and ``np.linalg.lstsq``, sets and deques: no attempt
+at speed, so that each line can be checked against the text. The kernels must agree with these.
+Neighbour lists are passed as a list of integer arrays (``lists[i]`` = ``N_k(i)``, self first).
+"""
+from collections import deque
+
+import numpy as np
+
+# Decisions shared with the kernels (ALGORITHM.md and docs/DECISIONS.md).
+DEGENERATE_RATIO = 1e-12  # second covariance eigenvalue / largest below this: no plane
+FIT_TOL = 1e-9  # smallest eigenvalue of the column-normalised Gram matrix below this: singular
+
+
+def knn_lists(points, k):
+    """Brute-force k nearest neighbours (self included), sorted by distance, self first."""
+    lists, dists = [], []
+    for i in range(len(points)):
+        d = np.sqrt(((points - points[i]) ** 2).sum(axis=1))
+        # Sort by distance; among ties at distance 0 the point itself comes first.
+        order = np.lexsort((np.arange(len(points)) != i, d))[:k]
+        lists.append(order)
+        dists.append(d[order])
+    return lists, dists
+
+
+def graph_lists(graph):
+    """Split a CSR graph into per-point lists."""
+    indptr, indices = graph[0], graph[1]
+    return [indices[indptr[i]:indptr[i + 1]].astype(np.int64) for i in range(len(indptr) - 1)]
+
+
+def pca_normal(points, members):
+    """Smallest eigenvector of the covariance of ``points[members]`` about their centroid."""
+    x = points[members]
+    c = x - x.mean(axis=0)
+    w, v = np.linalg.eigh(c.T @ c)
+    return v[:, 0], w
+
+
+def pca_normals(points, lists):
+    return np.array([pca_normal(points, m)[0] for m in lists])
+
+
+def _basis(n):
+    """Any orthonormal pair perpendicular to n (the cubic fit does not depend on the choice)."""
+    helper = np.eye(3)[np.argmin(np.abs(n))]
+    u = np.cross(n, helper)
+    u /= np.linalg.norm(u)
+    return u, np.cross(n, u)
+
+
+def _monomials(x, y):
+    """Columns of eq. (1) in coefficient order a0..a9."""
+    return np.stack([np.ones_like(x), y, x, x * y, y * y, x * x, x * y * y, x * x * y, y ** 3,
+                     x ** 3], axis=1)
+
+
+def _well_posed(design, weights):
+    """Whether the weighted least-squares problem on ``design`` has a numerically full rank."""
+    gram = design.T @ (weights[:, None] * design)
+    diag = np.diag(gram)
+    if (diag <= 0).any():
+        return False
+    scaled = gram / np.sqrt(np.outer(diag, diag))
+    return np.linalg.eigvalsh(scaled).min() > FIT_TOL
+
+
+def mls_point(points, normals, members, i, h):
+    """MLS projection q_i, residual d_i and fitted degree of point i (ALGORITHM.md step 1)."""
+    rel = points[members] - points[i]
+    theta = np.exp(-(rel ** 2).sum(axis=1) / h ** 2)
+    centroid = (theta[:, None] * rel).sum(axis=0) / theta.sum()
+    dev = rel - centroid
+    w, v = np.linalg.eigh((theta[:, None] * dev).T @ dev)
+    plane_normal = v[:, 0] if w[1] > DEGENERATE_RATIO * w[2] else normals[i].copy()
+    if plane_normal @ normals[i] < 0:
+        plane_normal = -plane_normal
+    origin = (centroid @ plane_normal) * plane_normal
+    u, v2 = _basis(plane_normal)
+    radius = np.sqrt((rel ** 2).sum(axis=1)).max()
+    scale = radius if radius > 0 else 1.0
+    local = rel - origin
+    x, y, z = local @ u / scale, local @ v2 / scale, local @ plane_normal
+    design = _monomials(x, y)
+    coef = np.zeros(10)
+    degree = 0
+    for m, deg in ((10, 3), (6, 2)):
+        if _well_posed(design[:, :m], theta):
+            sw = np.sqrt(theta)
+            coef[:m] = np.linalg.lstsq(sw[:, None] * design[:, :m], sw * z, rcond=None)[0]
+            degree = deg
+            break
+    q = points[i] + origin + coef[0] * plane_normal
+    resid = (theta * np.abs(z - design @ coef)).sum() / theta.sum()
+    return q, resid, degree
+
+
+def mls_fit(points, normals, lists, h):
+    out = [mls_point(points, normals, m, i, h) for i, m in enumerate(lists)]
+    return (np.array([o[0] for o in out]), np.array([o[1] for o in out]),
+            np.array([o[2] for o in out]))
+
+
+def likelihood(resid, form):
+    """Eq. (2) as reconstructed in ALGORITHM.md."""
+    dbar = resid.mean()
+    out = np.empty_like(resid)
+    for i, d in enumerate(resid):
+        if form == "residual":
+            out[i] = d / dbar if dbar > 0 else 0.0
+        elif dbar == 0:
+            out[i] = 1.0
+        elif form == "exp":
+            out[i] = np.exp(-d / dbar)
+        else:
+            out[i] = min(dbar / d, 1.0) if d > 0 else 1.0
+    return out
+
+
+def region(points, lists, i, radius, n_vote=9):
+    """N_R(i) by the growing process of Section 3, as a list in discovery order."""
+    def near(j):
+        return np.linalg.norm(points[j] - points[i]) <= radius
+
+    members = [j for j in lists[i][:n_vote] if near(j)]
+    seen = set(members)
+    todo = deque(members)
+    while todo:
+        j = todo.popleft()
+        for cand in lists[j][:n_vote]:
+            if cand not in seen and near(cand):
+                seen.add(cand)
+                members.append(cand)
+                todo.append(cand)
+    return members
+
+
+def feature_point(points, normals, members, i, delta, alpha, beta):
+    """Feature intensity s_i of eq. (3) over the region ``members``."""
+    dist = np.array([np.linalg.norm(points[j] - points[i]) for j in members])
+    sigma = 2 * dist.max() / 3
+    tensor = np.zeros((3, 3))
+    total = np.zeros(3)
+    for j, d in zip(members, dist):
+        n = normals[j] if normals[j] @ normals[i] >= 0 else -normals[j]
+        v = points[i] - points[j]
+        w = np.cross(np.cross(v, n), v)
+        if np.linalg.norm(w) > 0 and d > 0:
+            w /= np.linalg.norm(w)
+            voted = 2 * (n @ w) * w - n
+        else:
+            voted = n
+        u = np.exp(-d / sigma) if sigma > 0 else 1.0
+        tensor += u * np.outer(voted, voted)
+        total += u * voted
+    w, v = np.linalg.eigh(tensor)
+    v3, v2, v1 = np.clip(w, 0, None)
+    e1 = v[:, 2]
+    nbar_len = np.linalg.norm(total)
+    align = abs(total @ e1) / nbar_len if nbar_len > 0 else 0.0
+    if align < delta:
+        return 1.0
+    if v3 > alpha * (v1 - v2) and v3 > beta * (v2 - v3):
+        return 1.0
+    return (v2 - v3) / v1
+
+
+def feature_intensity(points, normals, lists, radius, delta=0.2, alpha=0.3, beta=0.3):
+    s, sizes = [], []
+    for i in range(len(points)):
+        members = region(points, lists, i, radius)
+        s.append(feature_point(points, normals, members, i, delta, alpha, beta))
+        sizes.append(len(members))
+    return np.array(s), np.array(sizes)
+
+
+def filter_normals(points, normals, lists):
+    """Eq. (4) with sigma_c = r_i / 2 and sigma_s = std of the deviation angles."""
+    out = np.empty_like(normals)
+    for i, members in enumerate(lists):
+        flipped = np.array([normals[j] if normals[j] @ normals[i] >= 0 else -normals[j]
+                            for j in members])
+        dist = np.linalg.norm(points[members] - points[i], axis=1)
+        angle = np.arccos(np.clip(flipped @ normals[i], -1, 1))
+        sigma_c = dist.max() / 2
+        sigma_s = angle.std()
+        if sigma_s <= 1e-12:
+            out[i] = normals[i]
+            continue
+        wc = np.exp(-dist ** 2 / (2 * sigma_c ** 2)) if sigma_c > 0 else np.ones(len(members))
+        ws = np.exp(-angle ** 2 / (2 * sigma_s ** 2))
+        total = ((wc * ws)[:, None] * flipped).sum(axis=0)
+        out[i] = total / np.linalg.norm(total)
+    return out
+
+
+def move_points(points, proj, filtered, lik, feat, lam):
+    """Section 4.2: p* = p + (-1)^tau [lam e^-l + (1 - lam) e^-s] |q - p| n*."""
+    out = np.empty_like(points)
+    for i in range(len(points)):
+        diff = proj[i] - points[i]
+        tau = 0 if filtered[i] @ diff > 0 else 1
+        m = (-1) ** tau * (lam * np.exp(-lik[i]) + (1 - lam) * np.exp(-feat[i]))
+        out[i] = points[i] + m * np.linalg.norm(diff) * filtered[i]
+    return out
+
+
+def robust_iteration(points, normals, k, lam=0.5, form="exp", radius_factor=10.0):
+    """One full iteration of the robust method with brute-force neighbours."""
+    lists, dists = knn_lists(points, k)
+    if normals is None:
+        normals = pca_normals(points, lists)
+        hints = points - points.mean(axis=0)
+        normals *= np.where((normals * hints).sum(axis=1) < 0, -1.0, 1.0)[:, None]
+    h = np.mean([d[-1] for d in dists])
+    proj, resid, _ = mls_fit(points, normals, lists, h)
+    lik = likelihood(resid, form)
+    spacing = np.mean([d[1] for d in dists])
+    feat, _ = feature_intensity(points, normals, lists, radius_factor * spacing)
+    filtered = filter_normals(points, normals, lists)
+    return move_points(points, proj, filtered, lik, feat, lam), filtered, lik, feat

@@ -1,0 +1,165 @@
+"""The public denoise() call: agreement with the reference, determinism, dtypes, errors."""
+import numpy as np
+import pytest
+
+import pssd_fast
+
+from . import reference
+from .conftest import sphere, wavy
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    return wavy(500, noise=0.01, seed=11)
+
+
+def test_one_iteration_matches_the_reference(noisy):
+    result = pssd_fast.denoise(noisy, iterations=1, k=20)
+    ref_points, ref_normals, ref_lik, ref_feat = reference.robust_iteration(noisy, None, 20)
+    np.testing.assert_allclose(result.points, ref_points, atol=1e-9)
+    np.testing.assert_allclose(result.normals, ref_normals, atol=1e-8)
+    np.testing.assert_allclose(result.likelihood, ref_lik, atol=1e-9)
+    np.testing.assert_allclose(result.feature_intensity, ref_feat, atol=1e-9)
+    np.testing.assert_allclose(result.displacement, np.linalg.norm(ref_points - noisy, axis=1),
+                               atol=1e-9)
+
+
+def test_two_iterations_chain_the_reference(noisy):
+    given = np.tile([0.0, 0.0, 1.0], (len(noisy), 1))
+    result = pssd_fast.denoise(noisy, given, iterations=2, k=20, lam=0.3)
+    first, filtered, _, _ = reference.robust_iteration(noisy, given, 20, lam=0.3)
+    # The second pass re-estimates normals by PCA, oriented like the first pass's normals.
+    lists, _ = reference.knn_lists(first, 20)
+    pca = reference.pca_normals(first, lists)
+    pca *= np.where((pca * filtered).sum(axis=1) < 0, -1.0, 1.0)[:, None]
+    second, _, _, _ = reference.robust_iteration(first, pca, 20, lam=0.3)
+    np.testing.assert_allclose(result.points, second, atol=1e-8)
+    assert (result.normals[:, 2] > 0).all()  # the caller's orientation is kept
+
+
+def test_bit_identical_across_thread_counts_and_calls(noisy):
+    one = pssd_fast.denoise(noisy, n_jobs=1)
+    two = pssd_fast.denoise(noisy, n_jobs=2)
+    again = pssd_fast.denoise(noisy, n_jobs=2)
+    for field in ("points", "normals", "likelihood", "feature_intensity", "displacement"):
+        np.testing.assert_array_equal(getattr(one, field), getattr(two, field))
+        np.testing.assert_array_equal(getattr(two, field), getattr(again, field))
+
+
+def test_n_jobs_is_restored(noisy):
+    import numba
+
+    before = numba.get_num_threads()
+    pssd_fast.denoise(noisy, n_jobs=1)
+    assert numba.get_num_threads() == before
+    with pytest.raises(ValueError, match="n_jobs"):
+        pssd_fast.denoise(noisy, n_jobs=0)
+    assert numba.get_num_threads() == before
+
+
+def test_results_follow_the_callers_order():
+    points = sphere(400)
+    perm = np.random.default_rng(0).permutation(len(points))
+    a = pssd_fast.denoise(points)
+    b = pssd_fast.denoise(points[perm])
+    np.testing.assert_array_equal(a.points[perm], b.points)
+    np.testing.assert_array_equal(a.feature_intensity[perm], b.feature_intensity)
+
+
+def test_input_untouched_and_dtype_followed(noisy):
+    for dtype in (np.float64, np.float32):
+        points = noisy.astype(dtype)
+        copy = points.copy()
+        result = pssd_fast.denoise(points)
+        np.testing.assert_array_equal(points, copy)
+        for field in ("points", "normals", "likelihood", "feature_intensity", "displacement"):
+            assert getattr(result, field).dtype == dtype
+        assert result.points.shape == points.shape
+    # Integer and list input are computed in float64.
+    grid = (noisy * 1000).astype(np.int64)
+    assert pssd_fast.denoise(grid).points.dtype == np.float64
+    assert pssd_fast.denoise(noisy.tolist()).points.dtype == np.float64
+
+
+def test_float32_result_is_the_float64_result_rounded(noisy):
+    single = noisy.astype(np.float32)
+    np.testing.assert_array_equal(pssd_fast.denoise(single).points,
+                                  pssd_fast.denoise(single.astype(np.float64)).points.astype(
+                                      np.float32))
+
+
+def test_stats_describe_the_run(noisy):
+    result = pssd_fast.denoise(noisy, iterations=3)
+    stats = result.stats
+    assert stats["n_points"] == len(noisy) and len(stats["iterations"]) == 3
+    for record in stats["iterations"]:
+        assert set(record["times"]) == {"neighbors", "normals", "mls", "likelihood", "feature",
+                                        "filter", "update"}
+        assert sum(record["fit_degree"].values()) == len(noisy)
+        assert record["region_size_mean"] > 1
+    steps = [r["mean_step"] for r in stats["iterations"]]
+    assert steps[0] > steps[-1]  # the noise is removed in the first passes
+    import json
+
+    json.dumps(stats)
+
+
+def test_a_noisy_plane_gets_flatter():
+    rng = np.random.default_rng(12)
+    points = np.column_stack([rng.uniform(0, 1, (3000, 2)), rng.normal(0, 0.005, 3000)])
+    result = pssd_fast.denoise(points)
+    assert np.abs(result.points[:, 2]).mean() < 0.5 * np.abs(points[:, 2]).mean()
+    np.testing.assert_allclose(np.abs(result.normals[:, 2]), 1, atol=0.05)
+
+
+def test_keep_normals(noisy):
+    given = np.tile([0.0, 0.0, 2.0], (len(noisy), 1))  # any length is fine
+    kept = pssd_fast.denoise(noisy, given, keep_normals=True, iterations=2)
+    assert kept.stats["params"]["keep_normals"] is True
+    with pytest.raises(ValueError, match="keep_normals=True needs normals"):
+        pssd_fast.denoise(noisy, keep_normals=True)
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    ({"method": "magic"}, ValueError, "unknown method 'magic'"),
+    ({"likelihood": "cubic"}, ValueError, "unknown likelihood 'cubic'"),
+    ({"k": 5}, ValueError, "k must be at least 10"),
+    ({"k": 2.5}, TypeError, "k must be an integer"),
+    ({"k": 600}, ValueError, "need at least k"),
+    ({"lam": 1.5}, ValueError, r"lam must lie in \[0.0, 1.0\]"),
+    ({"iterations": 0}, ValueError, "iterations must be at least 1"),
+    ({"h": -1.0}, ValueError, "h must be positive"),
+    ({"radius_factor": 0}, ValueError, "radius_factor must be positive"),
+    ({"n_jobs": -3}, ValueError, "n_jobs"),
+    ({"smoothness": 1}, TypeError, "unknown parameter"),
+])
+def test_bad_parameters_are_named(noisy, kwargs, error, match):
+    with pytest.raises(error, match=match):
+        pssd_fast.denoise(noisy, **kwargs)
+
+
+@pytest.mark.parametrize("points, error, match", [
+    (np.zeros((50, 2)), ValueError, r"shape \(n, 3\)"),
+    (np.zeros((3, 50)), ValueError, "transpose"),
+    (np.zeros(30), ValueError, r"shape \(n, 3\)"),
+    (np.zeros((50, 3), complex), TypeError, "complex"),
+    (np.array([["a", "b", "c"]] * 30), TypeError, "real numbers"),
+    (np.where(np.arange(150).reshape(50, 3) == 70, np.nan, 1.0), ValueError,
+     "NaN or Inf in 1 row.*row 23"),
+])
+def test_bad_points_are_named(points, error, match):
+    with pytest.raises(error, match=match):
+        pssd_fast.denoise(points)
+
+
+def test_bad_normals_are_named(noisy):
+    with pytest.raises(ValueError, match="one row per point"):
+        pssd_fast.denoise(noisy, noisy[:10])
+    zero = np.ones_like(noisy)
+    zero[4] = 0
+    with pytest.raises(ValueError, match="zero-length.*row 4"):
+        pssd_fast.denoise(noisy, zero)
+
+
+def test_warmup_returns_seconds():
+    assert pssd_fast.warmup() >= 0.0

@@ -1,0 +1,75 @@
+"""The kNN graph: brute-force agreement, self first under ties, caller order, validation."""
+import numpy as np
+import pytest
+
+import pssd_fast
+from pssd_fast.graph import check_graph, morton_order
+
+from . import reference
+from .conftest import CLOUDS
+
+
+@pytest.mark.parametrize("name", sorted(CLOUDS))
+def test_neighbors_match_brute_force(name):
+    points = CLOUDS[name]()
+    k = min(25, len(points) - 1)
+    graph = pssd_fast.neighbors(points, k)
+    lists, dists = reference.knn_lists(points, k)
+    n = len(points)
+    np.testing.assert_array_equal(graph.indptr, np.arange(0, n * k + 1, k))
+    got = graph.indices.reshape(n, k)
+    got_d = graph.distances.reshape(n, k)
+    np.testing.assert_array_equal(got[:, 0], np.arange(n))
+    np.testing.assert_allclose(got_d, np.array(dists), rtol=1e-12, atol=1e-15)
+    assert np.all(np.diff(got_d, axis=1) >= 0)
+    # Same neighbour sets except where distances tie at the list's end.
+    for i in range(n):
+        exact = np.array(dists[i]) < np.array(dists[i])[-1]
+        assert set(np.array(lists[i])[exact]) <= set(got[i])
+    # Stored distances are the true distances of the stored indices.
+    np.testing.assert_allclose(
+        got_d, np.linalg.norm(points[got] - points[:, None, :], axis=2), rtol=1e-12, atol=1e-15)
+
+
+def test_self_first_with_more_twins_than_k():
+    points = np.repeat(CLOUDS["wavy"](40), 15, axis=0)  # 15 copies > k = 10
+    graph = pssd_fast.neighbors(points, 10)
+    rows = graph.indices.reshape(-1, 10)
+    np.testing.assert_array_equal(rows[:, 0], np.arange(len(points)))
+    np.testing.assert_array_equal(graph.distances, 0.0)
+    assert all(len(set(r)) == 10 for r in rows)
+
+
+def test_morton_order_is_a_locality_preserving_permutation():
+    points = CLOUDS["wavy"](2000)
+    order = morton_order(points)
+    np.testing.assert_array_equal(np.sort(order), np.arange(len(points)))
+    step = np.linalg.norm(np.diff(points[order], axis=0), axis=1).mean()
+    random_step = np.linalg.norm(np.diff(points, axis=0), axis=1).mean()
+    assert step < random_step / 5
+    np.testing.assert_array_equal(morton_order(np.zeros((5, 3))), np.arange(5))
+
+
+def test_neighbors_in_caller_order_for_any_permutation():
+    points = CLOUDS["sphere"]()
+    perm = np.random.default_rng(0).permutation(len(points))
+    a = pssd_fast.neighbors(points, 12)
+    b = pssd_fast.neighbors(points[perm], 12)
+    inv = np.argsort(perm)
+    rows_b = perm[b.indices.reshape(-1, 12)][inv]
+    np.testing.assert_array_equal(np.sort(a.indices.reshape(-1, 12), 1), np.sort(rows_b, 1))
+
+
+def test_check_graph_rejects_foreign_graphs():
+    points = CLOUDS["wavy"]()
+    graph = pssd_fast.neighbors(points, 12)
+    assert check_graph(graph, len(points)).indices.dtype == np.int32
+    with pytest.raises(TypeError, match="NeighborGraph"):
+        check_graph(graph.indices, len(points))
+    with pytest.raises(ValueError, match="built for these points"):
+        check_graph(graph, len(points) + 1)
+    shuffled = graph._replace(indices=np.roll(graph.indices, 1))
+    with pytest.raises(ValueError, match="start with the point itself"):
+        check_graph(shuffled, len(points))
+    with pytest.raises(ValueError, match=r"lie in \[0"):
+        check_graph(graph._replace(indices=graph.indices + len(points)), len(points))

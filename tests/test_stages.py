@@ -1,0 +1,216 @@
+"""Each kernel against its reference in tests/reference.py, on random and degenerate clouds."""
+import numpy as np
+import pytest
+
+import pssd_fast
+from pssd_fast import stages
+from pssd_fast.kernels import feature, normals
+
+from . import reference
+
+
+def _setup(points, k):
+    graph = pssd_fast.neighbors(points, k)
+    return graph, reference.graph_lists(graph)
+
+
+def _pca_reference(points, lists):
+    nrm = reference.pca_normals(points, lists)
+    hints = points - points.mean(axis=0)
+    return nrm * np.where((nrm * hints).sum(axis=1) < 0, -1.0, 1.0)[:, None]
+
+
+def _well_defined_normals(points, lists):
+    """Points whose PCA normal is unique (a clear smallest eigenvalue)."""
+    gaps = []
+    for m in lists:
+        w = reference.pca_normal(points, m)[1]
+        gaps.append(w[1] - w[0] > 1e-6 * max(w[2], 1e-300))
+    return np.array(gaps)
+
+
+def test_pca_normals(cloud):
+    name, points, k = cloud
+    graph, lists = _setup(points, k)
+    got = pssd_fast.estimate_normals(points, graph=graph)
+    ref = _pca_reference(points, lists)
+    np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0, atol=1e-12)
+    ok = _well_defined_normals(points, lists)
+    if name == "collinear":
+        assert not ok.any()
+        # No plane: any unit normal perpendicular to the line will do.
+        np.testing.assert_allclose(got @ np.array([1, 2, -1]) / np.sqrt(6), 0, atol=1e-12)
+        return
+    assert ok.mean() > 0.9
+    np.testing.assert_allclose(got[ok], ref[ok], atol=1e-9)
+
+
+def test_pca_normals_flag_degenerate_lists():
+    points = reference_points = np.repeat(np.eye(3), 12, axis=0)  # 3 locations, 12 copies each
+    graph = pssd_fast.neighbors(points, 11)
+    out = np.empty_like(points)
+    flags = np.empty(len(points), bool)
+    normals.pca_normals(points, graph.indptr, graph.indices, reference_points, out, flags)
+    assert flags.all()
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0)
+
+
+def _normals_for(name, points, lists):
+    """Normals the MLS and feature stages are fed: exact ones where PCA has none."""
+    if name == "collinear":
+        return np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    return _pca_reference(points, lists)
+
+
+def test_mls_fit(cloud):
+    name, points, k = cloud
+    graph, lists = _setup(points, k)
+    nrm = _normals_for(name, points, lists)
+    h = stages.default_h(graph)
+    fit = pssd_fast.mls_fit(points, nrm, graph=graph)
+    proj, resid, degree = reference.mls_fit(points, nrm, lists, h)
+    assert fit.h == h
+    np.testing.assert_array_equal(fit.degree, degree)
+    scale = np.ptp(points, axis=0).max()
+    np.testing.assert_allclose(fit.projections, proj, atol=1e-9 * scale, rtol=0)
+    np.testing.assert_allclose(fit.residuals, resid, atol=1e-9 * scale, rtol=0)
+    expected_degree = {"collinear": 0, "duplicates": 2, "tiny": 3}.get(name)
+    if expected_degree is not None:
+        assert (degree == expected_degree).all()
+    if name == "plane":
+        np.testing.assert_allclose(fit.residuals, 0, atol=1e-15)
+        np.testing.assert_allclose(fit.projections[:, 2], 0, atol=1e-15)
+
+
+def test_mls_fit_reproduces_planes_and_smooth_surfaces():
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(-1, 1, (300, 2))
+    tilted = np.column_stack([xy, 0.3 * xy[:, 0] - 0.7 * xy[:, 1] + 2.0]) @ np.array(
+        [[0.36, 0.48, -0.8], [-0.8, 0.6, 0.0], [0.48, 0.64, 0.6]])
+    fit = pssd_fast.mls_fit(tilted, k=20)
+    assert (fit.degree == 3).all()
+    np.testing.assert_allclose(fit.residuals, 0, atol=1e-12)
+    np.testing.assert_allclose(fit.projections, tilted, atol=1e-12)
+    # A smooth cubic height field: the local cubics follow it closely (no noise to remove).
+    cubic = np.column_stack([xy, 0.2 * xy[:, 0] ** 3 - 0.1 * xy[:, 0] * xy[:, 1] ** 2])
+    fit = pssd_fast.mls_fit(cubic, k=20)
+    assert np.abs(fit.projections - cubic).max() < 1e-3
+    assert fit.residuals.max() < 1e-3
+
+
+@pytest.mark.parametrize("form", ["exp", "ratio", "residual"])
+def test_likelihood_forms(form):
+    rng = np.random.default_rng(6)
+    resid = np.concatenate([rng.exponential(size=50), [0.0]])
+    out, dbar = stages._likelihood(resid, form)
+    assert dbar == resid.mean()
+    np.testing.assert_allclose(out, reference.likelihood(resid, form), rtol=1e-14)
+    zero, _ = stages._likelihood(np.zeros(5), form)
+    np.testing.assert_array_equal(zero, reference.likelihood(np.zeros(5), form))
+
+
+def test_sampling_likelihood_orders_points_by_residual():
+    points = reference_cloud = np.vstack([np.column_stack([np.random.default_rng(7).uniform(
+        0, 1, (300, 2)), np.zeros(300)])])
+    reference_cloud = reference_cloud.copy()
+    reference_cloud[:10, 2] += 0.05  # ten outliers above a clean plane
+    lik = pssd_fast.sampling_likelihood(reference_cloud, k=15)
+    fit = pssd_fast.mls_fit(reference_cloud, k=15)
+    assert np.all((lik > 0) & (lik <= 1))
+    order = np.argsort(fit.residuals)
+    assert np.all(np.diff(lik[order]) <= 0)
+    assert lik[:10].mean() < lik[10:].mean()
+    assert points is not reference_cloud
+
+
+def test_region_growing_matches_reference(cloud):
+    name, points, k = cloud
+    graph, lists = _setup(points, k)
+    radius = 10 * stages.mean_spacing(graph)
+    for i in range(0, len(points), max(1, len(points) // 25)):
+        queue = np.empty(4, np.int64)  # tiny on purpose: exercises the growth path
+        slots = np.empty(4, np.int64)
+        table = np.full(8, -1, np.int64)
+        count, queue, slots, table = feature.grow_region(
+            points, graph.indptr, graph.indices, i, radius * radius, 9, queue, slots, table)
+        assert list(queue[:count]) == reference.region(points, lists, i, radius)
+        assert (table >= 0).sum() == count
+
+
+def test_feature_intensity(cloud):
+    name, points, k = cloud
+    graph, lists = _setup(points, k)
+    nrm = _normals_for(name, points, lists)
+    radius = 10 * stages.mean_spacing(graph)
+    got = pssd_fast.feature_intensity(points, nrm, graph=graph)
+    ref, sizes = reference.feature_intensity(points, nrm, lists, radius)
+    _, got_sizes = stages._feature(points, nrm, graph, radius, 0.2, 0.3, 0.3)
+    np.testing.assert_array_equal(got_sizes, sizes)
+    assert np.all((got >= 0) & (got <= 1))
+    np.testing.assert_allclose(got, ref, atol=1e-9)
+    if name == "plane":
+        np.testing.assert_allclose(got, 0, atol=1e-12)
+
+
+def _corner_faces(axes):
+    """Grid samples of the unit squares spanned by pairs of ``axes`` at the origin, with normals."""
+    g = np.linspace(0, 1, 41)
+    u, v = (a.ravel() for a in np.meshgrid(g, g))
+    pts, nrm = [], []
+    for normal_axis in axes:
+        others = [a for a in range(3) if a != normal_axis]
+        p = np.zeros((u.size, 3))
+        p[:, others[0]], p[:, others[1]] = u, v
+        pts.append(p)
+        nrm.append(np.tile(np.eye(3)[normal_axis], (u.size, 1)))
+    points, normals_ = np.vstack(pts), np.vstack(nrm)
+    _, first = np.unique(points.round(12), axis=0, return_index=True)  # shared edges once
+    first.sort()
+    return points[first], normals_[first]
+
+
+def test_feature_intensity_on_a_fold_and_a_corner():
+    """Faces score 0, a 90-degree fold scores clearly, a corner of three faces scores 1."""
+    points, nrm = _corner_faces([2, 0])  # z = 0 and x = 0 half-planes: fold along y
+    s = pssd_fast.feature_intensity(points, nrm, k=12, radius_factor=3)
+    on_fold = (np.abs(points[:, [0, 2]]).max(axis=1) < 1e-9) & (np.abs(points[:, 1] - .5) < .3)
+    far = np.maximum(points[:, 0], points[:, 2]) > 0.3
+    assert s[on_fold].min() > 0.3
+    assert s[far].max() < 1e-6
+    points, nrm = _corner_faces([0, 1, 2])
+    s = pssd_fast.feature_intensity(points, nrm, k=12, radius_factor=3)
+    assert s[np.linalg.norm(points, axis=1) < 1e-9] == pytest.approx([1.0])
+
+
+def test_filter_normals(cloud):
+    name, points, k = cloud
+    graph, lists = _setup(points, k)
+    nrm = _normals_for(name, points, lists)
+    rng = np.random.default_rng(8)
+    # Perturb and flip some normals: the filter must cope with inconsistent signs.
+    noisy = nrm + rng.normal(0, 0.1, nrm.shape)
+    noisy /= np.linalg.norm(noisy, axis=1)[:, None]
+    noisy[::3] *= -1
+    got = pssd_fast.filter_normals(points, noisy, graph=graph)
+    # acos amplifies rounding near agreement (d acos/dx is infinite at 1): 1e-16 in a dot
+    # product becomes ~1e-8 in an angle, so the tolerance is looser than elsewhere.
+    np.testing.assert_allclose(got, reference.filter_normals(points, noisy, lists), atol=1e-8)
+    assert np.all((got * noisy).sum(axis=1) > 0)
+    same = pssd_fast.filter_normals(points, nrm if name == "collinear" else np.tile(
+        [0, 0, 1.0], (len(points), 1)), graph=graph)
+    np.testing.assert_allclose(np.abs(same[:, 2]), 1.0)
+
+
+def test_move_points():
+    rng = np.random.default_rng(9)
+    n = 200
+    points, proj = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    filtered = rng.normal(size=(n, 3))
+    filtered /= np.linalg.norm(filtered, axis=1)[:, None]
+    lik, feat = rng.uniform(size=n), rng.uniform(size=n)
+    proj[0] = points[0]  # no offset: no move
+    for lam in (0.0, 0.3, 1.0):
+        got = stages._move(points, proj, filtered, lik, feat, lam)
+        ref = reference.move_points(points, proj, filtered, lik, feat, lam)
+        np.testing.assert_allclose(got, ref, atol=1e-14)
+        np.testing.assert_array_equal(got[0], points[0])
