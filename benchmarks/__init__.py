@@ -1,0 +1,1 @@
+"""Benchmarks of pssd_fast: run as scripts (``python -m benchmarks.stages``) or with pytest."""

@@ -1,0 +1,112 @@
+"""Per-stage time of one robust iteration, next to pykdtree's kNN query on the same points.
+
+Usage::
+
+    python -m benchmarks.stages [--sizes 100000 1000000] [--repeats 3] [--n-jobs N]
+
+Prints a markdown table and writes it, with the raw numbers as JSON, to ``benchmarks/results/``.
+Times are the best of ``--repeats`` warm runs (JIT compilation excluded and reported apart); the
+ratio column divides by the kNN query time measured in the same run, because absolute times on
+shared machines drift.
+"""
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numba
+import numpy as np
+from pykdtree.kdtree import KDTree
+
+import pssd_fast
+from pssd_fast import datasets
+
+RESULTS = Path(__file__).resolve().parent / "results"
+STAGES = ("neighbors", "normals", "mls", "likelihood", "feature", "filter", "update")
+
+
+def knn_query_seconds(points, k):
+    """Wall time of building pykdtree's tree and querying every point's k neighbours."""
+    started = time.perf_counter()
+    KDTree(points).query(points, k=k)
+    return time.perf_counter() - started
+
+
+def reference_seconds(points, k):
+    """The kNN query on the points as given and on the points in Morton order.
+
+    The generated cloud comes in random order, where the query is several times slower than on
+    spatially sorted points; the ratio column uses the faster (Morton-order) query, the stricter
+    reference.
+    """
+    return {"knn_query_input_order": knn_query_seconds(points, k),
+            "knn_query": knn_query_seconds(points[pssd_fast.morton_order(points)], k)}
+
+
+def measure(n_points, k, repeats, n_jobs, noise):
+    cloud = datasets.cad_part(n_points=n_points, noise=noise, seed=0)
+    points = cloud.points
+    best = {stage: np.inf for stage in STAGES}
+    best["total"] = best["knn_query"] = best["knn_query_input_order"] = np.inf
+    for _ in range(repeats):
+        for name, seconds in reference_seconds(points, k).items():
+            best[name] = min(best[name], seconds)
+        started = time.perf_counter()
+        result = pssd_fast.denoise(points, iterations=1, k=k, n_jobs=n_jobs)
+        best["total"] = min(best["total"], time.perf_counter() - started)
+        for stage, seconds in result.stats["iterations"][0]["times"].items():
+            best[stage] = min(best[stage], seconds)
+    return best
+
+
+def machine():
+    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores "
+            f"({numba.get_num_threads()} numba threads), Python {platform.python_version()}, "
+            f"numba {numba.__version__}, numpy {np.__version__}")
+
+
+def table(rows, k):
+    head = ("| points | kNN query, input order (s) | kNN query, Morton order (s) | "
+            + " | ".join(STAGES) + " | iteration (s) | iteration / kNN |")
+    lines = [head, "|" + "---|" * (len(STAGES) + 5)]
+    for n, t in rows.items():
+        cells = " | ".join(f"{t[s]:.3f}" for s in STAGES)
+        lines.append(f"| {n:,} | {t['knn_query_input_order']:.3f} | {t['knn_query']:.3f} | "
+                     f"{cells} | {t['total']:.3f} | {t['total'] / t['knn_query']:.1f} |")
+    return "\n".join(lines) + f"\n\nStage times in seconds, one robust iteration, k={k}.\n"
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[100_000, 1_000_000])
+    parser.add_argument("--k", type=int, default=25)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--n-jobs", type=int, default=None)
+    parser.add_argument("--noise", type=float, default=0.005)
+    args = parser.parse_args(argv)
+
+    compile_seconds = pssd_fast.warmup()
+    rows = {n: measure(n, args.k, args.repeats, args.n_jobs, args.noise) for n in args.sizes}
+    text = (f"Machine: {machine()}\n\nInput: the generated CAD part, noise {args.noise:.2%} of "
+            f"the diagonal. Warm-up (compile or cache load): {compile_seconds:.1f} s.\n\n"
+            + table(rows, args.k))
+    print(text)
+    RESULTS.mkdir(exist_ok=True)
+    _write(RESULTS / "stages.md", text)
+    _write(RESULTS / "stages.json", json.dumps(
+        {"machine": machine(), "k": args.k, "noise": args.noise,
+         "compile_seconds": compile_seconds, "seconds": {str(n): t for n, t in rows.items()}},
+        indent=2))
+
+
+def _write(path, text):
+    """Write through a temporary file and rename, so a crash leaves no half-written result."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+if __name__ == "__main__":
+    main()
