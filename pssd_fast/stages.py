@@ -199,8 +199,9 @@ def mls_fit(points, normals=None, *, k=25, h=None, graph=None, n_jobs=None):
     ill-conditioned 10x10 normal equations, e.g. collinear or duplicated points) fall back to
     the quadratic, then to the plane ``g = 0``.
     """
+    h = None if h is None else check_float(h, "h", positive=True)
     pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
-    h = default_h(graph) if h is None else check_float(h, "h", positive=True)
+    h = default_h(graph) if h is None else h
     with threads(n_jobs):
         proj, resid, degree = _mls(pts, nrm, graph, h)
     return MLSFit(proj.astype(dtype, copy=False), resid.astype(dtype, copy=False), degree, h)
@@ -225,10 +226,13 @@ def sampling_likelihood(points, normals=None, *, k=25, h=None, likelihood="exp",
         ``l_i``; for ``"exp"`` and ``"ratio"`` in (0, 1], 1 on a clean surface.
     """
     check_choice(likelihood, "likelihood", tuple(LIKELIHOOD_FORMS))
-    fit = mls_fit(points, normals, k=k, h=h, graph=graph, n_jobs=n_jobs)
+    h = None if h is None else check_float(h, "h", positive=True)
+    pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
+    h = default_h(graph) if h is None else h
     with threads(n_jobs):
-        out, _ = _likelihood(fit.residuals.astype(np.float64), likelihood)
-    return out.astype(fit.residuals.dtype, copy=False)
+        _, resid, _ = _mls(pts, nrm, graph, h)
+        out, _ = _likelihood(resid, likelihood)
+    return out.astype(dtype, copy=False)
 
 
 def feature_intensity(points, normals=None, *, k=25, radius_factor=10.0, delta=0.2, alpha=0.3,

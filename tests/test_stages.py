@@ -7,6 +7,7 @@ from pssd_fast import stages
 from pssd_fast.kernels import feature, normals
 
 from . import reference
+from .conftest import plane, sphere, wavy
 
 
 def _setup(points, k):
@@ -46,11 +47,11 @@ def test_pca_normals(cloud):
 
 
 def test_pca_normals_flag_degenerate_lists():
-    points = reference_points = np.repeat(np.eye(3), 12, axis=0)  # 3 locations, 12 copies each
+    points = np.repeat(np.eye(3), 12, axis=0)  # 3 locations, 12 copies each
     graph = pssd_fast.neighbors(points, 11)
     out = np.empty_like(points)
     flags = np.empty(len(points), bool)
-    normals.pca_normals(points, graph.indptr, graph.indices, reference_points, out, flags)
+    normals.pca_normals(points, graph.indptr, graph.indices, points, out, flags)
     assert flags.all()
     np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0)
 
@@ -110,17 +111,14 @@ def test_likelihood_forms(form):
 
 
 def test_sampling_likelihood_orders_points_by_residual():
-    points = reference_cloud = np.vstack([np.column_stack([np.random.default_rng(7).uniform(
-        0, 1, (300, 2)), np.zeros(300)])])
-    reference_cloud = reference_cloud.copy()
-    reference_cloud[:10, 2] += 0.05  # ten outliers above a clean plane
-    lik = pssd_fast.sampling_likelihood(reference_cloud, k=15)
-    fit = pssd_fast.mls_fit(reference_cloud, k=15)
+    points = plane(300, seed=7)
+    points[:10, 2] += 0.05  # ten outliers above a clean plane
+    lik = pssd_fast.sampling_likelihood(points, k=15)
+    fit = pssd_fast.mls_fit(points, k=15)
     assert np.all((lik > 0) & (lik <= 1))
     order = np.argsort(fit.residuals)
     assert np.all(np.diff(lik[order]) <= 0)
     assert lik[:10].mean() < lik[10:].mean()
-    assert points is not reference_cloud
 
 
 def test_region_growing_matches_reference(cloud):
@@ -214,3 +212,37 @@ def test_move_points():
         ref = reference.move_points(points, proj, filtered, lik, feat, lam)
         np.testing.assert_allclose(got, ref, atol=1e-14)
         np.testing.assert_array_equal(got[0], points[0])
+
+
+def test_estimate_normals_follows_orient():
+    points = sphere()
+    inward = -(points - points.mean(axis=0))
+    out = pssd_fast.estimate_normals(points, orient=inward)
+    assert ((out * inward).sum(axis=1) >= 0).all()
+    default = pssd_fast.estimate_normals(points)
+    np.testing.assert_allclose(default, -out, atol=1e-12)
+
+
+@pytest.mark.parametrize("call, error, match", [
+    (lambda p: pssd_fast.mls_fit(p, h=0.0), ValueError, "h must be positive"),
+    (lambda p: pssd_fast.sampling_likelihood(p, likelihood="max"), ValueError,
+     "unknown likelihood"),
+    (lambda p: pssd_fast.feature_intensity(p, delta=-1), ValueError, "delta must be positive"),
+    (lambda p: pssd_fast.estimate_normals(p, orient=p[:5]), ValueError, "orient must have one"),
+    (lambda p: pssd_fast.filter_normals(p, graph=pssd_fast.neighbors(p[:100], 10)), ValueError,
+     "built for these points"),
+    (lambda p: pssd_fast.neighbors(p, k=9), ValueError, "k must be at least 10"),
+])
+def test_stage_arguments_are_checked(call, error, match):
+    with pytest.raises(error, match=match):
+        call(wavy())
+
+
+def test_stages_follow_the_input_dtype():
+    single = wavy().astype(np.float32)
+    assert pssd_fast.estimate_normals(single).dtype == np.float32
+    assert pssd_fast.sampling_likelihood(single).dtype == np.float32
+    assert pssd_fast.feature_intensity(single).dtype == np.float32
+    assert pssd_fast.filter_normals(single).dtype == np.float32
+    fit = pssd_fast.mls_fit(single)
+    assert fit.projections.dtype == fit.residuals.dtype == np.float32
