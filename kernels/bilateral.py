@@ -1,4 +1,4 @@
-"""Bilateral filtering of normals (ALGORITHM.md, step 3; paper Section 4.1, eq. (4))."""
+"""Bilateral filters: of normals (ALGORITHM.md step 3, eq. (4)) and of points (the BIL baseline)."""
 import math
 
 import numpy as np
@@ -93,3 +93,81 @@ def filter_normals(points, normals, indptr, indices, out):
         angle = np.empty(longest)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             _filter_point(i, points, normals, indptr, indices, dist2, angle, out)
+
+
+@helper
+def _bil_point(i, points, normals, indptr, indices, sigma_c, sigma_s, heights, out):
+    px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+    nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+    start = indptr[i]
+    count = indptr[i + 1] - start
+    r2 = 0.0
+    mean = 0.0
+    for t in range(count):
+        j = indices[start + t]
+        dx = points[j, 0] - px
+        dy = points[j, 1] - py
+        dz = points[j, 2] - pz
+        r2 = max(r2, dx * dx + dy * dy + dz * dz)
+        h = nx * dx + ny * dy + nz * dz
+        heights[t] = h
+        mean += h
+    mean /= count
+    if sigma_s > 0.0:
+        spread = sigma_s
+    else:
+        var = 0.0
+        for t in range(count):
+            var += (heights[t] - mean) ** 2
+        spread = math.sqrt(var / count)
+    if sigma_c > 0.0:
+        inv_c = 0.5 / (sigma_c * sigma_c)
+    else:
+        inv_c = 2.0 / r2 if r2 > 0.0 else 0.0
+    inv_s = 0.5 / (spread * spread) if spread > 0.0 else 0.0
+    total = 0.0
+    weight = 0.0
+    for t in range(count):
+        j = indices[start + t]
+        dx = points[j, 0] - px
+        dy = points[j, 1] - py
+        dz = points[j, 2] - pz
+        h = heights[t]
+        wgt = math.exp(-(dx * dx + dy * dy + dz * dz) * inv_c - h * h * inv_s)
+        total += wgt * h
+        weight += wgt
+    step = total / weight
+    out[i, 0] = px + step * nx
+    out[i, 1] = py + step * ny
+    out[i, 2] = pz + step * nz
+
+
+@parallel_kernel
+def filter_points(points, normals, indptr, indices, sigma_c, sigma_s, out):
+    """Bilateral point filter, the BIL baseline of Section 5 (after Fleishman et al. 2003).
+
+    Parameters
+    ----------
+    points, normals : (n, 3) float64
+        Positions and unit normals ``n_i``.
+    indptr, indices : CSR neighbour graph (each list contains the point itself)
+    sigma_c : float
+        Spatial width; 0 or less means per point ``r_i / 2`` (``r_i`` the list radius).
+    sigma_s : float
+        Range width over the heights ``t_j``; 0 or less means per point the population
+        standard deviation of the ``t_j``.
+    out : (n, 3) float64
+        Output ``p*_i = p_i + n_i sum_j w_c w_s t_j / sum_j w_c w_s`` with
+        ``t_j = n_i . (p_j - p_i)``.
+
+    Notes
+    -----
+    A zero spread (all heights equal) or a zero list radius makes that weight 1; the point
+    itself (``t = 0``, weight 1) keeps the sum of weights positive.
+    """
+    n = points.shape[0]
+    longest = max_degree(indptr)
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        heights = np.empty(longest)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            _bil_point(i, points, normals, indptr, indices, sigma_c, sigma_s, heights, out)

@@ -1,6 +1,7 @@
 """The iteration schedule of the robust method and its result object."""
 import time
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -11,19 +12,15 @@ from ._validation import (
 )
 from .graph import knn_graph, morton_order
 
-#: Methods :func:`denoise` offers.
-METHODS = ("robust",)
-
-#: Parameters of the robust method beyond the common ones, with their defaults.
-ROBUST_DEFAULTS = {
-    "h": None,
-    "radius_factor": 10.0,
-    "delta": 0.2,
-    "alpha": 0.3,
-    "beta": 0.3,
-    "likelihood": "exp",
-    "keep_normals": False,
+#: Parameters of each method beyond the common ones, with their defaults.
+METHOD_DEFAULTS = {
+    "robust": {"h": None, "radius_factor": 10.0, "delta": 0.2, "alpha": 0.3, "beta": 0.3,
+               "likelihood": "exp", "keep_normals": False},
+    "bilateral": {"sigma_c": None, "sigma_s": None, "keep_normals": False},
+    "mls": {"h": None, "keep_normals": False},
 }
+#: Methods :func:`denoise` offers.
+METHODS = tuple(METHOD_DEFAULTS)
 
 
 @dataclass(frozen=True)
@@ -35,11 +32,12 @@ class DenoiseResult:
     points : (n, 3) ndarray
         Denoised positions.
     normals : (n, 3) ndarray
-        Filtered unit normals ``n*_i`` of the last iteration.
-    likelihood : (n,) ndarray
-        Sampling likelihood ``l_i`` of the last iteration.
-    feature_intensity : (n,) ndarray
-        Feature intensity ``s_i`` of the last iteration.
+        Robust method: the filtered unit normals ``n*_i`` of the last iteration. Baselines: the
+        normals the last iteration used.
+    likelihood : (n,) ndarray or None
+        Sampling likelihood ``l_i`` of the last iteration (robust method only).
+    feature_intensity : (n,) ndarray or None
+        Feature intensity ``s_i`` of the last iteration (robust method only).
     displacement : (n,) ndarray
         ``|p_noisy - p_denoised|``, the quantity of the paper's Table 1 and Fig. 8.
     stats : dict
@@ -52,8 +50,8 @@ class DenoiseResult:
 
     points: np.ndarray
     normals: np.ndarray
-    likelihood: np.ndarray
-    feature_intensity: np.ndarray
+    likelihood: Optional[np.ndarray]
+    feature_intensity: Optional[np.ndarray]
     displacement: np.ndarray
     stats: dict = field(repr=False)
 
@@ -72,8 +70,10 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
         Used in the first iteration (in every iteration with ``keep_normals=True``); otherwise
         normals are estimated by PCA from the current positions in each iteration, oriented
         like the previous ones.
-    method : {"robust"}, default "robust"
-        The paper's method.
+    method : {"robust", "bilateral", "mls"}, default "robust"
+        ``"robust"``: the paper's method. The paper's two baselines (Section 5, ALGORITHM.md):
+        ``"bilateral"`` (BIL) moves each point along its normal by the bilateral mean of its
+        neighbours' heights; ``"mls"`` moves it to its MLS projection ``q_i``.
     iterations : int, default 2
         Number of passes (paper: 1 to 3). Each recomputes everything from the current positions.
     k : int, default 25
@@ -87,7 +87,7 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
         per core), a positive number that many (capped at that maximum). Numba's setting is
         restored afterwards. The output does not depend on it.
     **method_params
-        Parameters of the robust method (ALGORITHM.md):
+        Parameters of the chosen method (ALGORITHM.md). ``"robust"``:
 
         h : float, optional
             MLS Gaussian width (Section 2.1); default: mean distance to the k-th neighbour.
@@ -99,6 +99,12 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
             Form of the sampling likelihood, eq. (2) (see :func:`sampling_likelihood`).
         keep_normals : bool, default False
             Use the given ``normals`` in every iteration instead of re-estimating them.
+
+        ``"mls"``: ``h`` and ``keep_normals`` as above. ``"bilateral"``: ``keep_normals`` and
+
+        sigma_c, sigma_s : float, optional
+            Spatial and height widths of the bilateral weights; default, per point: half the
+            list radius and the standard deviation of the neighbours' heights.
 
     Returns
     -------
@@ -114,7 +120,7 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
 
     Notes
     -----
-    One iteration (paper Sections 2-4): kNN graph; normals; MLS cubic fit giving the projection
+    One robust iteration (paper Sections 2-4): kNN graph; normals; MLS cubic fit giving the projection
     ``q_i`` and residual ``d_i``; sampling likelihood ``l_i``; feature intensity ``s_i`` from the
     normal voting tensor over the region-grown ``N_R(i)``; bilateral filtering of the normals to
     ``n*_i``; and the move ``p*_i = p_i + m_i |q_i - p_i| n*_i``. All quantities of an iteration
@@ -127,7 +133,7 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
        every ambiguity decided in ``docs/ALGORITHM.md``.
     """
     check_choice(method, "method", METHODS)
-    params = _robust_params(method_params)
+    params = _method_params(method, method_params)
     pts, dtype = as_points(points)
     n = pts.shape[0]
     iterations = check_int(iterations, "iterations", minimum=1)
@@ -141,15 +147,28 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
     order = morton_order(pts)
     current = pts[order]
     given = None if given is None else given[order]
+    step = _STEPS[method]
     records = []
     with threads(n_jobs) as n_threads:
-        prev_normals = None
+        out_normals = None
         for _ in range(iterations):
-            current, prev_normals, lik, feat, record = _robust_iteration(
-                current, given, prev_normals, k, lam, params)
+            clock = time.perf_counter()
+            graph = knn_graph(current, k)
+            times = {"neighbors": time.perf_counter() - clock}
+            clock = time.perf_counter()
+            if given is not None:
+                nrm, degenerate = given, np.zeros(n, np.bool_)
+            else:
+                hints = stages.outward_hints(current) if out_normals is None else out_normals
+                nrm, degenerate = stages._pca(current, graph, hints)
+            times["normals"] = time.perf_counter() - clock
+            moved, out_normals, extra, record = step(current, nrm, graph, lam, params, times)
+            record["degenerate_normals"] = int(degenerate.sum())
+            record["mean_step"] = float(np.linalg.norm(moved - current, axis=1).mean())
+            records.append(record)
+            current = moved
             if not params["keep_normals"]:
                 given = None
-            records.append(record)
 
     inverse = np.empty_like(order)
     inverse[order] = np.arange(n)
@@ -165,79 +184,86 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
         "iterations": records,
         "total_seconds": time.perf_counter() - started,
     }
+    lik, feat = (None, None) if extra is None else (x[inverse].astype(dtype) for x in extra)
     return DenoiseResult(
         points=out.astype(dtype, copy=False),
-        normals=prev_normals[inverse].astype(dtype, copy=False),
-        likelihood=lik[inverse].astype(dtype, copy=False),
-        feature_intensity=feat[inverse].astype(dtype, copy=False),
+        normals=out_normals[inverse].astype(dtype, copy=False),
+        likelihood=lik,
+        feature_intensity=feat,
         displacement=np.linalg.norm(out - pts, axis=1).astype(dtype, copy=False),
         stats=stats,
     )
 
 
-def _robust_params(method_params):
-    """Defaults overlaid with the caller's robust-method parameters, validated."""
-    unknown = sorted(set(method_params) - set(ROBUST_DEFAULTS))
+def _method_params(method, method_params):
+    """The method's defaults overlaid with the caller's parameters, validated."""
+    defaults = METHOD_DEFAULTS[method]
+    unknown = sorted(set(method_params) - set(defaults))
     if unknown:
-        raise TypeError(f"unknown parameter(s) {', '.join(unknown)} for method 'robust'; "
-                        f"valid: {', '.join(ROBUST_DEFAULTS)}")
-    params = {**ROBUST_DEFAULTS, **method_params}
-    if params["h"] is not None:
-        params["h"] = check_float(params["h"], "h", positive=True)
+        raise TypeError(f"unknown parameter(s) {', '.join(unknown)} for method {method!r}; "
+                        f"valid: {', '.join(defaults)}")
+    params = {**defaults, **method_params}
+    for name in ("h", "sigma_c", "sigma_s"):
+        if params.get(name) is not None:
+            params[name] = check_float(params[name], name, positive=True)
     for name in ("radius_factor", "delta", "alpha", "beta"):
-        params[name] = check_float(params[name], name, positive=True)
-    check_choice(params["likelihood"], "likelihood", tuple(stages.LIKELIHOOD_FORMS))
+        if name in params:
+            params[name] = check_float(params[name], name, positive=True)
+    if "likelihood" in params:
+        check_choice(params["likelihood"], "likelihood", tuple(stages.LIKELIHOOD_FORMS))
     if not isinstance(params["keep_normals"], (bool, np.bool_)):
         raise TypeError(f"keep_normals must be True or False; got {params['keep_normals']!r}")
     params["keep_normals"] = bool(params["keep_normals"])
     return params
 
 
-def _robust_iteration(points, given, prev_normals, k, lam, params):
-    """One pass of the robust method over points in Morton order."""
-    times = {}
+def _timed(times, name, func, *args):
     clock = time.perf_counter()
+    result = func(*args)
+    times[name] = time.perf_counter() - clock
+    return result
 
-    def lap(name):
-        nonlocal clock
-        now = time.perf_counter()
-        times[name] = now - clock
-        clock = now
 
-    graph = knn_graph(points, k)
-    lap("neighbors")
-    if given is not None:
-        nrm, degenerate = given, np.zeros(points.shape[0], np.bool_)
-    else:
-        hints = stages.outward_hints(points) if prev_normals is None else prev_normals
-        nrm, degenerate = stages._pca(points, graph, hints)
-    lap("normals")
+def _fit_record(times, h, degree):
+    counts = np.bincount(degree, minlength=4)
+    return {"times": times, "h": h,
+            "fit_degree": {name: int(counts[code]) for name, code in stages.FIT_DEGREES.items()}}
+
+
+def _robust_step(points, nrm, graph, lam, params, times):
+    """The rest of one robust iteration once the graph and normals exist."""
     h = params["h"] if params["h"] is not None else stages.default_h(graph)
-    proj, resid, degree = stages._mls(points, nrm, graph, h)
-    lap("mls")
-    lik, dbar = stages._likelihood(resid, params["likelihood"])
-    lap("likelihood")
+    proj, resid, degree = _timed(times, "mls", stages._mls, points, nrm, graph, h)
+    lik, dbar = _timed(times, "likelihood", stages._likelihood, resid, params["likelihood"])
     spacing = stages.mean_spacing(graph)
     radius = params["radius_factor"] * spacing
-    feat, region = stages._feature(points, nrm, graph, radius, params["delta"],
-                                   params["alpha"], params["beta"])
-    lap("feature")
-    filtered = stages._filter(points, nrm, graph)
-    lap("filter")
-    moved = stages._move(points, proj, filtered, lik, feat, lam)
-    lap("update")
-
-    counts = np.bincount(degree, minlength=4)
-    record = {
-        "times": times,
-        "h": h,
+    feat, region = _timed(times, "feature", stages._feature, points, nrm, graph, radius,
+                          params["delta"], params["alpha"], params["beta"])
+    filtered = _timed(times, "filter", stages._filter, points, nrm, graph)
+    moved = _timed(times, "update", stages._move, points, proj, filtered, lik, feat, lam)
+    record = _fit_record(times, h, degree)
+    record.update({
         "mean_spacing": spacing,
         "region_radius": radius,
         "mean_residual": dbar,
-        "fit_degree": {name: int(counts[code]) for name, code in stages.FIT_DEGREES.items()},
-        "degenerate_normals": int(degenerate.sum()),
         "region_size_mean": float(region.mean()),
         "region_size_max": int(region.max()),
-        "mean_step": float(np.linalg.norm(moved - points, axis=1).mean()),
-    }
-    return moved, filtered, lik, feat, record
+    })
+    return moved, filtered, (lik, feat), record
+
+
+def _mls_step(points, nrm, graph, lam, params, times):
+    """MLS baseline: every point moves to its projection onto its local cubic."""
+    h = params["h"] if params["h"] is not None else stages.default_h(graph)
+    proj, _, degree = _timed(times, "mls", stages._mls, points, nrm, graph, h)
+    return proj, nrm, None, _fit_record(times, h, degree)
+
+
+def _bilateral_step(points, nrm, graph, lam, params, times):
+    """BIL baseline: every point moves along its normal by the bilateral mean height."""
+    moved = _timed(times, "bilateral", stages._bilateral, points, nrm, graph,
+                   params["sigma_c"] or 0.0, params["sigma_s"] or 0.0)
+    return moved, nrm, None, {"times": times}
+
+
+_STEPS = {"robust": _robust_step, "bilateral": _bilateral_step, "mls": _mls_step}

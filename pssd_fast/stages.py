@@ -102,6 +102,12 @@ def _filter(points, nrm, graph):
     return out
 
 
+def _bilateral(points, nrm, graph, sigma_c, sigma_s):
+    out = np.empty_like(points)
+    bilateral.filter_points(points, nrm, graph.indptr, graph.indices, sigma_c, sigma_s, out)
+    return out
+
+
 def _move(points, proj, filtered, lik, feat, lam):
     out = np.empty_like(points)
     update.move_points(points, proj, filtered, lik, feat, lam, out)

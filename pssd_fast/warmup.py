@@ -3,7 +3,7 @@ import time
 
 import numpy as np
 
-from .denoise import denoise
+from .denoise import METHODS, denoise
 
 
 def warmup():
@@ -21,6 +21,7 @@ def warmup():
     rng = np.random.default_rng(0)
     points = rng.normal(size=(64, 3))
     points /= np.linalg.norm(points, axis=1)[:, None]
-    denoise(points, k=10, iterations=1)
+    for method in METHODS:
+        denoise(points, method=method, k=10, iterations=1)
     denoise(points.astype(np.float32), points, k=10, iterations=1)
     return time.perf_counter() - started

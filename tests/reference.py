@@ -196,6 +196,21 @@ def filter_normals(points, normals, lists):
     return out
 
 
+def bilateral_points(points, normals, lists, sigma_c=None, sigma_s=None):
+    """The BIL baseline of ALGORITHM.md: move along n_i by the bilateral mean height."""
+    out = np.empty_like(points)
+    for i, members in enumerate(lists):
+        rel = points[members] - points[i]
+        dist = np.linalg.norm(rel, axis=1)
+        heights = rel @ normals[i]
+        sc = dist.max() / 2 if sigma_c is None else sigma_c
+        ss = heights.std() if sigma_s is None else sigma_s
+        wc = np.exp(-dist ** 2 / (2 * sc ** 2)) if sc > 0 else np.ones(len(members))
+        ws = np.exp(-heights ** 2 / (2 * ss ** 2)) if ss > 0 else np.ones(len(members))
+        out[i] = points[i] + normals[i] * (wc * ws * heights).sum() / (wc * ws).sum()
+    return out
+
+
 def move_points(points, proj, filtered, lik, feat, lam):
     """Section 4.2: p* = p + (-1)^tau [lam e^-l + (1 - lam) e^-s] |q - p| n*."""
     out = np.empty_like(points)

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 import pssd_fast
+from pssd_fast.denoise import METHOD_DEFAULTS
 
 from . import reference
 from .conftest import sphere, wavy
@@ -163,3 +164,33 @@ def test_bad_normals_are_named(noisy):
 
 def test_warmup_returns_seconds():
     assert pssd_fast.warmup() >= 0.0
+
+
+@pytest.mark.parametrize("method", ["mls", "bilateral"])
+def test_baselines_match_the_reference(noisy, method):
+    result = pssd_fast.denoise(noisy, method=method, iterations=1, k=20)
+    lists, _ = reference.knn_lists(noisy, 20)
+    nrm = reference.pca_normals(noisy, lists)
+    nrm *= np.where((nrm * (noisy - noisy.mean(axis=0))).sum(axis=1) < 0, -1.0, 1.0)[:, None]
+    if method == "mls":
+        h = np.mean([np.linalg.norm(noisy[m[-1]] - noisy[i]) for i, m in enumerate(lists)])
+        expected = reference.mls_fit(noisy, nrm, lists, h)[0]
+    else:
+        expected = reference.bilateral_points(noisy, nrm, lists)
+    np.testing.assert_allclose(result.points, expected, atol=1e-9)
+    np.testing.assert_allclose(result.normals, nrm, atol=1e-9)
+    assert result.likelihood is None and result.feature_intensity is None
+
+
+@pytest.mark.parametrize("method, params", [("mls", {"h": 0.05}),
+                                            ("bilateral", {"sigma_c": 0.02, "sigma_s": 0.01})])
+def test_baselines_smooth_and_take_their_parameters(method, params):
+    rng = np.random.default_rng(13)
+    points = np.column_stack([rng.uniform(0, 1, (3000, 2)), rng.normal(0, 0.005, 3000)])
+    for kwargs in ({}, params):
+        result = pssd_fast.denoise(points, method=method, **kwargs)
+        assert np.abs(result.points[:, 2]).mean() < 0.6 * np.abs(points[:, 2]).mean()
+        assert result.stats["params"] == {**METHOD_DEFAULTS[method],
+                                          **kwargs}
+    with pytest.raises(TypeError, match=f"unknown parameter.*for method '{method}'"):
+        pssd_fast.denoise(points, method=method, radius_factor=3)

@@ -248,3 +248,16 @@ def test_stages_follow_the_input_dtype():
     assert pssd_fast.filter_normals(single).dtype == np.float32
     fit = pssd_fast.mls_fit(single)
     assert fit.projections.dtype == fit.residuals.dtype == np.float32
+
+
+@pytest.mark.parametrize("sigmas", [(None, None), (0.05, 0.01)])
+def test_bilateral_point_filter(cloud, sigmas):
+    name, points, k = cloud
+    graph, lists = _setup(points, k)
+    nrm = _normals_for(name, points, lists)
+    sigma_c, sigma_s = sigmas
+    got = stages._bilateral(points, nrm, graph, sigma_c or 0.0, sigma_s or 0.0)
+    ref = reference.bilateral_points(points, nrm, lists, sigma_c, sigma_s)
+    np.testing.assert_allclose(got, ref, atol=1e-12 * np.ptp(points, axis=0).max())
+    if name == "plane":
+        np.testing.assert_array_equal(got, points)
