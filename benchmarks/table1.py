@@ -122,16 +122,17 @@ def verdict(rows):
             continue
         ours = next(o for o in main if o["model"] == r["model"] and o["noise"] == r["noise"]
                     and o["method"] == "Robust" and o["iterations"] == 2)
-
-        def win(key):
-            if ours[key] is None or r[key] is None:
-                return "-"
-            return "win" if ours[key] < r[key] else "lose"
-
+        mean, edge = _win(ours, r, "mean_dist"), _win(ours, r, "edge_dist")
         lines.append(f"| {r['model']} | {r['noise']:.2%} | {r['method']} | "
-                     f"{_fmt(r['mean_dist'])} | {_fmt(ours['mean_dist'])} | {win('mean_dist')} | "
-                     f"{_fmt(r['edge_dist'])} | {_fmt(ours['edge_dist'])} | {win('edge_dist')} |")
+                     f"{_fmt(r['mean_dist'])} | {_fmt(ours['mean_dist'])} | {mean} | "
+                     f"{_fmt(r['edge_dist'])} | {_fmt(ours['edge_dist'])} | {edge} |")
     return lines if len(lines) > 4 else ["No peer is installed (pip install -e '.[compare]')."]
+
+
+def _win(ours, peer, key):
+    if ours[key] is None or peer[key] is None:
+        return "-"
+    return "win" if ours[key] < peer[key] else "lose"
 
 
 def main(argv=None):

@@ -44,8 +44,9 @@ def main(argv=None):
     print(f"kernels ready in {compile_seconds:.1f} s (compiled or loaded from cache); "
           f"denoised in {seconds:.2f} s")
     print(f"\n{'distance to the true surface (1e-4 diag)':44s}{'noisy':>9s}{'denoised':>10s}")
-    for label, mask in (("all points, mean", slice(None)), ("within 1% of a sharp edge, mean", edge),
-                        ("all points, max", None)):
+    rows = (("all points, mean", slice(None)), ("within 1% of a sharp edge, mean", edge),
+            ("all points, max", None))
+    for label, mask in rows:
         if mask is None:
             print(f"{label:44s}{before.max():9.1f}{after.max():10.1f}")
         else:

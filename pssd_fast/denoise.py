@@ -120,12 +120,12 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
 
     Notes
     -----
-    One robust iteration (paper Sections 2-4): kNN graph; normals; MLS cubic fit giving the projection
-    ``q_i`` and residual ``d_i``; sampling likelihood ``l_i``; feature intensity ``s_i`` from the
-    normal voting tensor over the region-grown ``N_R(i)``; bilateral filtering of the normals to
-    ``n*_i``; and the move ``p*_i = p_i + m_i |q_i - p_i| n*_i``. All quantities of an iteration
-    use the positions at its start (Jacobi updates). The points are processed in Morton order
-    for memory locality and returned in the caller's order.
+    One robust iteration (paper Sections 2-4): kNN graph; normals; MLS cubic fit giving the
+    projection ``q_i`` and residual ``d_i``; sampling likelihood ``l_i``; feature intensity
+    ``s_i`` from the normal voting tensor over the region-grown ``N_R(i)``; bilateral filtering
+    of the normals to ``n*_i``; and the move ``p*_i = p_i + m_i |q_i - p_i| n*_i``. All
+    quantities of an iteration use the positions at its start (Jacobi updates). The points are
+    processed in Morton order for memory locality and returned in the caller's order.
 
     References
     ----------
