@@ -39,7 +39,7 @@ def _basis(x, y, phi):
 
 @helper
 def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov, w, v,
-               a, b, phi, proj, resid, degree):
+               a, b, phi, proj, resid, degree, curvature):
     px, py, pz = points[i, 0], points[i, 1], points[i, 2]
     start = indptr[i]
     count = indptr[i + 1] - start
@@ -140,6 +140,17 @@ def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov
     for p in range(m, 10):
         b[p] = 0.0
 
+    # Mean curvature of the graph z = g(x / r, y / r) at the origin, from its derivatives
+    # (world units), signed positive where the surface bends away from n (convex for outward n).
+    gx = b[2] * inv_r
+    gy = b[1] * inv_r
+    gxx = 2.0 * b[5] * inv_r * inv_r
+    gyy = 2.0 * b[4] * inv_r * inv_r
+    gxy = b[3] * inv_r * inv_r
+    slope2 = 1.0 + gx * gx + gy * gy
+    curvature[i] = -((1.0 + gy * gy) * gxx - 2.0 * gx * gy * gxy + (1.0 + gx * gx) * gyy) / (
+        2.0 * slope2 * math.sqrt(slope2))
+
     # Projection q_i = o_i + g(0, 0) n and the weighted mean residual d_i.
     proj[i, 0] = px + ox + b[0] * nx
     proj[i, 1] = py + oy + b[0] * ny
@@ -155,7 +166,7 @@ def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov
 
 
 @parallel_kernel
-def mls_fit(points, normals, indptr, indices, h, proj, resid, degree):
+def mls_fit(points, normals, indptr, indices, h, proj, resid, degree, curvature):
     """Project every point onto its local MLS cubic and measure the fit's residual.
 
     Parameters
@@ -173,6 +184,10 @@ def mls_fit(points, normals, indptr, indices, h, proj, resid, degree):
         Output: ``d_i``, the theta-weighted mean of ``|z_j - g(x_j, y_j)|`` over the list.
     degree : (n,) int8
         Output: 3 (cubic), 2 (quadratic fallback) or 0 (plane fallback, ``g = 0``).
+    curvature : (n,) float64
+        Output: mean curvature of the fitted surface at ``o_i``, from the derivatives of ``g``
+        at the origin; positive where the surface bends away from the normal (a sphere with
+        outward normals has ``1 / radius``); 0 for the plane fallback.
 
     Notes
     -----
@@ -197,4 +212,4 @@ def mls_fit(points, normals, indptr, indices, h, proj, resid, degree):
         phi = np.empty(10)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov, w, v,
-                       a, b, phi, proj, resid, degree)
+                       a, b, phi, proj, resid, degree, curvature)

@@ -1,4 +1,5 @@
 """The iteration schedule of the robust method and its result object."""
+import sys
 import time
 from dataclasses import dataclass, field
 from typing import Optional
@@ -57,7 +58,7 @@ class DenoiseResult:
 
 
 def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.5, n_jobs=None,
-            **method_params):
+            progress=None, **method_params):
     """Denoise a point-sampled surface while keeping its sharp features.
 
     Parameters
@@ -86,6 +87,9 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
         Threads for the kernels: ``None`` or -1 use every thread numba may use (by default one
         per core), a positive number that many (capped at that maximum). Numba's setting is
         restored afterwards. The output does not depend on it.
+    progress : bool or callable, optional
+        ``True`` prints a line per stage and iteration on stderr; a callable is called as
+        ``progress(iteration, iterations, stage, seconds)`` after each stage; default silent.
     **method_params
         Parameters of the chosen method (ALGORITHM.md). ``"robust"``:
 
@@ -134,6 +138,7 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
     """
     check_choice(method, "method", METHODS)
     params = _method_params(method, method_params)
+    report = _progress_reporter(progress)
     pts, dtype = as_points(points)
     n = pts.shape[0]
     iterations = check_int(iterations, "iterations", minimum=1)
@@ -151,18 +156,15 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
     records = []
     with threads(n_jobs) as n_threads:
         out_normals = None
-        for _ in range(iterations):
-            clock = time.perf_counter()
-            graph = knn_graph(current, k)
-            times = {"neighbors": time.perf_counter() - clock}
-            clock = time.perf_counter()
+        for iteration in range(iterations):
+            clock = _Clock(report, iteration, iterations)
+            graph = clock.run("neighbors", knn_graph, current, k)
             if given is not None:
-                nrm, degenerate = given, np.zeros(n, np.bool_)
+                nrm, degenerate = clock.run("normals", lambda: (given, np.zeros(n, np.bool_)))
             else:
                 hints = stages.outward_hints(current) if out_normals is None else out_normals
-                nrm, degenerate = stages._pca(current, graph, hints)
-            times["normals"] = time.perf_counter() - clock
-            moved, out_normals, extra, record = step(current, nrm, graph, lam, params, times)
+                nrm, degenerate = clock.run("normals", stages._pca, current, graph, hints)
+            moved, out_normals, extra, record = step(current, nrm, graph, lam, params, clock)
             record["degenerate_normals"] = int(degenerate.sum())
             record["mean_step"] = float(np.linalg.norm(moved - current, axis=1).mean())
             records.append(record)
@@ -217,11 +219,37 @@ def _method_params(method, method_params):
     return params
 
 
-def _timed(times, name, func, *args):
-    clock = time.perf_counter()
-    result = func(*args)
-    times[name] = time.perf_counter() - clock
-    return result
+class _Clock:
+    """Times the stages of one iteration and reports each to the progress callback."""
+
+    def __init__(self, report, iteration, iterations):
+        self.times = {}
+        self.report = report
+        self.iteration = iteration
+        self.iterations = iterations
+
+    def run(self, stage, func, *args):
+        started = time.perf_counter()
+        result = func(*args)
+        self.times[stage] = time.perf_counter() - started
+        if self.report is not None:
+            self.report(self.iteration + 1, self.iterations, stage, self.times[stage])
+        return result
+
+
+def _progress_reporter(progress):
+    """``None``/``False``: silent; ``True``: a line per stage on stderr; or the caller's function."""
+    if progress is None or progress is False:
+        return None
+    if progress is True:
+        def show(iteration, iterations, stage, seconds):
+            sys.stderr.write(f"pssd_fast: iteration {iteration}/{iterations} {stage:<10s} "
+                             f"{seconds:8.3f} s\n")
+            sys.stderr.flush()
+        return show
+    if not callable(progress):
+        raise TypeError(f"progress must be True, False, None or a callable; got {progress!r}")
+    return progress
 
 
 def _fit_record(times, h, degree):
@@ -230,18 +258,18 @@ def _fit_record(times, h, degree):
             "fit_degree": {name: int(counts[code]) for name, code in stages.FIT_DEGREES.items()}}
 
 
-def _robust_step(points, nrm, graph, lam, params, times):
+def _robust_step(points, nrm, graph, lam, params, clock):
     """The rest of one robust iteration once the graph and normals exist."""
     h = params["h"] if params["h"] is not None else stages.default_h(graph)
-    proj, resid, degree = _timed(times, "mls", stages._mls, points, nrm, graph, h)
-    lik, dbar = _timed(times, "likelihood", stages._likelihood, resid, params["likelihood"])
+    proj, resid, degree, _ = clock.run("mls", stages._mls, points, nrm, graph, h)
+    lik, dbar = clock.run("likelihood", stages._likelihood, resid, params["likelihood"])
     spacing = stages.mean_spacing(graph)
     radius = params["radius_factor"] * spacing
-    feat, region = _timed(times, "feature", stages._feature, points, nrm, graph, radius,
-                          params["delta"], params["alpha"], params["beta"])
-    filtered = _timed(times, "filter", stages._filter, points, nrm, graph)
-    moved = _timed(times, "update", stages._move, points, proj, filtered, lik, feat, lam)
-    record = _fit_record(times, h, degree)
+    feat, region = clock.run("feature", stages._feature, points, nrm, graph, radius,
+                             params["delta"], params["alpha"], params["beta"])
+    filtered = clock.run("filter", stages._filter, points, nrm, graph)
+    moved = clock.run("update", stages._move, points, proj, filtered, lik, feat, lam)
+    record = _fit_record(clock.times, h, degree)
     record.update({
         "mean_spacing": spacing,
         "region_radius": radius,
@@ -252,18 +280,18 @@ def _robust_step(points, nrm, graph, lam, params, times):
     return moved, filtered, (lik, feat), record
 
 
-def _mls_step(points, nrm, graph, lam, params, times):
+def _mls_step(points, nrm, graph, lam, params, clock):
     """MLS baseline: every point moves to its projection onto its local cubic."""
     h = params["h"] if params["h"] is not None else stages.default_h(graph)
-    proj, _, degree = _timed(times, "mls", stages._mls, points, nrm, graph, h)
-    return proj, nrm, None, _fit_record(times, h, degree)
+    proj, _, degree, _ = clock.run("mls", stages._mls, points, nrm, graph, h)
+    return proj, nrm, None, _fit_record(clock.times, h, degree)
 
 
-def _bilateral_step(points, nrm, graph, lam, params, times):
+def _bilateral_step(points, nrm, graph, lam, params, clock):
     """BIL baseline: every point moves along its normal by the bilateral mean height."""
-    moved = _timed(times, "bilateral", stages._bilateral, points, nrm, graph,
-                   params["sigma_c"] or 0.0, params["sigma_s"] or 0.0)
-    return moved, nrm, None, {"times": times}
+    moved = clock.run("bilateral", stages._bilateral, points, nrm, graph,
+                      params["sigma_c"] or 0.0, params["sigma_s"] or 0.0)
+    return moved, nrm, None, {"times": clock.times}
 
 
 _STEPS = {"robust": _robust_step, "bilateral": _bilateral_step, "mls": _mls_step}

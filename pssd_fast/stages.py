@@ -35,6 +35,9 @@ class MLSFit(NamedTuple):
         ``d_i``, the weighted mean distance of the neighbours to the fitted cubic.
     degree : (n,) int8
         Degree actually fitted: 3 (cubic), 2 (quadratic fallback) or 0 (plane fallback).
+    curvature : (n,) ndarray
+        Mean curvature of the fitted surface, from the derivatives of the cubic at the local
+        origin (no extra cost); positive where the surface bends away from the normal.
     h : float
         The kernel width used.
     """
@@ -42,6 +45,7 @@ class MLSFit(NamedTuple):
     projections: np.ndarray
     residuals: np.ndarray
     degree: np.ndarray
+    curvature: np.ndarray
     h: float
 
 
@@ -76,8 +80,9 @@ def _mls(points, nrm, graph, h):
     proj = np.empty_like(points)
     resid = np.empty(n)
     degree = np.empty(n, np.int8)
-    mls.mls_fit(points, nrm, graph.indptr, graph.indices, h, proj, resid, degree)
-    return proj, resid, degree
+    curvature = np.empty(n)
+    mls.mls_fit(points, nrm, graph.indptr, graph.indices, h, proj, resid, degree, curvature)
+    return proj, resid, degree, curvature
 
 
 def _likelihood(resid, form):
@@ -196,7 +201,7 @@ def mls_fit(points, normals=None, *, k=25, h=None, graph=None, n_jobs=None):
     Returns
     -------
     MLSFit
-        Projections ``q_i``, residuals ``d_i``, fitted degree and ``h``.
+        Projections ``q_i``, residuals ``d_i``, fitted degree, mean curvature and ``h``.
 
     Notes
     -----
@@ -210,8 +215,9 @@ def mls_fit(points, normals=None, *, k=25, h=None, graph=None, n_jobs=None):
     pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
     h = default_h(graph) if h is None else h
     with threads(n_jobs):
-        proj, resid, degree = _mls(pts, nrm, graph, h)
-    return MLSFit(proj.astype(dtype, copy=False), resid.astype(dtype, copy=False), degree, h)
+        proj, resid, degree, curvature = _mls(pts, nrm, graph, h)
+    return MLSFit(proj.astype(dtype, copy=False), resid.astype(dtype, copy=False), degree,
+                  curvature.astype(dtype, copy=False), h)
 
 
 def sampling_likelihood(points, normals=None, *, k=25, h=None, likelihood="exp", graph=None,
@@ -237,7 +243,7 @@ def sampling_likelihood(points, normals=None, *, k=25, h=None, likelihood="exp",
     pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
     h = default_h(graph) if h is None else h
     with threads(n_jobs):
-        _, resid, _ = _mls(pts, nrm, graph, h)
+        _, resid, _, _ = _mls(pts, nrm, graph, h)
         out, _ = _likelihood(resid, likelihood)
     return out.astype(dtype, copy=False)
 

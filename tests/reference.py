@@ -94,13 +94,17 @@ def mls_point(points, normals, members, i, h):
             break
     q = points[i] + origin + coef[0] * plane_normal
     resid = (theta * np.abs(z - design @ coef)).sum() / theta.sum()
-    return q, resid, degree
+    # Mean curvature of z = g(x / s, y / s), sign flipped: positive bending away from the normal.
+    gx, gy = coef[2] / scale, coef[1] / scale
+    gxx, gyy, gxy = 2 * coef[5] / scale ** 2, 2 * coef[4] / scale ** 2, coef[3] / scale ** 2
+    curvature = -((1 + gy ** 2) * gxx - 2 * gx * gy * gxy + (1 + gx ** 2) * gyy) / (
+        2 * (1 + gx ** 2 + gy ** 2) ** 1.5)
+    return q, resid, degree, curvature
 
 
 def mls_fit(points, normals, lists, h):
     out = [mls_point(points, normals, m, i, h) for i, m in enumerate(lists)]
-    return (np.array([o[0] for o in out]), np.array([o[1] for o in out]),
-            np.array([o[2] for o in out]))
+    return tuple(np.array([o[c] for o in out]) for c in range(4))
 
 
 def likelihood(resid, form):
@@ -230,7 +234,7 @@ def robust_iteration(points, normals, k, lam=0.5, form="exp", radius_factor=10.0
         hints = points - points.mean(axis=0)
         normals *= np.where((normals * hints).sum(axis=1) < 0, -1.0, 1.0)[:, None]
     h = np.mean([d[-1] for d in dists])
-    proj, resid, _ = mls_fit(points, normals, lists, h)
+    proj, resid, _, _ = mls_fit(points, normals, lists, h)
     lik = likelihood(resid, form)
     spacing = np.mean([d[1] for d in dists])
     feat, _ = feature_intensity(points, normals, lists, radius_factor * spacing)

@@ -194,3 +194,18 @@ def test_baselines_smooth_and_take_their_parameters(method, params):
                                           **kwargs}
     with pytest.raises(TypeError, match=f"unknown parameter.*for method '{method}'"):
         pssd_fast.denoise(points, method=method, radius_factor=3)
+
+
+def test_progress_reports_every_stage(noisy, capsys):
+    seen = []
+    pssd_fast.denoise(noisy, iterations=2, progress=lambda *args: seen.append(args))
+    stages_ = ["neighbors", "normals", "mls", "likelihood", "feature", "filter", "update"]
+    assert [(i, n, s) for i, n, s, _ in seen] == [(i, 2, s) for i in (1, 2) for s in stages_]
+    assert all(t >= 0 for *_, t in seen)
+    pssd_fast.denoise(noisy, iterations=1, method="mls", progress=True)
+    err = capsys.readouterr().err
+    assert "iteration 1/1 mls" in err
+    pssd_fast.denoise(noisy, iterations=1)
+    assert capsys.readouterr().err == ""
+    with pytest.raises(TypeError, match="progress must be"):
+        pssd_fast.denoise(noisy, progress="yes")

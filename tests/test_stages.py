@@ -69,9 +69,12 @@ def test_mls_fit(cloud):
     nrm = _normals_for(name, points, lists)
     h = stages.default_h(graph)
     fit = pssd_fast.mls_fit(points, nrm, graph=graph)
-    proj, resid, degree = reference.mls_fit(points, nrm, lists, h)
+    proj, resid, degree, curvature = reference.mls_fit(points, nrm, lists, h)
     assert fit.h == h
     np.testing.assert_array_equal(fit.degree, degree)
+    # Curvature has units 1/length: compare relative to the largest magnitude.
+    np.testing.assert_allclose(fit.curvature, curvature,
+                               atol=1e-7 * max(np.abs(curvature).max(), 1.0))
     scale = np.ptp(points, axis=0).max()
     np.testing.assert_allclose(fit.projections, proj, atol=1e-9 * scale, rtol=0)
     np.testing.assert_allclose(fit.residuals, resid, atol=1e-9 * scale, rtol=0)
@@ -97,6 +100,19 @@ def test_mls_fit_reproduces_planes_and_smooth_surfaces():
     fit = pssd_fast.mls_fit(cubic, k=20)
     assert np.abs(fit.projections - cubic).max() < 1e-3
     assert fit.residuals.max() < 1e-3
+
+
+def test_mls_curvature_of_spheres_and_planes():
+    rng = np.random.default_rng(14)
+    p = rng.normal(size=(4000, 3))
+    p /= np.linalg.norm(p, axis=1)[:, None]
+    for radius in (0.5, 2.0):
+        fit = pssd_fast.mls_fit(radius * p, p, k=20)  # outward normals
+        np.testing.assert_allclose(np.median(fit.curvature), 1 / radius, rtol=0.01)
+        inward = pssd_fast.mls_fit(radius * p, -p, k=20)
+        np.testing.assert_allclose(inward.curvature, -fit.curvature, atol=1e-9 / radius)
+    flat = pssd_fast.mls_fit(plane(300), k=15)
+    np.testing.assert_allclose(flat.curvature, 0, atol=1e-9)
 
 
 @pytest.mark.parametrize("form", ["exp", "ratio", "residual"])
