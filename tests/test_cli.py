@@ -1,0 +1,157 @@
+"""The ``pssd`` command end to end, in a subprocess, errors included."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from pssd_fast import cli, datasets
+
+plyfile = pytest.importorskip("plyfile")
+laspy = pytest.importorskip("laspy")
+
+
+def pssd(*args, cwd=None):
+    """Run ``pssd ARGS`` as a user would; return (status, stdout, stderr)."""
+    done = subprocess.run([sys.executable, "-m", "pssd_fast.cli", *map(str, args)],
+                          capture_output=True, text=True, cwd=cwd, timeout=600)
+    return done.returncode, done.stdout, done.stderr
+
+
+def assert_one_line_error(status, err, match):
+    assert status == 1
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("pssd: error: ") and match in lines[0], err
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    return datasets.cad_part(n_points=3000, noise=0.003, seed=1)
+
+
+@pytest.fixture
+def ply_with_extras(tmp_path, cloud):
+    """A binary PLY with colours, a quality scalar and a face element."""
+    n = len(cloud.points)
+    vertex = np.empty(n, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"),
+                                ("green", "u1"), ("blue", "u1"), ("quality", "f4")])
+    for axis, name in enumerate("xyz"):
+        vertex[name] = cloud.points[:, axis]
+    rng = np.random.default_rng(0)
+    for name in ("red", "green", "blue"):
+        vertex[name] = rng.integers(0, 256, n)
+    vertex["quality"] = rng.uniform(size=n)
+    faces = np.empty(2, dtype=[("vertex_indices", "i4", (3,))])
+    faces["vertex_indices"] = [[0, 1, 2], [2, 3, 4]]
+    path = tmp_path / "scan.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex"),
+                     plyfile.PlyElement.describe(faces, "face")]).write(str(path))
+    return path, vertex
+
+
+def test_help_is_complete():
+    status, out, _ = pssd("denoise", "--help")
+    assert status == 0
+    for option in ["--method", "--iterations", "--k", "--lam", "--n-jobs", "--keep-normals",
+                   "--force", "--quiet", "--verbose"] + [
+                       "--" + d.replace("_", "-") for d in cli.METHOD_OPTIONS]:
+        assert option in out
+    for command in ("demo", "info", "render"):
+        status, out, _ = pssd(command, "--help")
+        assert status == 0 and "usage: pssd " + command in out
+
+
+def test_denoise_ply_keeps_every_other_attribute(tmp_path, ply_with_extras):
+    path, vertex = ply_with_extras
+    out = tmp_path / "clean.ply"
+    status, stdout, err = pssd("denoise", path, out, "--iterations", "1", "--verbose")
+    assert status == 0, err
+    assert "iteration 1: neighbors" in stdout
+    data = plyfile.PlyData.read(str(out))
+    written = data["vertex"].data
+    for name in ("red", "green", "blue", "quality"):
+        np.testing.assert_array_equal(written[name], vertex[name])
+    np.testing.assert_array_equal(data["face"].data["vertex_indices"][1], [2, 3, 4])
+    for name in ("likelihood", "feature_intensity", "displacement", "nx", "ny", "nz"):
+        assert name in written.dtype.names
+    moved = np.column_stack([written[a] for a in "xyz"])
+    original = np.column_stack([vertex[a] for a in "xyz"])
+    assert np.abs(moved - original).max() > 0
+    np.testing.assert_allclose(np.linalg.norm(moved - original, axis=1),
+                               written["displacement"], atol=1e-6)
+    # The input is untouched, and an existing output is not replaced without --force.
+    again = plyfile.PlyData.read(str(path))["vertex"].data
+    np.testing.assert_array_equal(again, vertex)
+    assert_one_line_error(*pssd("denoise", path, out)[::2], "--force")
+    assert pssd("denoise", path, out, "--force", "--quiet", "--iterations", "1")[0] == 0
+
+
+def test_denoise_las_keeps_records_and_georeference(tmp_path, cloud):
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = [0.001, 0.001, 0.001]
+    header.offsets = [500_000.0, 4_000_000.0, 300.0]
+    las = laspy.LasData(header)
+    utm = cloud.points * 100 + [500_123.0, 4_000_456.0, 310.0]  # a 100 m part, UTM-like
+    las.x, las.y, las.z = utm.T
+    rng = np.random.default_rng(2)
+    las.intensity = rng.integers(0, 65535, len(utm))
+    las.classification = rng.integers(0, 10, len(utm))
+    las.gps_time = rng.uniform(0, 1e5, len(utm))
+    path = tmp_path / "scan.las"
+    las.write(str(path))
+    out = tmp_path / "clean.las"
+    status, _, err = pssd("denoise", path, out, "--iterations", "1", "--quiet")
+    assert status == 0, err
+    before, after = laspy.read(str(path)), laspy.read(str(out))
+    np.testing.assert_array_equal(after.header.scales, before.header.scales)
+    np.testing.assert_array_equal(after.header.offsets, before.header.offsets)
+    for name in ("intensity", "classification", "gps_time", "return_number"):
+        np.testing.assert_array_equal(np.asarray(after[name]), np.asarray(before[name]))
+    moved = np.column_stack([after.x, after.y, after.z])
+    assert np.abs(moved - utm).max() < 1.0 and np.abs(moved - utm).mean() > 1e-3
+    assert "likelihood" in after.point_format.extra_dimension_names
+
+
+def test_info_and_render(tmp_path, ply_with_extras):
+    path, _ = ply_with_extras
+    status, out, err = pssd("info", path)
+    assert status == 0, err
+    assert "3,000 points" in out and "red (uint8)" in out and "average spacing" in out
+    png = tmp_path / "feature.png"
+    status, out, err = pssd("render", path, "-o", png, "--color", "feature")
+    assert status == 0, err
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert_one_line_error(*pssd("render", path, "-o", tmp_path / "d.png", "--color",
+                                "displacement")[::2], "holds no displacement")
+
+
+def test_demo_writes_files_and_pictures(tmp_path):
+    folder = tmp_path / "demo"
+    status, out, err = pssd("demo", "--out", folder, "--points", "3000", "--iterations", "1")
+    assert status == 0, err
+    assert "| Robust | 1 |" in out
+    names = {p.name for p in folder.iterdir()}
+    assert {"noisy.ply", "denoised.ply", "noisy.png", "curvature.png", "likelihood.png",
+            "feature.png", "denoised_curvature.png", "denoised_displacement.png"} <= names
+    assert_one_line_error(*pssd("demo", "--out", folder, "--points", "3000")[::2], "--force")
+
+
+@pytest.mark.parametrize("args, match", [
+    (["denoise", "missing.ply", "out.ply"], "missing.ply"),
+    (["denoise", "in.xyz", "out.ply", "--method", "mls", "--radius-factor", "3"],
+     "--radius-factor is not a parameter of method 'mls'"),
+    (["denoise", "in.xyz", "out.unknown"], "unknown"),
+    (["denoise", "in.xyz", "out.ply", "--k", "5"], "k must be at least 10"),
+    (["denoise", "in.xyz", "nowhere/out.ply"], "does not exist"),
+    (["info", "truncated.ply"], "truncated.ply"),
+    (["info", "."], "."),
+])
+def test_errors_are_one_line(tmp_path, cloud, args, match):
+    np.savetxt(tmp_path / "in.xyz", cloud.points)
+    (tmp_path / "truncated.ply").write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\n"
+        b"property float x\nproperty float y\nproperty float z\nend_header\n" + b"\0" * 100)
+    status, _, err = pssd(*args, cwd=tmp_path)
+    assert_one_line_error(status, err, match)
+    assert not (tmp_path / "out.ply").exists()

@@ -1,0 +1,664 @@
+"""pssd_fast.io: round trips that keep every attribute, and one test per refused file."""
+import dataclasses
+import struct
+import sys
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from pssd_fast import io as pio
+from pssd_fast.io import PointCloud, PointCloudFileError, PointCloudFileNotFoundError
+
+try:
+    import plyfile
+except ImportError:
+    plyfile = None
+try:
+    import laspy
+except ImportError:
+    laspy = None
+
+# NPY, NPZ and text need numpy only: their tests run without the io extra.
+needs_plyfile = pytest.mark.skipif(plyfile is None, reason="plyfile is not installed")
+needs_laspy = pytest.mark.skipif(laspy is None, reason="laspy is not installed")
+HAVE_LAZRS = laspy is not None and laspy.LazBackend.LazrsParallel.is_available()
+LAS_EXTS = [".las", pytest.param(".laz", marks=pytest.mark.skipif(not HAVE_LAZRS,
+                                                                    reason="lazrs is missing"))]
+N = 40
+PLY_MODES = {"ascii": (True, "="), "binary_le": (False, "<"), "binary_be": (False, ">")}
+
+
+def make_ply(path, mode="binary_le", n=N, seed=0):
+    """A PLY with normals, colours, a float scalar, a face element, comments and obj_info."""
+    rng = np.random.default_rng(seed)
+    vertex = np.zeros(n, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("nx", "f4"),
+                                ("ny", "f4"), ("nz", "f4"), ("red", "u1"), ("green", "u1"),
+                                ("blue", "u1"), ("quality", "f4")])
+    for name in ("x", "y", "z", "nx", "ny", "nz", "quality"):
+        vertex[name] = rng.normal(size=n)
+    for name in ("red", "green", "blue"):
+        vertex[name] = rng.integers(0, 256, n)
+    face = np.empty(n - 2, dtype=[("vertex_indices", "O")])
+    for i in range(n - 2):
+        face["vertex_indices"][i] = np.array([i, i + 1, i + 2], dtype=np.int32)
+    text, byte_order = PLY_MODES[mode]
+    plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex"),
+                     plyfile.PlyElement.describe(face, "face",
+                                                 val_types={"vertex_indices": "i4"})],
+                    text=text, byte_order=byte_order, comments=["scanned by test"],
+                    obj_info=["unit m"]).write(str(path))
+    return vertex, face
+
+
+def make_las(path, n=N, scale=0.001, offsets=(500000.0, 4000000.0, 300.0), point_format=3,
+             seed=0, span=10**6):
+    """A LAS 1.4 file with intensity, classification, returns, gps_time, RGB, a VLR and EVLR."""
+    rng = np.random.default_rng(seed)
+    header = laspy.LasHeader(version="1.4", point_format=point_format)
+    header.scales = np.full(3, scale)
+    header.offsets = np.array(offsets)
+    header.vlrs.append(laspy.VLR("pssd_test", 42, "a VLR", b"vlr payload"))
+    las = laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(n, header=header))
+    las.X, las.Y, las.Z = rng.integers(-span, span, (3, n))
+    las.intensity = rng.integers(0, 2**16, n)
+    las.classification = rng.integers(0, 32, n)
+    las.return_number = rng.integers(1, 6, n)
+    las.number_of_returns = rng.integers(1, 6, n)
+    las.gps_time = rng.uniform(0, 1e6, n)
+    for name in ("red", "green", "blue"):
+        las[name] = rng.integers(0, 2**16, n)
+    from laspy.vlrs.vlrlist import VLRList
+
+    las.evlrs = VLRList([laspy.VLR("pssd_test", 43, "an EVLR", b"evlr payload")])
+    las.write(str(path))
+    return laspy.read(str(path))
+
+
+def test_formats_lists_every_extension():
+    assert set(pio.formats()) == {".ply", ".xyz", ".pts", ".txt", ".npy", ".npz", ".las",
+                                  ".laz"}
+
+
+# ---------------------------------------------------------------------------------------------
+# PLY
+
+
+@needs_plyfile
+@pytest.mark.parametrize("mode", PLY_MODES)
+def test_ply_read_gives_points_normals_and_typed_fields(tmp_path, mode):
+    vertex, _ = make_ply(tmp_path / "a.ply", mode)
+    cloud = pio.read(tmp_path / "a.ply")
+    assert cloud.format == "ply"
+    assert cloud.points.dtype == np.float64
+    np.testing.assert_array_equal(cloud.points, np.column_stack([vertex[c] for c in "xyz"]))
+    np.testing.assert_array_equal(cloud.normals,
+                                  np.column_stack([vertex[c] for c in ("nx", "ny", "nz")]))
+    assert list(cloud.fields) == ["red", "green", "blue", "quality"]
+    assert cloud.fields["red"].dtype == np.uint8 and cloud.fields["quality"].dtype == np.float32
+    np.testing.assert_array_equal(cloud.fields["quality"], vertex["quality"])
+
+
+@needs_plyfile
+@pytest.mark.parametrize("mode", PLY_MODES)
+def test_ply_write_moves_points_adds_field_and_keeps_the_rest(tmp_path, mode):
+    vertex, face = make_ply(tmp_path / "a.ply", mode)
+    cloud = pio.read(tmp_path / "a.ply")
+    moved = cloud.points + 0.25
+    likelihood = np.linspace(0, 1, N)
+    pio.write(tmp_path / "b.ply", cloud, points=moved, fields={"likelihood": likelihood})
+    out = plyfile.PlyData.read(str(tmp_path / "b.ply"))
+    assert (out.text, out.byte_order) == PLY_MODES[mode]
+    assert out.comments == ["scanned by test"] and out.obj_info == ["unit m"]
+    data = out["vertex"].data
+    for name in ("nx", "ny", "nz", "red", "green", "blue", "quality"):
+        assert data.dtype[name].newbyteorder("=") == vertex.dtype[name]
+        np.testing.assert_array_equal(data[name], vertex[name])
+    for i, c in enumerate("xyz"):
+        np.testing.assert_array_equal(data[c], moved[:, i].astype(np.float32))
+    assert data.dtype["likelihood"].kind == "f" and data.dtype["likelihood"].itemsize == 8
+    np.testing.assert_array_equal(data["likelihood"], likelihood)
+    assert len(out["face"].data) == len(face)
+    for got, want in zip(out["face"].data["vertex_indices"], face["vertex_indices"], strict=True):
+        np.testing.assert_array_equal(got, want)
+    again = pio.read(tmp_path / "b.ply")
+    np.testing.assert_array_equal(again.fields["likelihood"], likelihood)
+
+
+@needs_plyfile
+@pytest.mark.parametrize("mode", PLY_MODES)
+def test_ply_unchanged_write_reproduces_the_file_byte_for_byte(tmp_path, mode):
+    make_ply(tmp_path / "a.ply", mode)
+    pio.write(tmp_path / "b.ply", pio.read(tmp_path / "a.ply"))
+    assert (tmp_path / "b.ply").read_bytes() == (tmp_path / "a.ply").read_bytes()
+
+
+@needs_plyfile
+def test_ply_new_normals_and_replaced_field_keep_property_types(tmp_path):
+    vertex = np.zeros(5, dtype=[("x", "f8"), ("y", "f8"), ("z", "f8"), ("label", "u1")])
+    plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex")]).write(str(tmp_path / "a.ply"))
+    cloud = pio.read(tmp_path / "a.ply")
+    assert cloud.normals is None
+    normals = np.tile([0.0, 0.0, 1.0], (5, 1))
+    pio.write(tmp_path / "b.ply", cloud, normals=normals,
+              fields={"label": np.arange(5.0)})
+    data = plyfile.PlyData.read(str(tmp_path / "b.ply"))["vertex"].data
+    assert data.dtype["nx"] == np.float64 and data.dtype["label"] == np.uint8
+    np.testing.assert_array_equal(data["label"], np.arange(5))
+    with pytest.raises(PointCloudFileError, match="'label' does not fit the uint8"):
+        pio.write(tmp_path / "c.ply", cloud, fields={"label": np.full(5, 300.0)})
+
+
+# ---------------------------------------------------------------------------------------------
+# Text
+
+
+@pytest.mark.parametrize("ext", [".xyz", ".pts", ".txt"])
+@pytest.mark.parametrize("ncols", [3, 6, 7])
+def test_text_round_trip(tmp_path, ext, ncols):
+    rng = np.random.default_rng(ncols)
+    data = rng.normal(size=(N, ncols)) * 1000
+    lines = ["# from a scanner", "# second comment line"]
+    if ext == ".pts":
+        lines.append(str(N))
+    lines += [" ".join(repr(float(v)) for v in row) for row in data]
+    (tmp_path / f"a{ext}").write_text("\n".join(lines) + "\n")
+    cloud = pio.read(tmp_path / f"a{ext}")
+    assert cloud.format == "xyz"
+    np.testing.assert_array_equal(cloud.points, data[:, :3])
+    if ncols == 6:
+        np.testing.assert_array_equal(cloud.normals, data[:, 3:])
+        assert cloud.fields == {}
+    else:
+        assert cloud.normals is None
+        assert list(cloud.fields) == [f"col{i}" for i in range(3, ncols)]
+        for i in range(3, ncols):
+            np.testing.assert_array_equal(cloud.fields[f"col{i}"], data[:, i])
+    pio.write(tmp_path / f"b{ext}", cloud)
+    text = (tmp_path / f"b{ext}").read_text()
+    assert text.startswith("# from a scanner\n# second comment line\n")
+    back = pio.read(tmp_path / f"b{ext}")
+    np.testing.assert_array_equal(back.points, cloud.points)
+    if ncols == 6:
+        np.testing.assert_array_equal(back.normals, cloud.normals)
+    assert list(back.fields) == list(cloud.fields)
+    for name, values in cloud.fields.items():
+        np.testing.assert_array_equal(back.fields[name], values)
+
+
+@needs_plyfile
+def test_text_output_names_its_columns_and_reads_them_back(tmp_path):
+    make_ply(tmp_path / "a.ply")
+    cloud = pio.read(tmp_path / "a.ply")
+    likelihood = np.random.default_rng(1).random(N)
+    for ext in (".xyz", ".pts"):
+        pio.write(tmp_path / f"b{ext}", cloud, fields={"likelihood": likelihood})
+        lines = (tmp_path / f"b{ext}").read_text().splitlines()
+        assert lines[0] == "# x y z nx ny nz red green blue quality likelihood"
+        if ext == ".pts":
+            assert lines.pop(1) == str(N)
+        assert len(lines) == N + 1 and len(lines[1].split()) == 11
+        back = pio.read(tmp_path / f"b{ext}")
+        np.testing.assert_array_equal(back.points, cloud.points)
+        np.testing.assert_array_equal(back.normals, cloud.normals)
+        np.testing.assert_array_equal(back.fields["likelihood"], likelihood)
+        np.testing.assert_array_equal(back.fields["red"], cloud.fields["red"])
+        # float32 values come back equal once cast to their own type
+        np.testing.assert_array_equal(back.fields["quality"].astype(np.float32),
+                                      cloud.fields["quality"])
+
+
+def test_text_comments_are_kept_byte_for_byte_and_extensions_ignore_case(tmp_path):
+    raw = b"# Messstation K\xf6ln (latin-1), \xe2\x82\xac utf-8\n1 2 3\n4 5 6\n"
+    (tmp_path / "A.XYZ").write_bytes(raw)
+    cloud = pio.read(tmp_path / "A.XYZ")
+    pio.write(tmp_path / "B.TXT", cloud)
+    assert (tmp_path / "B.TXT").read_bytes() == raw.replace(b"\n1 2 3", b"\n# x y z\n1 2 3") \
+        .replace(b"1 2 3\n4 5 6", b"1.0 2.0 3.0\n4.0 5.0 6.0")
+
+
+def test_pts_of_unnamed_columns_stays_strict_pts(tmp_path):
+    (tmp_path / "a.pts").write_text("2\n1 2 3 10 20 30 40\n4 5 6 11 21 31 41\n")
+    pio.write(tmp_path / "b.pts", pio.read(tmp_path / "a.pts"))
+    assert (tmp_path / "b.pts").read_text() == "2\n1.0 2.0 3.0 10.0 20.0 30.0 40.0\n" \
+                                               "4.0 5.0 6.0 11.0 21.0 31.0 41.0\n"
+
+
+# ---------------------------------------------------------------------------------------------
+# NPY / NPZ
+
+
+@pytest.mark.parametrize("ncols", [3, 6])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_npy_round_trip_keeps_dtype(tmp_path, ncols, dtype):
+    arr = np.random.default_rng(0).normal(size=(N, ncols)).astype(dtype)
+    np.save(tmp_path / "a.npy", arr)
+    cloud = pio.read(tmp_path / "a.npy")
+    np.testing.assert_array_equal(cloud.points, arr[:, :3])
+    assert (cloud.normals is None) == (ncols == 3)
+    pio.write(tmp_path / "b.npy", cloud)
+    back = np.load(tmp_path / "b.npy")
+    assert back.dtype == dtype
+    np.testing.assert_array_equal(back, arr)
+
+
+def test_npy_output_warns_that_fields_are_dropped(tmp_path):
+    np.save(tmp_path / "a.npy", np.zeros((4, 3)))
+    cloud = pio.read(tmp_path / "a.npy")
+    with pytest.warns(UserWarning, match=r"fields \['likelihood'\] are not written"):
+        pio.write(tmp_path / "b.npy", cloud, fields={"likelihood": np.ones(4)})
+    assert np.load(tmp_path / "b.npy").shape == (4, 3)
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_npz_round_trip_keeps_fields_extras_and_compression(tmp_path, compressed):
+    rng = np.random.default_rng(0)
+    arrays = {"points": rng.normal(size=(N, 3)).astype(np.float32),
+              "normals": rng.normal(size=(N, 3)),
+              "intensity": rng.integers(0, 1000, N).astype(np.int16),
+              "labels": rng.integers(0, 5, N).astype(np.uint8),
+              "transform": np.eye(4)}
+    (np.savez_compressed if compressed else np.savez)(tmp_path / "a.npz", **arrays)
+    cloud = pio.read(tmp_path / "a.npz")
+    assert set(cloud.fields) == {"intensity", "labels"}
+    assert cloud.fields["intensity"].dtype == np.int16
+    np.testing.assert_array_equal(cloud.normals, arrays["normals"])
+    pio.write(tmp_path / "b.npz", cloud, fields={"likelihood": np.arange(N) / N})
+    with np.load(tmp_path / "b.npz") as back:
+        assert set(back.files) == set(arrays) | {"likelihood"}
+        for key, values in arrays.items():
+            assert back[key].dtype == values.dtype
+            np.testing.assert_array_equal(back[key], values)
+        np.testing.assert_array_equal(back["likelihood"], np.arange(N) / N)
+    import zipfile
+    with zipfile.ZipFile(tmp_path / "b.npz") as zf:
+        stored = {i.compress_type == zipfile.ZIP_STORED for i in zf.infolist()}
+    assert stored == {not compressed}
+
+
+# ---------------------------------------------------------------------------------------------
+# LAS / LAZ
+
+
+def las_dims(las):
+    return [d for d in las.point_format.dimension_names if d not in ("X", "Y", "Z")]
+
+
+@needs_laspy
+@pytest.mark.parametrize("point_format", [3, 7])
+@pytest.mark.parametrize("ext", LAS_EXTS)
+def test_las_write_keeps_records_header_and_vlrs(tmp_path, ext, point_format):
+    original = make_las(tmp_path / f"a{ext}", point_format=point_format)
+    cloud = pio.read(tmp_path / f"a{ext}")
+    assert cloud.format == "las" and cloud.normals is None
+    np.testing.assert_array_equal(cloud.points, original.xyz)
+    assert cloud.fields["intensity"].dtype == np.uint16
+    assert cloud.fields["gps_time"].dtype == np.float64
+    np.testing.assert_array_equal(cloud.fields["classification"], original.classification)
+    moved = cloud.points + np.array([0.5, -0.25, 0.125])
+    likelihood = np.linspace(0, 1, N)
+    pio.write(tmp_path / f"b{ext}", cloud, points=moved, fields={"likelihood": likelihood})
+    out = laspy.read(str(tmp_path / f"b{ext}"))
+    assert out.header.point_format.id == point_format
+    assert out.header.version == original.header.version
+    np.testing.assert_array_equal(out.header.scales, [0.001] * 3)
+    np.testing.assert_array_equal(out.header.offsets, [500000.0, 4000000.0, 300.0])
+    assert out.header.are_points_compressed == (ext == ".laz")
+    for name in las_dims(original):
+        np.testing.assert_array_equal(np.asarray(out[name]), np.asarray(original[name]))
+    np.testing.assert_array_equal(out.X, original.X + 500)
+    np.testing.assert_array_equal(out.Y, original.Y - 250)
+    np.testing.assert_array_equal(out.Z, original.Z + 125)
+    assert out["likelihood"].dtype == np.float64
+    np.testing.assert_array_equal(out["likelihood"], likelihood)
+    assert [(v.user_id, v.record_id, v.record_data) for v in out.vlrs
+            if v.user_id == "pssd_test"] == [("pssd_test", 42, b"vlr payload")]
+    assert [(v.record_id, v.record_data) for v in out.evlrs] == [(43, b"evlr payload")]
+    back = pio.read(tmp_path / f"b{ext}")
+    np.testing.assert_array_equal(back.fields["likelihood"], likelihood)
+    # Writing leaves the cloud as it was: a second write does not see the first's additions.
+    pio.write(tmp_path / f"c{ext}", cloud)
+    again = laspy.read(str(tmp_path / f"c{ext}"))
+    assert list(again.point_format.dimension_names) == list(original.point_format.dimension_names)
+    assert [v.record_id for v in again.vlrs] == [v.record_id for v in original.vlrs]
+    np.testing.assert_array_equal(again.X, original.X)
+
+
+@needs_laspy
+@pytest.mark.parametrize("scale", [1e-5, 1e-3])
+def test_las_unmodified_utm_coordinates_round_trip_bit_exactly(tmp_path, scale):
+    # Integers over most of the int32 range: eastings/northings far from the offset.
+    original = make_las(tmp_path / "a.las", n=2000, scale=scale, span=2**31 - 2, seed=3)
+    pio.write(tmp_path / "b.las", pio.read(tmp_path / "a.las"))
+    out = laspy.read(str(tmp_path / "b.las"))
+    for c in "XYZ":
+        np.testing.assert_array_equal(out[c], original[c])
+
+
+@needs_laspy
+def test_las_small_moves_survive_quantisation_when_the_scale_allows(tmp_path):
+    fine = make_las(tmp_path / "fine.las", scale=1e-5)
+    cloud = pio.read(tmp_path / "fine.las")
+    pio.write(tmp_path / "fine_moved.las", cloud, points=cloud.points + np.array([1e-4, 0, -1e-4]))
+    out = laspy.read(str(tmp_path / "fine_moved.las"))
+    np.testing.assert_array_equal(out.X, fine.X + 10)
+    np.testing.assert_array_equal(out.Y, fine.Y)
+    np.testing.assert_array_equal(out.Z, fine.Z - 10)
+    np.testing.assert_allclose(pio.read(tmp_path / "fine_moved.las").points - cloud.points,
+                               np.tile([1e-4, 0, -1e-4], (N, 1)), rtol=0, atol=1e-9)
+
+    mm = make_las(tmp_path / "mm.las", scale=1e-3)
+    cloud = pio.read(tmp_path / "mm.las")
+    pio.write(tmp_path / "mm_moved.las", cloud, points=cloud.points + np.array([1e-4, 6e-4, 0]))
+    out = laspy.read(str(tmp_path / "mm_moved.las"))
+    np.testing.assert_array_equal(out.X, mm.X)  # 0.1 mm rounds away at 1 mm resolution
+    np.testing.assert_array_equal(out.Y, mm.Y + 1)  # 0.6 mm rounds to 1 mm
+
+
+@needs_plyfile
+@needs_laspy
+def test_las_normals_and_fields_from_another_format(tmp_path):
+    make_ply(tmp_path / "a.ply")
+    cloud = pio.read(tmp_path / "a.ply")
+    pio.write(tmp_path / "b.las", cloud, fields={"intensity": np.arange(N)})
+    back = pio.read(tmp_path / "b.las")
+    scales = laspy.read(str(tmp_path / "b.las")).header.scales
+    assert np.all(np.abs(back.points - cloud.points) <= scales / 2 * (1 + 1e-9))
+    np.testing.assert_array_equal(back.normals, cloud.normals)
+    assert back.fields["red"].dtype == np.uint8 and back.fields["quality"].dtype == np.float32
+    np.testing.assert_array_equal(back.fields["quality"], cloud.fields["quality"])
+    assert back.fields["intensity"].dtype == np.uint16
+    np.testing.assert_array_equal(back.fields["intensity"], np.arange(N))
+
+
+# ---------------------------------------------------------------------------------------------
+# Errors
+
+
+def test_unknown_extension_lists_the_supported_ones(tmp_path):
+    (tmp_path / "a.obj").write_text("v 0 0 0\n")
+    with pytest.raises(PointCloudFileError, match=r"a\.obj: unknown extension '\.obj'; "
+                                                   r"supported: \.las, \.laz"):
+        pio.read(tmp_path / "a.obj")
+    cloud = PointCloud(np.zeros((2, 3)))
+    with pytest.raises(PointCloudFileError, match=r"unknown extension '\.e57'"):
+        pio.write(tmp_path / "a.e57", cloud)
+
+
+def test_missing_file_and_directory(tmp_path):
+    with pytest.raises(PointCloudFileNotFoundError, match=r"nope\.ply: no such file") as info:
+        pio.read(tmp_path / "nope.ply")
+    assert isinstance(info.value, FileNotFoundError)
+    (tmp_path / "scan.xyz").mkdir()
+    with pytest.raises(PointCloudFileError, match=r"scan\.xyz: is a directory"):
+        pio.read(tmp_path / "scan.xyz")
+
+
+@pytest.mark.parametrize("text, match", [
+    ("1 2 3\n4 5 6\n7 abc 9\n", "bad number 'abc' on line 3"),
+    ("# c\n1 2 3\n4 5\n", "line 3 has 2 columns; the first data line has 3"),
+    ("1 2\n3 4\n", "line 1 has 2 columns; x y z need 3"),
+    ("1 2 3\n4 nan 6\ninf 1 1\n7 8 9\n", "2 of 4 points have NaN or Inf coordinates"),
+    ("# only a comment\n\n", "holds no points"),
+    ("3\n1.5 2.5 3.5\n4.5 5.5 6.5\n", "first line says 3 points but the file holds 2"),
+    (f"{10**9}\n1 2 3\n", "first line says 1,000,000,000 points, more than"),
+])
+def test_text_errors(tmp_path, text, match):
+    (tmp_path / "a.pts").write_text(text)
+    with pytest.raises(PointCloudFileError, match=match) as info:
+        pio.read(tmp_path / "a.pts")
+    message = str(info.value)
+    assert message.startswith(str(tmp_path / "a.pts")) and "\n" not in message
+
+
+@needs_plyfile
+def test_ascii_ply_bad_value_names_the_line(tmp_path):
+    (tmp_path / "a.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nend_header\n0 0 0\n1 abc 1\n2 2 2\n")
+    with pytest.raises(PointCloudFileError, match=r"line 9 \('vertex' row 1\), property 'y'"):
+        pio.read(tmp_path / "a.ply")
+
+
+@needs_plyfile
+@pytest.mark.parametrize("mode", ["binary_le", "ascii"])
+def test_truncated_ply_vertices(tmp_path, mode):
+    make_ply(tmp_path / "a.ply", mode, n=400)
+    data = (tmp_path / "a.ply").read_bytes()
+    header_end = data.index(b"end_header\n") + len(b"end_header\n")
+    (tmp_path / "cut.ply").write_bytes(data[:header_end + 100])
+    with pytest.raises(PointCloudFileError, match="header claims 400 'vertex' elements"):
+        pio.read(tmp_path / "cut.ply")
+
+
+@needs_plyfile
+def test_truncated_ply_faces(tmp_path):
+    make_ply(tmp_path / "a.ply", "binary_le")
+    data = (tmp_path / "a.ply").read_bytes()
+    (tmp_path / "cut.ply").write_bytes(data[:-7])
+    with pytest.raises(PointCloudFileError, match=f"truncated: element 'face' ends after "
+                                                  f"{N - 3} of {N - 2} rows"):
+        pio.read(tmp_path / "cut.ply")
+
+
+@needs_plyfile
+@pytest.mark.parametrize("fmt", ["binary_little_endian", "ascii"])
+def test_ply_claiming_a_billion_vertices_fails_fast_without_allocating(tmp_path, fmt):
+    (tmp_path / "a.ply").write_bytes(
+        f"ply\nformat {fmt} 1.0\nelement vertex {10**9}\nproperty float x\n"
+        f"property float y\nproperty float z\nend_header\n".encode() + b"0" * 64)
+    tracemalloc.start()
+    try:
+        with pytest.raises(PointCloudFileError, match="header claims 1,000,000,000 'vertex'"):
+            pio.read(tmp_path / "a.ply")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 8 * 2**20
+
+
+@needs_plyfile
+def test_ply_without_vertices_or_coordinates(tmp_path):
+    (tmp_path / "a.ply").write_text("ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\n"
+                                    "property float y\nproperty float z\nend_header\n")
+    with pytest.raises(PointCloudFileError, match="holds no points"):
+        pio.read(tmp_path / "a.ply")
+    (tmp_path / "b.ply").write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
+                                    "property float y\nend_header\n1 2\n")
+    with pytest.raises(PointCloudFileError, match="vertex element has no z property"):
+        pio.read(tmp_path / "b.ply")
+
+
+@needs_laspy
+@pytest.mark.parametrize("ext", LAS_EXTS)
+def test_truncated_las(tmp_path, ext):
+    make_las(tmp_path / f"a{ext}", n=500)
+    data = (tmp_path / f"a{ext}").read_bytes()
+    (tmp_path / f"cut{ext}").write_bytes(data[:len(data) // 2])
+    match = "header claims 500 points" if ext == ".las" else "truncated or corrupt"
+    with pytest.raises(PointCloudFileError, match=match):
+        pio.read(tmp_path / f"cut{ext}")
+
+
+@needs_laspy
+@pytest.mark.parametrize("ext", LAS_EXTS)
+def test_las_claiming_a_billion_points_fails_with_bounded_memory(tmp_path, ext):
+    make_las(tmp_path / f"a{ext}")
+    data = bytearray((tmp_path / f"a{ext}").read_bytes())
+    data[247:255] = struct.pack("<Q", 10**9)  # LAS 1.4 64-bit point count
+    (tmp_path / f"big{ext}").write_bytes(bytes(data))
+    tracemalloc.start()
+    try:
+        with pytest.raises(PointCloudFileError, match=r"1,000,000,000 points|truncated or corrupt"):
+            pio.read(tmp_path / f"big{ext}")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    # One read piece at most (2**20 records of 34 bytes), not 34 GB.
+    assert peak < (8 if ext == ".las" else 64) * 2**20
+
+
+def test_npy_errors(tmp_path):
+    np.save(tmp_path / "a.npy", np.ones((100, 3)))
+    data = (tmp_path / "a.npy").read_bytes()
+    (tmp_path / "cut.npy").write_bytes(data[:-10])
+    with pytest.raises(PointCloudFileError, match=r"claims shape \(100, 3\) \(2,400 bytes\)"):
+        pio.read(tmp_path / "cut.npy")
+    with open(tmp_path / "big.npy", "wb") as fh:
+        np.lib.format.write_array_header_1_0(
+            fh, {"descr": "<f8", "fortran_order": False, "shape": (10**9, 3)})
+        fh.write(b"\0" * 48)
+    tracemalloc.start()
+    try:
+        with pytest.raises(PointCloudFileError, match=r"claims shape \(1000000000, 3\)"):
+            pio.read(tmp_path / "big.npy")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 8 * 2**20
+    np.save(tmp_path / "bad.npy", np.ones((5, 4)))
+    with pytest.raises(PointCloudFileError, match=r"expected an \(n, 3\) or \(n, 6\)"):
+        pio.read(tmp_path / "bad.npy")
+    np.save(tmp_path / "empty.npy", np.ones((0, 3)))
+    with pytest.raises(PointCloudFileError, match="holds no points"):
+        pio.read(tmp_path / "empty.npy")
+    (tmp_path / "text.npy").write_text("1 2 3\n")
+    with pytest.raises(PointCloudFileError, match=r"not a valid \.npy array"):
+        pio.read(tmp_path / "text.npy")
+
+
+def test_npz_errors(tmp_path):
+    np.savez(tmp_path / "a.npz", points=np.ones((100, 3)))
+    data = (tmp_path / "a.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[:len(data) // 2])
+    with pytest.raises(PointCloudFileError, match=r"not a readable \.npz"):
+        pio.read(tmp_path / "cut.npz")
+    np.savez(tmp_path / "b.npz", xyz=np.ones((4, 3)))
+    with pytest.raises(PointCloudFileError, match="needs a numeric \\(n, 3\\) 'points' array"):
+        pio.read(tmp_path / "b.npz")
+
+
+def test_missing_optional_libraries_say_how_to_install(tmp_path, monkeypatch):
+    (tmp_path / "a.ply").write_text("ply\nformat ascii 1.0\nelement vertex 1\n"
+                                    "property float x\nproperty float y\nproperty float z\n"
+                                    "end_header\n1 2 3\n")
+    (tmp_path / "a.las").write_bytes(b"LASF")  # refused before it is opened
+    cloud = PointCloud(np.arange(3.0 * N).reshape(N, 3), fields={"f": np.ones(N)})
+    monkeypatch.setitem(sys.modules, "plyfile", None)
+    monkeypatch.setitem(sys.modules, "laspy", None)
+    install = r"pip install 'pssd_fast\[io\]'"
+    with pytest.raises(ImportError, match=f"needs plyfile: {install}"):
+        pio.read(tmp_path / "a.ply")
+    with pytest.raises(ImportError, match=f"needs plyfile: {install}"):
+        pio.write(tmp_path / "b.ply", cloud)
+    with pytest.raises(ImportError, match=rf"needs laspy\[lazrs\]: {install}"):
+        pio.read(tmp_path / "a.las")
+    # NPY, NPZ and text need numpy only.
+    plain = dataclasses.replace(cloud, fields={})
+    for ext in (".npy", ".npz", ".xyz"):
+        pio.write(tmp_path / f"b{ext}", plain)
+        assert len(pio.read(tmp_path / f"b{ext}")) == N
+    assert not (tmp_path / "b.ply").exists()
+
+
+@needs_laspy
+def test_laz_without_lazrs_says_how_to_install(tmp_path, monkeypatch):
+    from laspy._compression import lazrsbackend
+
+    monkeypatch.setattr(lazrsbackend, "lazrs", None)
+    with pytest.raises(ImportError, match=r"laspy\[lazrs\].*pip install 'pssd_fast\[io\]'"):
+        pio.write(tmp_path / "a.laz", PointCloud(np.zeros((2, 3))))
+
+
+# ---------------------------------------------------------------------------------------------
+# Atomic writing and overwriting
+
+
+def leftovers(folder):
+    return sorted(p.name for p in folder.iterdir() if p.name.endswith(".tmp"))
+
+
+def write_some_then_fail(fh, *args, **kwargs):
+    fh.write(b"partial output")
+    raise RuntimeError("disk full")
+
+
+def method_writing_some_then_failing(self, fh, *args, **kwargs):
+    write_some_then_fail(fh)
+
+
+@pytest.mark.parametrize("ext, target, replacement", [
+    pytest.param(".ply", "plyfile.PlyData.write", method_writing_some_then_failing,
+                 marks=needs_plyfile),
+    pytest.param(".las", "laspy.LasData.write", method_writing_some_then_failing,
+                 marks=needs_laspy),
+    (".npz", "numpy.savez", write_some_then_fail),
+    (".npy", "numpy.save", write_some_then_fail),
+])
+def test_failed_write_leaves_no_output_and_no_temporary_file(tmp_path, monkeypatch, ext, target,
+                                                             replacement):
+    cloud = PointCloud(np.arange(3.0 * N).reshape(N, 3), normals=np.ones((N, 3)))
+    monkeypatch.setattr(target, replacement)
+    with pytest.raises(RuntimeError, match="disk full"):
+        pio.write(tmp_path / f"b{ext}", cloud)
+    assert not (tmp_path / f"b{ext}").exists()
+    assert leftovers(tmp_path) == []
+
+
+def test_failed_overwrite_keeps_the_old_file(tmp_path, monkeypatch):
+    (tmp_path / "a.xyz").write_text("1 2 3\n")
+    old = (tmp_path / "a.xyz").read_bytes()
+    cloud = PointCloud(np.zeros((2, 3)))
+    monkeypatch.setattr(pio, "_text_column", lambda values: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        pio.write(tmp_path / "a.xyz", cloud, overwrite=True)
+    assert (tmp_path / "a.xyz").read_bytes() == old
+    assert leftovers(tmp_path) == []
+
+
+def test_existing_output_needs_overwrite(tmp_path):
+    cloud = PointCloud(np.arange(6.0).reshape(2, 3))
+    pio.write(tmp_path / "a.xyz", cloud)
+    with pytest.raises(FileExistsError, match=r"a\.xyz: already exists; pass overwrite=True "
+                                              r"\(--force"):
+        pio.write(tmp_path / "a.xyz", cloud)
+    pio.write(tmp_path / "a.xyz", cloud, points=cloud.points + 1, overwrite=True)
+    np.testing.assert_array_equal(pio.read(tmp_path / "a.xyz").points, cloud.points + 1)
+
+
+def test_existing_output_is_refused_before_anything_is_written(tmp_path, monkeypatch):
+    (tmp_path / "a.npy").write_bytes(b"old")
+    monkeypatch.setattr(np, "save", write_some_then_fail)
+    with pytest.raises(FileExistsError, match="already exists"):
+        pio.write(tmp_path / "a.npy", PointCloud(np.zeros((2, 3))))
+    assert (tmp_path / "a.npy").read_bytes() == b"old"
+    assert leftovers(tmp_path) == []
+
+
+@needs_plyfile
+def test_input_is_never_modified_and_not_overwritten_by_default(tmp_path, monkeypatch):
+    make_ply(tmp_path / "a.ply")
+    before = (tmp_path / "a.ply").read_bytes()
+    monkeypatch.chdir(tmp_path)
+    cloud = pio.read("a.ply")
+    pio.write(tmp_path / "b.ply", cloud, points=cloud.points * 2, fields={"f": np.ones(N)})
+    assert (tmp_path / "a.ply").read_bytes() == before
+    with pytest.raises(FileExistsError, match=r"is the file this cloud was read from.*--force"):
+        pio.write(tmp_path / "a.ply", cloud, points=cloud.points * 2)
+    assert (tmp_path / "a.ply").read_bytes() == before
+    pio.write("a.ply", cloud, points=cloud.points * 2, overwrite=True)
+    np.testing.assert_array_equal(pio.read("a.ply").points, (cloud.points * 2).astype(np.float32))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"points": np.zeros((3, 3))}, r"points must be a real array of shape \(4, 3\)"),
+    ({"points": np.full((4, 3), np.nan)}, "4 of 4 points have NaN or Inf"),
+    ({"normals": np.zeros((4, 2))}, r"normals must be a real array of shape \(4, 3\)"),
+    ({"fields": {"likelihood": np.ones(5)}}, r"'likelihood' must be a numeric array of shape"),
+    ({"fields": {"nx": np.ones(4)}}, r"\['nx'\] are reserved"),
+    ({"fields": {"my field": np.ones(4)}}, "cannot hold names with spaces"),
+])
+def test_write_argument_errors(tmp_path, kwargs, match):
+    with pytest.raises(PointCloudFileError, match=match):
+        pio.write(tmp_path / "a.ply", PointCloud(np.zeros((4, 3))), **kwargs)
+    assert list(tmp_path.iterdir()) == []
