@@ -160,7 +160,7 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
             clock = _Clock(report, iteration, iterations)
             graph = clock.run("neighbors", knn_graph, current, k)
             if given is not None:
-                nrm, degenerate = clock.run("normals", lambda: (given, np.zeros(n, np.bool_)))
+                nrm, degenerate = clock.run("normals", _given_normals, given)
             else:
                 hints = stages.outward_hints(current) if out_normals is None else out_normals
                 nrm, degenerate = clock.run("normals", stages._pca, current, graph, hints)
@@ -238,7 +238,7 @@ class _Clock:
 
 
 def _progress_reporter(progress):
-    """``None``/``False``: silent; ``True``: a line per stage on stderr; or the caller's function."""
+    """``None``/``False``: silent; ``True``: a line per stage on stderr; else the callable."""
     if progress is None or progress is False:
         return None
     if progress is True:
@@ -250,6 +250,11 @@ def _progress_reporter(progress):
     if not callable(progress):
         raise TypeError(f"progress must be True, False, None or a callable; got {progress!r}")
     return progress
+
+
+def _given_normals(normals):
+    """The caller's normals, with no degenerate neighbourhood to report."""
+    return normals, np.zeros(normals.shape[0], np.bool_)
 
 
 def _fit_record(times, h, degree):
