@@ -150,7 +150,10 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
 
     started = time.perf_counter()
     order = morton_order(pts)
-    current = pts[order]
+    # Work relative to the bounding-box centre: georeferenced coordinates (1e6 m offsets) would
+    # otherwise cost the kNN distances most of their digits.
+    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    current = pts[order] - centre
     given = None if given is None else given[order]
     step = _STEPS[method]
     records = []
@@ -174,7 +177,8 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
 
     inverse = np.empty_like(order)
     inverse[order] = np.arange(n)
-    out = current[inverse]
+    shift = current[inverse]
+    out = shift + centre
     stats = {
         "method": method,
         "n_points": n,
@@ -192,7 +196,7 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=25, lam=0.
         normals=out_normals[inverse].astype(dtype, copy=False),
         likelihood=lik,
         feature_intensity=feat,
-        displacement=np.linalg.norm(out - pts, axis=1).astype(dtype, copy=False),
+        displacement=np.linalg.norm(shift - (pts - centre), axis=1).astype(dtype, copy=False),
         stats=stats,
     )
 

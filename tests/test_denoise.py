@@ -209,3 +209,41 @@ def test_progress_reports_every_stage(noisy, capsys):
     assert capsys.readouterr().err == ""
     with pytest.raises(TypeError, match="progress must be"):
         pssd_fast.denoise(noisy, progress="yes")
+
+
+def test_georeferenced_offsets_change_nothing(noisy):
+    """A UTM-like translation gives the same result relative to the translation."""
+    offset = np.array([5e5, 4e6, 300.0])
+    moved = noisy + offset
+    for method in pssd_fast.METHODS:
+        here = pssd_fast.denoise(moved - offset, method=method)
+        there = pssd_fast.denoise(moved, method=method)
+        diagonal = np.linalg.norm(np.ptp(noisy, axis=0))
+        assert np.abs((there.points - offset) - here.points).max() < 1e-9 * diagonal
+        np.testing.assert_allclose(there.displacement, here.displacement, atol=1e-9 * diagonal)
+
+
+def test_scaling_the_cloud_scales_the_result(noisy):
+    base = pssd_fast.denoise(noisy)
+    for scale in (1e-3, 1e3):
+        scaled = pssd_fast.denoise(noisy * scale)
+        np.testing.assert_allclose(scaled.points / scale, base.points, atol=1e-9)
+        np.testing.assert_allclose(scaled.feature_intensity, base.feature_intensity, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["identical", "planar", "collinear", "outlier"])
+def test_degenerate_geometry_gives_finite_output(name):
+    rng = np.random.default_rng(15)
+    if name == "identical":
+        points = np.tile([1.0, 2.0, 3.0], (60, 1))
+    elif name == "planar":
+        points = np.column_stack([rng.uniform(size=(200, 2)), np.zeros(200)])
+    elif name == "collinear":
+        points = np.outer(np.linspace(0, 1, 100), [1.0, 2.0, 3.0])
+    else:
+        points = np.vstack([wavy(300), [[0.5, 0.5, 10.0]]])
+    for method in pssd_fast.METHODS:
+        result = pssd_fast.denoise(points, method=method, k=15)
+        assert np.isfinite(result.points).all() and np.isfinite(result.normals).all()
+        if name in ("identical", "planar"):
+            np.testing.assert_allclose(result.points, points, atol=1e-12)
