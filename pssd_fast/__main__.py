@@ -20,8 +20,10 @@ def main(argv=None):
     parser.add_argument("--noise", type=float, default=0.0025,
                         help="Gaussian noise sigma as a fraction of the diagonal (0.0025)")
     parser.add_argument("--iterations", type=int, default=2, help="iterations (2)")
-    parser.add_argument("--k", type=int, default=25, help="neighbours per point (25)")
-    parser.add_argument("--lam", type=float, default=0.5, help="likelihood weight lambda (0.5)")
+    parser.add_argument("--preset", choices=("default", "paper"), default="default",
+                        help="k and lambda: default (35, 1.0) or the paper's (25, 0.5)")
+    parser.add_argument("--k", type=int, default=None, help="neighbours per point (preset)")
+    parser.add_argument("--lam", type=float, default=None, help="weight lambda (preset)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (0)")
     parser.add_argument("--n-jobs", type=int, default=None, help="threads (all cores)")
     args = parser.parse_args(argv)
@@ -30,7 +32,7 @@ def main(argv=None):
     compile_seconds = warmup()
     started = time.perf_counter()
     result = denoise(cloud.points, iterations=args.iterations, k=args.k, lam=args.lam,
-                     n_jobs=args.n_jobs)
+                     preset=args.preset, n_jobs=args.n_jobs)
     seconds = time.perf_counter() - started
 
     edge = cloud.edge_distance < 0.01 * cloud.diagonal
@@ -39,7 +41,8 @@ def main(argv=None):
     moved = result.displacement / (UNIT * cloud.diagonal)
     print(f"pssd_fast {__version__}: robust denoising of the built-in CAD part")
     print(f"{len(cloud.points):,} points, noise sigma {args.noise:.2%} of the diagonal, "
-          f"{args.iterations} iterations, k={args.k}, lambda={args.lam}, "
+          f"{args.iterations} iterations, k={result.stats['k']}, "
+          f"lambda={result.stats['lam']} ({args.preset} settings), "
           f"{result.stats['n_jobs']} threads")
     print(f"kernels ready in {compile_seconds:.1f} s (compiled or loaded from cache); "
           f"denoised in {seconds:.2f} s")

@@ -131,9 +131,12 @@ def _parser():
 
 def _add_common(parser):
     parser.add_argument("--iterations", type=int, default=2, help="iterations (2)")
-    parser.add_argument("--k", type=int, default=25, help="neighbours per point (25)")
-    parser.add_argument("--lam", type=float, default=0.5,
-                        help="lambda, weight of the likelihood term (0.5)")
+    parser.add_argument("--preset", choices=("default", "paper"), default="default",
+                        help="where --k and --lam come from: default (k=35, lam=1) or paper "
+                             "(k=25, lam=0.5)")
+    parser.add_argument("--k", type=int, default=None, help="neighbours per point (preset)")
+    parser.add_argument("--lam", type=float, default=None,
+                        help="lambda, weight of the likelihood term (preset)")
     parser.add_argument("--n-jobs", type=int, default=None,
                         help="threads (default: all cores); the result does not depend on it")
 
@@ -173,8 +176,8 @@ def _run_denoise(points, normals, args, method_params):
     started = time.perf_counter()
     try:
         result = denoise(points, normals, method=args.method, iterations=args.iterations,
-                         k=args.k, lam=args.lam, n_jobs=args.n_jobs, progress=progress,
-                         **method_params)
+                         k=args.k, lam=args.lam, preset=args.preset, n_jobs=args.n_jobs,
+                         progress=progress, **method_params)
     finally:
         progress.close()
     seconds = time.perf_counter() - started
@@ -250,8 +253,9 @@ def _demo(args):
     pictures = []
     if render is not None:
         try:
-            curvature_noisy = stages.mls_fit(cloud.points, k=args.k).curvature
-            curvature_out = stages.mls_fit(result.points, result.normals, k=args.k).curvature
+            k = result.stats["k"]
+            curvature_noisy = stages.mls_fit(cloud.points, k=k).curvature
+            curvature_out = stages.mls_fit(result.points, result.normals, k=k).curvature
             pictures = render.figure_set(
                 args.out, cloud.points, result.points, curvature=curvature_noisy,
                 likelihood=result.likelihood, feature=result.feature_intensity,
@@ -270,7 +274,7 @@ def _demo(args):
     print("| Method | Iters. | Max. error (1e-4) | Ave. error (1e-4) | Exec time | "
           "mean dist. noisy -> denoised | near edges |")
     print("|---|---|---|---|---|---|---|")
-    print(f"| Robust | {args.iterations} | {disp.max():.1f} | {disp.mean():.1f} | "
+    print(f"| Robust ({args.preset}) | {args.iterations} | {disp.max():.1f} | {disp.mean():.1f} | "
           f"{seconds:.2f}s | {before.mean():.1f} -> {after.mean():.1f} | "
           f"{before[edge].mean():.1f} -> {after[edge].mean():.1f} |")
     for path in written + pictures:

@@ -15,7 +15,7 @@ def noisy():
 
 
 def test_one_iteration_matches_the_reference(noisy):
-    result = pssd_fast.denoise(noisy, iterations=1, k=20)
+    result = pssd_fast.denoise(noisy, iterations=1, k=20, lam=0.5)
     ref_points, ref_normals, ref_lik, ref_feat = reference.robust_iteration(noisy, None, 20)
     np.testing.assert_allclose(result.points, ref_points, atol=1e-9)
     np.testing.assert_allclose(result.normals, ref_normals, atol=1e-8)
@@ -247,3 +247,15 @@ def test_degenerate_geometry_gives_finite_output(name):
         assert np.isfinite(result.points).all() and np.isfinite(result.normals).all()
         if name in ("identical", "planar"):
             np.testing.assert_allclose(result.points, points, atol=1e-12)
+
+
+def test_presets(noisy):
+    paper = pssd_fast.denoise(noisy, preset="paper")
+    assert (paper.stats["k"], paper.stats["lam"]) == (25, 0.5)
+    explicit = pssd_fast.denoise(noisy, k=25, lam=0.5)
+    np.testing.assert_array_equal(paper.points, explicit.points)
+    default = pssd_fast.denoise(noisy)
+    assert (default.stats["k"], default.stats["lam"]) == (35, 1.0)
+    assert pssd_fast.denoise(noisy, preset="paper", k=30).stats["k"] == 30
+    with pytest.raises(ValueError, match="unknown preset 'fast'"):
+        pssd_fast.denoise(noisy, preset="fast")

@@ -42,7 +42,7 @@ def test_table1_writes_markdown_and_json(tmp_path):
     rows = table1.main(["--models", "fandisk", "--noise", "0.005", "--iterations", "1",
                         "--scale", "0.02", "--no-peers", "--out", str(tmp_path), "--quiet"])
     methods = {r["method"] for r in rows if not r["variant"]}
-    assert methods == {"noisy input", "BIL", "MLS", "Robust"}
+    assert methods == {"noisy input", "BIL", "MLS", "Robust (paper)", "Robust"}
     assert len([r for r in rows if r["variant"]]) == len(table1.ABLATIONS)
     noisy = next(r for r in rows if r["method"] == "noisy input")
     robust = next(r for r in rows if r["method"] == "Robust" and not r["variant"])
