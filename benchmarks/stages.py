@@ -94,14 +94,14 @@ def main(argv=None):
             + table(rows, args.k))
     print(text)
     RESULTS.mkdir(exist_ok=True)
-    _write(RESULTS / "stages.md", text)
-    _write(RESULTS / "stages.json", json.dumps(
+    write_atomic(RESULTS / "stages.md", text)
+    write_atomic(RESULTS / "stages.json", json.dumps(
         {"machine": machine(), "k": args.k, "noise": args.noise,
          "compile_seconds": compile_seconds, "seconds": {str(n): t for n, t in rows.items()}},
         indent=2))
 
 
-def _write(path, text):
+def write_atomic(path, text):
     """Write through a temporary file and rename, so a crash leaves no half-written result."""
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(text)

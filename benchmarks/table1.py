@@ -23,7 +23,7 @@ import pssd_fast
 from pssd_fast import meshes
 
 from . import metrics, models
-from .stages import machine
+from .stages import machine, write_atomic
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: Rows of our methods: label -> (method, preset). The paper's comparison uses its settings
@@ -169,18 +169,11 @@ def main(argv=None):
                           args.scale, log)
     text = markdown(rows, compile_seconds)
     args.out.mkdir(parents=True, exist_ok=True)
-    _write(args.out / "table1.md", text)
-    _write(args.out / "table1.json", json.dumps(
+    write_atomic(args.out / "table1.md", text)
+    write_atomic(args.out / "table1.json", json.dumps(
         {"machine": machine(), "compile_seconds": compile_seconds, "rows": rows}, indent=1))
     log(text)
     return rows
-
-
-def _write(path, text):
-    """Write through a temporary file and rename: never a half-written result."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ import numpy as np
 from numba import prange
 
 from .config import CHUNK, helper, parallel_kernel
-from .linalg import sym3_eigh
+from .linalg import set_sym3, sym3_eigh
 
 # Below this squared length the tangential part of a neighbour's normal is taken as zero: the
 # normal points along the connecting line and the vote cannot rotate it.
@@ -93,15 +93,7 @@ def _vote(points, normals, i, queue, dist2, count, tensor, w, v, delta, alpha, b
         bx += u * nx
         by += u * ny
         bz += u * nz
-    tensor[0, 0] = t00
-    tensor[0, 1] = t01
-    tensor[0, 2] = t02
-    tensor[1, 0] = t01
-    tensor[1, 1] = t11
-    tensor[1, 2] = t12
-    tensor[2, 0] = t02
-    tensor[2, 1] = t12
-    tensor[2, 2] = t22
+    set_sym3(tensor, t00, t01, t02, t11, t12, t22)
     sym3_eigh(tensor, w, v)
     v1 = w[2]
     v2 = max(w[1], 0.0)

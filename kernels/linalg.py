@@ -11,6 +11,20 @@ DEGENERATE_RATIO = 1e-12
 
 
 @helper
+def set_sym3(a, a00, a01, a02, a11, a12, a22):
+    """Fill the 3x3 array ``a`` with the symmetric matrix of the six given entries."""
+    a[0, 0] = a00
+    a[0, 1] = a01
+    a[0, 2] = a02
+    a[1, 0] = a01
+    a[1, 1] = a11
+    a[1, 2] = a12
+    a[2, 0] = a02
+    a[2, 1] = a12
+    a[2, 2] = a22
+
+
+@helper
 def sym3_eigh(a, w, v):
     """Eigen-decompose a symmetric 3x3 matrix by cyclic Jacobi rotations.
 

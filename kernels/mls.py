@@ -7,7 +7,7 @@ from numba import prange
 from .config import CHUNK, helper, parallel_kernel
 from .graph import max_degree
 from .linalg import (
-    DEGENERATE_RATIO, cholesky_prefix, cholesky_solve, orthonormal_basis, sym3_eigh,
+    DEGENERATE_RATIO, cholesky_prefix, cholesky_solve, orthonormal_basis, set_sym3, sym3_eigh,
 )
 
 # A Cholesky pivot fails when less than this fraction of its column's weighted energy is left
@@ -80,15 +80,7 @@ def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov
         c11 += th * dy * dy
         c12 += th * dy * dz
         c22 += th * dz * dz
-    cov[0, 0] = c00
-    cov[0, 1] = c01
-    cov[0, 2] = c02
-    cov[1, 0] = c01
-    cov[1, 1] = c11
-    cov[1, 2] = c12
-    cov[2, 0] = c02
-    cov[2, 1] = c12
-    cov[2, 2] = c22
+    set_sym3(cov, c00, c01, c02, c11, c12, c22)
     sym3_eigh(cov, w, v)
     if w[1] > DEGENERATE_RATIO * w[2]:
         nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]

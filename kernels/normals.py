@@ -3,7 +3,7 @@ import numpy as np
 from numba import prange
 
 from .config import CHUNK, helper, parallel_kernel
-from .linalg import DEGENERATE_RATIO, sym3_eigh
+from .linalg import DEGENERATE_RATIO, set_sym3, sym3_eigh
 
 
 @helper
@@ -37,15 +37,7 @@ def neighbourhood_covariance(points, indptr, indices, i, cov):
         c11 += dy * dy
         c12 += dy * dz
         c22 += dz * dz
-    cov[0, 0] = c00
-    cov[0, 1] = c01
-    cov[0, 2] = c02
-    cov[1, 0] = c01
-    cov[1, 1] = c11
-    cov[1, 2] = c12
-    cov[2, 0] = c02
-    cov[2, 1] = c12
-    cov[2, 2] = c22
+    set_sym3(cov, c00, c01, c02, c11, c12, c22)
 
 
 @parallel_kernel
