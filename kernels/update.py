@@ -7,7 +7,7 @@ from .config import CHUNK, parallel_kernel
 
 
 @parallel_kernel
-def move_points(points, proj, filtered, likelihood, feature, lam, out):
+def move_points(points, proj, filtered, likelihood, feature, lam, out, held):
     """Move each point along its filtered normal: ``p*_i = p_i + m_i |q_i - p_i| n*_i``.
 
     Parameters
@@ -20,6 +20,9 @@ def move_points(points, proj, filtered, likelihood, feature, lam, out):
         ``lambda`` in [0, 1], the weight of the likelihood term.
     out : (n, 3) float64
         Output positions (may not alias ``points``).
+    held : (n,) bool
+        Output: True where the step is not finite (a stage upstream failed for the point);
+        such a point is left where it was.
 
     Notes
     -----
@@ -38,6 +41,12 @@ def move_points(points, proj, filtered, likelihood, feature, lam, out):
             if not side > 0.0:
                 m = -m
             step = m * math.sqrt(dx * dx + dy * dy + dz * dz)
-            out[i, 0] = points[i, 0] + step * filtered[i, 0]
-            out[i, 1] = points[i, 1] + step * filtered[i, 1]
-            out[i, 2] = points[i, 2] + step * filtered[i, 2]
+            sx = step * filtered[i, 0]
+            sy = step * filtered[i, 1]
+            sz = step * filtered[i, 2]
+            held[i] = not (abs(sx) + abs(sy) + abs(sz) < math.inf)
+            if held[i]:
+                sx = sy = sz = 0.0
+            out[i, 0] = points[i, 0] + sx
+            out[i, 1] = points[i, 1] + sy
+            out[i, 2] = points[i, 2] + sz

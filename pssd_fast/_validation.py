@@ -33,6 +33,8 @@ def as_points(points, name="points"):
         if arr.ndim == 2 and arr.shape[0] == 3:
             hint = "; if this is a (3, n) array of coordinates, pass its transpose .T"
         raise ValueError(f"{name} must have shape (n, 3); got shape {arr.shape}{hint}")
+    if arr.shape[0] == 0:
+        raise ValueError(f"{name} is empty (shape {arr.shape}); pass at least k + 1 points")
     out_dtype = np.dtype(np.float32) if arr.dtype == np.float32 else np.dtype(np.float64)
     arr = np.ascontiguousarray(arr, dtype=np.float64)
     bad = ~np.isfinite(arr).all(axis=1)

@@ -191,8 +191,9 @@ def _run_denoise(points, normals, args, method_params):
 def _check_output(path, force):
     if path.exists() and not force:
         raise CommandError(f"{path} exists; pass --force to overwrite it")
-    if path.parent and not path.parent.exists():
-        raise CommandError(f"output folder {path.parent} does not exist")
+    if not path.parent.is_dir():
+        state = "is not a folder" if path.parent.exists() else "does not exist"
+        raise CommandError(f"output folder {path.parent} {state}")
 
 
 def _denoise(args):

@@ -50,8 +50,9 @@ class DenoiseResult:
         ``"iterations"``: one dict per iteration with per-stage wall times in seconds
         (``"times"``), the derived scales (``h``, ``mean_spacing``, ``region_radius``,
         ``mean_residual``), fallback counts (``fit_degree`` counts of cubic, quadratic and
-        plane fits; ``degenerate_normals``), region sizes and the mean step; plus the run's
-        settings and ``"total_seconds"``. JSON-serialisable.
+        plane fits; ``degenerate_normals``; ``held_points``, points left in place because their
+        step was not finite), region sizes and the mean step; plus the run's settings and
+        ``"total_seconds"``. JSON-serialisable.
     """
 
     points: np.ndarray
@@ -291,9 +292,10 @@ def _robust_step(points, nrm, graph, lam, params, clock):
     feat, region = clock.run("feature", stages._feature, points, nrm, graph, radius,
                              params["delta"], params["alpha"], params["beta"])
     filtered = clock.run("filter", stages._filter, points, nrm, graph)
-    moved = clock.run("update", stages._move, points, proj, filtered, lik, feat, lam)
+    moved, held = clock.run("update", stages._move, points, proj, filtered, lik, feat, lam)
     record = _fit_record(clock.times, h, degree)
     record.update({
+        "held_points": int(held.sum()),
         "mean_spacing": spacing,
         "region_radius": radius,
         "mean_residual": dbar,

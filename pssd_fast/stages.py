@@ -115,8 +115,9 @@ def _bilateral(points, nrm, graph, sigma_c, sigma_s):
 
 def _move(points, proj, filtered, lik, feat, lam):
     out = np.empty_like(points)
-    update.move_points(points, proj, filtered, lik, feat, lam, out)
-    return out
+    held = np.empty(points.shape[0], np.bool_)
+    update.move_points(points, proj, filtered, lik, feat, lam, out, held)
+    return out, held
 
 
 # --- public stage functions -------------------------------------------------------------------

@@ -151,13 +151,46 @@ def test_demo_writes_files_and_pictures(tmp_path):
     (["denoise", "in.xyz", "out.ply", "--k", "5"], "k must be at least 10"),
     (["denoise", "in.xyz", "nowhere/out.ply"], "does not exist"),
     (["info", "truncated.ply"], "truncated.ply"),
+    (["info", "malformed.xyz"], "malformed.xyz"),
+    (["info", "truncated.las"], "truncated.las"),
+    (["denoise", "in.xyz", "in.xyz/out.ply"], "is not a folder"),
     (["info", "."], "."),
 ])
 def test_errors_are_one_line(tmp_path, cloud, args, match):
     np.savetxt(tmp_path / "in.xyz", cloud.points)
+    (tmp_path / "malformed.xyz").write_text("0 0 0\n1 1 one\n")
+    las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
+    las.x, las.y, las.z = cloud.points.T
+    las.write(str(tmp_path / "whole.las"))
+    whole = (tmp_path / "whole.las").read_bytes()
+    (tmp_path / "truncated.las").write_bytes(whole[: len(whole) // 2])
     (tmp_path / "truncated.ply").write_bytes(
         b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\n"
         b"property float x\nproperty float y\nproperty float z\nend_header\n" + b"\0" * 100)
     status, _, err = pssd(*args, cwd=tmp_path)
     assert_one_line_error(status, err, match)
     assert not (tmp_path / "out.ply").exists()
+
+
+def test_a_failing_write_leaves_nothing(tmp_path, cloud, monkeypatch, capsys):
+    """A full disk during the write: one error line, status 1, no output, no temporary file."""
+    import errno
+    import os
+
+    source = tmp_path / "in.xyz"
+    np.savetxt(source, cloud.points)
+    before = source.read_bytes()
+    real_replace = os.replace
+
+    def full_disk(src, dst):
+        if str(dst).endswith("out.ply"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", full_disk)
+    status = cli.main(["denoise", str(source), str(tmp_path / "out.ply"), "--iterations", "1",
+                       "--quiet"])
+    err = capsys.readouterr().err
+    assert_one_line_error(status, err, "No space left on device")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.xyz"]
+    assert source.read_bytes() == before

@@ -3,7 +3,9 @@ import numpy as np
 import pytest
 
 import pssd_fast
+from pssd_fast import stages
 from pssd_fast.denoise import METHOD_DEFAULTS
+from pssd_fast.kernels import feature
 
 from . import reference
 from .conftest import sphere, wavy
@@ -143,6 +145,9 @@ def test_bad_parameters_are_named(noisy, kwargs, error, match):
     (np.zeros((50, 2)), ValueError, r"shape \(n, 3\)"),
     (np.zeros((3, 50)), ValueError, "transpose"),
     (np.zeros(30), ValueError, r"shape \(n, 3\)"),
+    (np.zeros((30, 3, 2)), ValueError, r"shape \(n, 3\)"),
+    (np.zeros((0, 3)), ValueError, "points is empty"),
+    (np.empty((30, 3), object), TypeError, "object"),
     (np.zeros((50, 3), complex), TypeError, "complex"),
     (np.array([["a", "b", "c"]] * 30), TypeError, "real numbers"),
     (np.where(np.arange(150).reshape(50, 3) == 70, np.nan, 1.0), ValueError,
@@ -259,3 +264,47 @@ def test_presets(noisy):
     assert pssd_fast.denoise(noisy, preset="paper", k=30).stats["k"] == 30
     with pytest.raises(ValueError, match="unknown preset 'fast'"):
         pssd_fast.denoise(noisy, preset="fast")
+
+
+def test_n_jobs_is_restored_when_the_call_raises(noisy):
+    import numba
+
+    def fail(*_):
+        raise RuntimeError("stop")
+
+    numba.set_num_threads(1)
+    try:
+        with pytest.raises(RuntimeError, match="stop"):
+            pssd_fast.denoise(noisy, n_jobs=2, progress=fail)
+        assert numba.get_num_threads() == 1
+    finally:
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+
+
+def test_two_close_sheets_are_not_bridged():
+    """Two parallel sheets 4 spacings apart, nearer than R = 10 |E|: the region-grown
+    neighbourhoods stay on their sheet (paper Fig. 3) and the sheets stay apart."""
+    g = np.arange(40) * 0.01
+    u, v = (a.ravel() for a in np.meshgrid(g, g))
+    gap = 0.04
+    points = np.vstack([np.column_stack([u, v, 0 * u]), np.column_stack([u, v, 0 * u + gap])])
+    graph = pssd_fast.neighbors(points, 25)
+    _, size = stages._feature(points, np.tile([0, 0, 1.0], (len(points), 1)), graph,
+                              10 * stages.mean_spacing(graph), 0.2, 0.3, 0.3)
+    assert size.max() < len(u)  # a bridged region would reach the other sheet's points
+    stamp = np.full(len(points), -1, np.int32)
+    queue = np.empty(len(points), np.int32)
+    dist2 = np.empty(len(points))
+    for i in (0, 820, len(u) + 820):
+        count = feature.grow_region(points, graph.indptr, graph.indices, i,
+                                    (10 * stages.mean_spacing(graph)) ** 2, 9, stamp, queue,
+                                    dist2)
+        assert np.all(points[queue[:count], 2] == points[i, 2])
+    result = pssd_fast.denoise(points + np.random.default_rng(16).normal(0, 0.002, points.shape))
+    lower, upper = result.points[:len(u), 2], result.points[len(u):, 2]
+    assert abs(lower.mean()) < 0.002 and abs(upper.mean() - gap) < 0.002
+
+
+def test_held_points_are_counted(noisy):
+    record = pssd_fast.denoise(noisy).stats["iterations"][0]
+    assert record["held_points"] == 0

@@ -225,11 +225,13 @@ def test_move_points():
     filtered /= np.linalg.norm(filtered, axis=1)[:, None]
     lik, feat = rng.uniform(size=n), rng.uniform(size=n)
     proj[0] = points[0]  # no offset: no move
+    proj[1] = np.nan  # a failed projection: the point is held where it is
     for lam in (0.0, 0.3, 1.0):
-        got = stages._move(points, proj, filtered, lik, feat, lam)
+        got, held = stages._move(points, proj, filtered, lik, feat, lam)
         ref = reference.move_points(points, proj, filtered, lik, feat, lam)
-        np.testing.assert_allclose(got, ref, atol=1e-14)
-        np.testing.assert_array_equal(got[0], points[0])
+        np.testing.assert_allclose(got[2:], ref[2:], atol=1e-14)
+        np.testing.assert_array_equal(got[:2], points[:2])
+        np.testing.assert_array_equal(held, np.arange(n) == 1)
 
 
 def test_estimate_normals_follows_orient():
