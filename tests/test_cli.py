@@ -194,3 +194,24 @@ def test_a_failing_write_leaves_nothing(tmp_path, cloud, monkeypatch, capsys):
     assert_one_line_error(status, err, "No space left on device")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.xyz"]
     assert source.read_bytes() == before
+
+
+def test_an_unwritable_folder_is_one_line(tmp_path, cloud, monkeypatch, capsys):
+    """Root ignores permission bits, so the refusal is simulated where the file is created."""
+    import builtins
+
+    from pssd_fast import io as pio
+
+    source = tmp_path / "in.xyz"
+    np.savetxt(source, cloud.points)
+
+    def refuse(file, mode="r", *args, **kwargs):
+        if "x" in mode:
+            raise PermissionError(13, "Permission denied", str(file))
+        return builtins.open(file, mode, *args, **kwargs)
+
+    monkeypatch.setattr(pio, "open", refuse, raising=False)
+    status = cli.main(["denoise", str(source), str(tmp_path / "out.ply"), "--iterations", "1",
+                       "--quiet"])
+    assert_one_line_error(status, capsys.readouterr().err, "Permission denied")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.xyz"]

@@ -308,3 +308,13 @@ def test_two_close_sheets_are_not_bridged():
 def test_held_points_are_counted(noisy):
     record = pssd_fast.denoise(noisy).stats["iterations"][0]
     assert record["held_points"] == 0
+
+
+def test_float32_with_large_offsets_is_computed_in_float64(noisy):
+    single = (noisy * 100 + [5e5, 4e6, 300.0]).astype(np.float32)
+    result = pssd_fast.denoise(single)
+    expected = pssd_fast.denoise(single.astype(np.float64)).points
+    assert result.points.dtype == np.float32
+    # No worse than float32 itself: within one rounding of the float64 result.
+    spacing = np.spacing(np.abs(expected).astype(np.float32))
+    assert np.all(np.abs(result.points - expected) <= spacing)
