@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._validation import check_count, seeded_rng
+
 __all__ = [
     "GENERATORS",
     "SyntheticCloud",
@@ -114,15 +116,6 @@ class SyntheticCloud:
 # argument checks and shared assembly
 
 
-def _check_count(value, name):
-    """``value`` as a Python int >= 1, else TypeError/ValueError naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise TypeError(f"{name} must be an integer, got {value!r}")
-    if value < 1:
-        raise ValueError(f"{name} must be >= 1, got {value}")
-    return int(value)
-
-
 def _check_real(value, name, positive):
     """``value`` as a finite float, > 0 if ``positive`` else >= 0, naming ``name`` on error."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
@@ -134,23 +127,14 @@ def _check_real(value, name, positive):
     return value
 
 
-def _make_rng(seed):
-    """``np.random.default_rng(seed)`` for a non-negative integer seed only (reproducibility)."""
-    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
-        raise TypeError(f"seed must be a non-negative integer, got {seed!r}")
-    if seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed}")
-    return np.random.default_rng(int(seed))
-
-
 def _start(n_points, noise, seed, areas):
     """Check the common arguments; return the rng, ``noise`` as a float and per-patch counts.
 
     The counts are one multinomial draw of ``n_points`` over patches weighted by ``areas``.
     """
-    n_points = _check_count(n_points, "n_points")
+    n_points = check_count(n_points, "n_points")
     noise = _check_real(noise, "noise", positive=False)
-    rng = _make_rng(seed)
+    rng = seeded_rng(seed)
     areas = np.asarray(areas, dtype=np.float64)
     return rng, noise, rng.multinomial(n_points, areas / areas.sum())
 

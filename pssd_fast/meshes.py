@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._validation import check_count, seeded_rng
+
 __all__ = [
     "data_dir",
     "normalize_to_unit_diagonal",
@@ -323,8 +325,8 @@ def sample_surface(vertices, faces, n_points, seed=0):
     is uniform over the triangle. The samples are then shuffled so that their order says nothing
     about the face they came from.
     """
-    n_points = _check_count(n_points, "n_points")
-    rng = _make_rng(seed)
+    n_points = check_count(n_points, "n_points")
+    rng = seeded_rng(seed)
     vertices = _as_points(vertices, "vertices", allow_empty=False)
     faces = _as_faces(faces, len(vertices))
 
@@ -507,21 +509,3 @@ def normalize_to_unit_diagonal(vertices):
     offset = 0.5 * (lo + hi)
     scale = 1.0 / diagonal
     return (vertices - offset) * scale, scale, offset
-
-
-def _check_count(value, name):
-    """``value`` as a Python int >= 1, else TypeError/ValueError naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise TypeError(f"{name} must be an integer, got {value!r}")
-    if value < 1:
-        raise ValueError(f"{name} must be >= 1, got {value}")
-    return int(value)
-
-
-def _make_rng(seed):
-    """``np.random.default_rng(seed)`` for a non-negative integer seed only (reproducibility)."""
-    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
-        raise TypeError(f"seed must be a non-negative integer, got {seed!r}")
-    if seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed}")
-    return np.random.default_rng(int(seed))
