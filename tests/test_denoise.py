@@ -44,9 +44,11 @@ def test_bit_identical_across_thread_counts_and_calls(noisy):
     one = pssd_fast.denoise(noisy, n_jobs=1)
     two = pssd_fast.denoise(noisy, n_jobs=2)
     again = pssd_fast.denoise(noisy, n_jobs=2)
+    default = pssd_fast.denoise(noisy)
     for field in ("points", "normals", "likelihood", "feature_intensity", "displacement"):
         np.testing.assert_array_equal(getattr(one, field), getattr(two, field))
         np.testing.assert_array_equal(getattr(two, field), getattr(again, field))
+        np.testing.assert_array_equal(getattr(one, field), getattr(default, field))
 
 
 def test_n_jobs_is_restored(noisy):
@@ -152,6 +154,8 @@ def test_bad_parameters_are_named(noisy, kwargs, error, match):
     (np.array([["a", "b", "c"]] * 30), TypeError, "real numbers"),
     (np.where(np.arange(150).reshape(50, 3) == 70, np.nan, 1.0), ValueError,
      "NaN or Inf in 1 row.*row 23"),
+    (np.where(np.arange(150).reshape(50, 3) % 50 == 4, -np.inf, 1.0), ValueError,
+     "NaN or Inf in 3 row.*row 1"),
 ])
 def test_bad_points_are_named(points, error, match):
     with pytest.raises(error, match=match):
