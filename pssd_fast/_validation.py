@@ -101,19 +101,6 @@ def check_choice(value, name, choices):
     return value
 
 
-def check_count(value, name):
-    """``value`` as a Python int >= 1, else TypeError/ValueError naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise TypeError(f"{name} must be an integer, got {value!r}")
-    if value < 1:
-        raise ValueError(f"{name} must be >= 1, got {value}")
-    return int(value)
-
-
 def seeded_rng(seed):
     """``np.random.default_rng(seed)`` for a non-negative integer seed only (reproducibility)."""
-    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
-        raise TypeError(f"seed must be a non-negative integer, got {seed!r}")
-    if seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed}")
-    return np.random.default_rng(int(seed))
+    return np.random.default_rng(check_int(seed, "seed", minimum=0))

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._validation import check_count, seeded_rng
+from ._validation import check_int, seeded_rng
 
 __all__ = [
     "GENERATORS",
@@ -132,7 +132,7 @@ def _start(n_points, noise, seed, areas):
 
     The counts are one multinomial draw of ``n_points`` over patches weighted by ``areas``.
     """
-    n_points = check_count(n_points, "n_points")
+    n_points = check_int(n_points, "n_points", minimum=1)
     noise = _check_real(noise, "noise", positive=False)
     rng = seeded_rng(seed)
     areas = np.asarray(areas, dtype=np.float64)

@@ -284,7 +284,7 @@ def _fit_record(times, h, degree):
 
 def _robust_step(points, nrm, graph, lam, params, clock):
     """The rest of one robust iteration once the graph and normals exist."""
-    h = params["h"] if params["h"] is not None else stages.default_h(graph)
+    h = stages.default_h(graph, params["h"])
     proj, resid, degree, _ = clock.run("mls", stages._mls, points, nrm, graph, h)
     lik, dbar = clock.run("likelihood", stages._likelihood, resid, params["likelihood"])
     spacing = stages.mean_spacing(graph)
@@ -307,7 +307,7 @@ def _robust_step(points, nrm, graph, lam, params, clock):
 
 def _mls_step(points, nrm, graph, lam, params, clock):
     """MLS baseline: every point moves to its projection onto its local cubic."""
-    h = params["h"] if params["h"] is not None else stages.default_h(graph)
+    h = stages.default_h(graph, params["h"])
     proj, _, degree, _ = clock.run("mls", stages._mls, points, nrm, graph, h)
     return proj, nrm, None, _fit_record(clock.times, h, degree)
 

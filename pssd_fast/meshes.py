@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validation import check_count, seeded_rng
+from ._validation import check_int, seeded_rng
 
 __all__ = [
     "data_dir",
@@ -325,7 +325,7 @@ def sample_surface(vertices, faces, n_points, seed=0):
     is uniform over the triangle. The samples are then shuffled so that their order says nothing
     about the face they came from.
     """
-    n_points = check_count(n_points, "n_points")
+    n_points = check_int(n_points, "n_points", minimum=1)
     rng = seeded_rng(seed)
     vertices = _as_points(vertices, "vertices", allow_empty=False)
     faces = _as_faces(faces, len(vertices))

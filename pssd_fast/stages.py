@@ -51,8 +51,11 @@ class MLSFit(NamedTuple):
 
 # --- stages on validated float64 arrays ------------------------------------------------------
 
-def default_h(graph):
-    """Default MLS width: the mean list radius ``r_i`` (1 if every list is a single location)."""
+def default_h(graph, h=None):
+    """MLS width: ``h`` when given, else the mean list radius ``r_i`` (1 if every list is a
+    single location)."""
+    if h is not None:
+        return h
     h = float(np.mean(graph.list_radius()))
     return h if h > 0.0 else 1.0
 
@@ -140,6 +143,15 @@ def _prepare(points, normals_, k, graph, n_jobs):
     return pts, dtype, nrm, graph
 
 
+def _fit(points, normals_, k, h, graph, n_jobs):
+    """The MLS stage for the public functions: a float64 :class:`MLSFit` and the output dtype."""
+    h = None if h is None else check_float(h, "h", positive=True)
+    pts, dtype, nrm, graph = _prepare(points, normals_, k, graph, n_jobs)
+    h = default_h(graph, h)
+    with threads(n_jobs):
+        return MLSFit(*_mls(pts, nrm, graph, h), h), dtype
+
+
 def estimate_normals(points, *, k=25, graph=None, orient=None, n_jobs=None):
     """Estimate unit normals by PCA over each point's ``k`` nearest neighbours.
 
@@ -212,13 +224,9 @@ def mls_fit(points, normals=None, *, k=25, h=None, graph=None, n_jobs=None):
     ill-conditioned 10x10 normal equations, e.g. collinear or duplicated points) fall back to
     the quadratic, then to the plane ``g = 0``.
     """
-    h = None if h is None else check_float(h, "h", positive=True)
-    pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
-    h = default_h(graph) if h is None else h
-    with threads(n_jobs):
-        proj, resid, degree, curvature = _mls(pts, nrm, graph, h)
-    return MLSFit(proj.astype(dtype, copy=False), resid.astype(dtype, copy=False), degree,
-                  curvature.astype(dtype, copy=False), h)
+    fit, dtype = _fit(points, normals, k, h, graph, n_jobs)
+    return MLSFit(*(a.astype(dtype, copy=False) for a in fit[:2]), fit.degree,
+                  fit.curvature.astype(dtype, copy=False), fit.h)
 
 
 def sampling_likelihood(points, normals=None, *, k=25, h=None, likelihood="exp", graph=None,
@@ -240,12 +248,8 @@ def sampling_likelihood(points, normals=None, *, k=25, h=None, likelihood="exp",
         ``l_i``; for ``"exp"`` and ``"ratio"`` in (0, 1], 1 on a clean surface.
     """
     check_choice(likelihood, "likelihood", tuple(LIKELIHOOD_FORMS))
-    h = None if h is None else check_float(h, "h", positive=True)
-    pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
-    h = default_h(graph) if h is None else h
-    with threads(n_jobs):
-        _, resid, _, _ = _mls(pts, nrm, graph, h)
-        out, _ = _likelihood(resid, likelihood)
+    fit, dtype = _fit(points, normals, k, h, graph, n_jobs)
+    out, _ = _likelihood(fit.residuals, likelihood)
     return out.astype(dtype, copy=False)
 
 
