@@ -5,10 +5,9 @@ import time
 import numpy as np
 
 from . import __version__, datasets
+from .cli import truth_errors
 from .denoise import denoise
 from .warmup import warmup
-
-UNIT = 1e-4  # errors are reported in 1e-4 of the bounding-box diagonal, as in the paper
 
 
 def main(argv=None):
@@ -35,10 +34,7 @@ def main(argv=None):
                      preset=args.preset, n_jobs=args.n_jobs)
     seconds = time.perf_counter() - started
 
-    edge = cloud.edge_distance < 0.01 * cloud.diagonal
-    before = cloud.surface_distance(cloud.points) / (UNIT * cloud.diagonal)
-    after = cloud.surface_distance(result.points) / (UNIT * cloud.diagonal)
-    moved = result.displacement / (UNIT * cloud.diagonal)
+    before, after, moved, edge = truth_errors(cloud, result)
     print(f"pssd_fast {__version__}: robust denoising of the built-in CAD part")
     print(f"{len(cloud.points):,} points, noise sigma {args.noise:.2%} of the diagonal, "
           f"{args.iterations} iterations, k={result.stats['k']}, "

@@ -189,6 +189,8 @@ def _run_denoise(points, normals, args, method_params):
 
 
 def _check_output(path, force):
+    """Refuse an output that cannot be written before the long work, not after it (the writer
+    checks again when it renames)."""
     if path.exists() and not force:
         raise CommandError(f"{path} exists; pass --force to overwrite it")
     if not path.parent.is_dir():
@@ -245,7 +247,6 @@ def _demo(args):
     cloud = datasets.cad_part(n_points=args.points, noise=args.noise, seed=args.seed)
     compile_seconds = warmup()
     result, seconds = _run_denoise(cloud.points, None, args, {})
-    diag = cloud.diagonal
     written = _demo_files(args, cloud.points, result)
     try:
         from . import render
@@ -260,16 +261,13 @@ def _demo(args):
             pictures = render.figure_set(
                 args.out, cloud.points, result.points, curvature=curvature_noisy,
                 likelihood=result.likelihood, feature=result.feature_intensity,
-                displacement=result.displacement / diag, curvature_denoised=curvature_out,
+                displacement=result.displacement / cloud.diagonal, curvature_denoised=curvature_out,
                 normals_denoised=result.normals)
         except ImportError as exc:
             print(f"pssd: no pictures: {_one_line(exc)}", file=sys.stderr)
     if args.quiet:
         return 0
-    before = cloud.surface_distance(cloud.points) / (1e-4 * diag)
-    after = cloud.surface_distance(result.points) / (1e-4 * diag)
-    edge = cloud.edge_distance < 0.01 * diag
-    disp = result.displacement / (1e-4 * diag)
+    before, after, disp, edge = truth_errors(cloud, result)
     print(f"pssd demo: built-in CAD part, {len(disp):,} points, noise {args.noise:.2%} of the "
           f"diagonal, seed {args.seed}; kernels ready in {compile_seconds:.1f} s")
     print("| Method | Iters. | Max. error (1e-4) | Ave. error (1e-4) | Exec time | "
@@ -281,6 +279,19 @@ def _demo(args):
     for path in written + pictures:
         print(f"wrote {path}")
     return 0
+
+
+def truth_errors(cloud, result):
+    """Errors of a run on a generated cloud, in the paper's unit (1e-4 of the diagonal).
+
+    Returns the distance to the true surface before and after, the displacement, and the mask of
+    points within 1% of the diagonal of a sharp edge.
+    """
+    unit = 1e-4 * cloud.diagonal
+    return (cloud.surface_distance(cloud.points) / unit,
+            cloud.surface_distance(result.points) / unit,
+            result.displacement / unit,
+            cloud.edge_distance < 0.01 * cloud.diagonal)
 
 
 def _demo_files(args, noisy, result):
