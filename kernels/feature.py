@@ -11,89 +11,111 @@ from .linalg import set_sym3, sym3_eigh
 # Below this squared length the tangential part of a neighbour's normal is taken as zero: the
 # normal points along the connecting line and the vote cannot rotate it.
 TINY = 1e-30
+# Regions are grown for this many consecutive points at once, one bit of a uint64 each.
+BLOCK = 64
 
 
 @helper
-def grow_region(points, indptr, indices, i, radius2, n_vote, stamp, queue, dist2):
-    """Breadth-first region growing of ``N_R(i)``; returns its size ``count``.
+def _ball_mask(points, c, sources, m, radius2):
+    """Bit ``b`` set where ``p_c`` lies within ``R`` of source ``b``, whose coordinates are
+    ``sources[:, b]`` (one row per axis, so that the loop vectorises)."""
+    cx, cy, cz = points[c, 0], points[c, 1], points[c, 2]
+    mask = np.uint64(0)
+    for b in range(m):
+        dx = cx - sources[0, b]
+        dy = cy - sources[1, b]
+        dz = cz - sources[2, b]
+        inside = np.uint64(dx * dx + dy * dy + dz * dz <= radius2)
+        mask |= inside << np.uint64(b)
+    return mask
 
-    Starting from ``i``, each member adds those of the first ``n_vote`` entries of its own
-    neighbour list that lie within ``sqrt(radius2)`` of ``p_i`` and are not members yet.
-    Members are left in ``queue[:count]`` in discovery order, their squared distances to
-    ``p_i`` in ``dist2[:count]``. ``stamp`` (one entry per point) marks every point examined for
-    ``i`` with the value ``i``, members and rejected candidates alike, so each candidate's
-    distance is computed once and the marks never need clearing.
+
+@helper
+def _add_node(points, c, sources, m, radius2, slot_of, nodes, ball, reach, queued, count):
+    """Give point ``c`` the next free slot ``count`` of the block's node table."""
+    slot_of[c] = count
+    nodes[count] = c
+    ball[count] = _ball_mask(points, c, sources, m, radius2)
+    reach[count] = np.uint64(0)
+    queued[count] = False
+
+
+@helper
+def grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources, slot_of, nodes,
+               ball, reach, queued, work):
+    """Grow ``N_R(i)`` for each ``i`` in ``start..stop-1`` (at most ``BLOCK``) together.
+
+    Returns ``count``, the number of points examined; ``nodes[:count]`` are their indices and
+    bit ``b`` of ``reach[t]`` is set exactly when ``nodes[t]`` belongs to ``N_R(start + b)``.
+
+    ``N_R(i)`` is the set of points reachable from ``i`` along the first ``n_vote`` entries of
+    each member's list without leaving the ball of radius ``R`` around ``p_i`` (ALGORITHM.md).
+    Instead of one breadth-first search per point, a work list propagates bit masks: a node
+    passes the bits it has reached to each listed neighbour whose ball mask (the sources within
+    ``R`` of it) contains them, and is queued again when it gains bits. Neighbouring points
+    share most of their regions, so each node is examined about once per block instead of once
+    per point.
+
+    Scratch: ``sources`` (3, ``BLOCK``) receives the block's coordinates; ``slot_of`` (one
+    entry per point, -1 outside a call) maps points to node slots; ``nodes``, ``ball``,
+    ``reach``, ``queued`` and the ring buffer ``work`` hold one entry per node (capacity ``n``;
+    only ``count`` entries are touched).
     """
-    px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-    queue[0] = i
-    dist2[0] = 0.0
-    stamp[i] = i
-    count = 1
+    m = stop - start
+    for b in range(m):
+        for a in range(3):
+            sources[a, b] = points[start + b, a]
+    capacity = work.shape[0]
+    count = 0
+    # Ring buffer: a node is queued at most once at a time, so ``pending <= capacity``.
     head = 0
-    while head < count:
-        j = queue[head]
-        head += 1
-        start = indptr[j]
-        for t in range(start, min(indptr[j + 1], start + n_vote)):
-            cand = indices[t]
-            if stamp[cand] == i:
-                continue
-            stamp[cand] = i
-            dx = points[cand, 0] - px
-            dy = points[cand, 1] - py
-            dz = points[cand, 2] - pz
-            d2 = dx * dx + dy * dy + dz * dz
-            if d2 <= radius2:
-                queue[count] = cand
-                dist2[count] = d2
+    tail = 0
+    pending = 0
+    for b in range(m):
+        i = start + b
+        s = slot_of[i]
+        if s < 0:
+            s = count
+            _add_node(points, i, sources, m, radius2, slot_of, nodes, ball, reach, queued, count)
+            count += 1
+        reach[s] |= np.uint64(1) << np.uint64(b)
+        if not queued[s]:
+            queued[s] = True
+            work[tail] = s
+            tail = tail + 1 if tail + 1 < capacity else 0
+            pending += 1
+    while pending:
+        s = work[head]
+        head = head + 1 if head + 1 < capacity else 0
+        pending -= 1
+        queued[s] = False
+        bits = reach[s]
+        j = nodes[s]
+        first = indptr[j]
+        for t in range(first, min(indptr[j + 1], first + n_vote)):
+            c = indices[t]
+            cs = slot_of[c]
+            if cs < 0:
+                cs = count
+                _add_node(points, c, sources, m, radius2, slot_of, nodes, ball, reach, queued,
+                          count)
                 count += 1
+            add = bits & ball[cs] & ~reach[cs]
+            if add:
+                reach[cs] |= add
+                if not queued[cs]:
+                    queued[cs] = True
+                    work[tail] = cs
+                    tail = tail + 1 if tail + 1 < capacity else 0
+                    pending += 1
+    for t in range(count):
+        slot_of[nodes[t]] = -1
     return count
 
 
 @helper
-def _vote(points, normals, i, queue, dist2, count, tensor, w, v, delta, alpha, beta):
-    """Feature intensity of point ``i`` from the voted normals of its region ``queue[:count]``."""
-    px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-    nix, niy, niz = normals[i, 0], normals[i, 1], normals[i, 2]
-    r2 = 0.0
-    for t in range(count):
-        r2 = max(r2, dist2[t])
-    sigma = 2.0 * math.sqrt(r2) / 3.0
-    inv_sigma = 1.0 / sigma if sigma > 0.0 else 0.0
-
-    t00 = t01 = t02 = t11 = t12 = t22 = 0.0
-    bx = by = bz = 0.0
-    for t in range(count):
-        j = queue[t]
-        nx, ny, nz = normals[j, 0], normals[j, 1], normals[j, 2]
-        if nx * nix + ny * niy + nz * niz < 0.0:
-            nx, ny, nz = -nx, -ny, -nz
-        vv = dist2[t]
-        if vv > 0.0:
-            # w = (v x n) x v is the part of n perpendicular to v; n' = 2 (n . w) w / |w|^2 - n
-            # reflects n's component along v (Page et al.'s vote of n_j at p_i along the arc).
-            vx = px - points[j, 0]
-            vy = py - points[j, 1]
-            vz = pz - points[j, 2]
-            vn = (vx * nx + vy * ny + vz * nz) / vv
-            wx = nx - vn * vx
-            wy = ny - vn * vy
-            wz = nz - vn * vz
-            ww = wx * wx + wy * wy + wz * wz
-            if ww > TINY:
-                nw = 2.0 * (nx * wx + ny * wy + nz * wz) / ww
-                nx, ny, nz = nw * wx - nx, nw * wy - ny, nw * wz - nz
-        u = math.exp(-math.sqrt(vv) * inv_sigma)
-        t00 += u * nx * nx
-        t01 += u * nx * ny
-        t02 += u * nx * nz
-        t11 += u * ny * ny
-        t12 += u * ny * nz
-        t22 += u * nz * nz
-        bx += u * nx
-        by += u * ny
-        bz += u * nz
-    set_sym3(tensor, t00, t01, t02, t11, t12, t22)
+def _classify(tensor, w, v, bx, by, bz, delta, alpha, beta):
+    """Eq. (3): feature intensity from the vote tensor (in ``tensor``) and the vote sum."""
     sym3_eigh(tensor, w, v)
     v1 = w[2]
     v2 = max(w[1], 0.0)
@@ -105,6 +127,73 @@ def _vote(points, normals, i, queue, dist2, count, tensor, w, v, delta, alpha, b
     if v3 > alpha * (v1 - v2) and v3 > beta * (v2 - v3):
         return 1.0
     return (v2 - v3) / v1 if v1 > 0.0 else 0.0
+
+
+@helper
+def _vote(points, normals, i, b, count, reach, gathered, members, tensor, w, v, delta, alpha,
+          beta):
+    """Feature intensity of point ``i`` = source ``b`` of the block, and its region size.
+
+    ``gathered[:, :count]`` holds the positions (rows 0-2) and normals (rows 3-5) of the block's
+    nodes; the region is the nodes with bit ``b`` of ``reach`` set. They are first copied to
+    ``members`` (rows: ``v = p_i - p_j``, ``n_j`` flipped to agree with ``n_i``, ``|v|^2``)
+    without branches, then voted from that contiguous copy.
+    """
+    px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+    nix, niy, niz = normals[i, 0], normals[i, 1], normals[i, 2]
+    shift = np.uint64(b)
+    one = np.uint64(1)
+    r2 = 0.0
+    size = 0
+    for t in range(count):
+        vx = px - gathered[0, t]
+        vy = py - gathered[1, t]
+        vz = pz - gathered[2, t]
+        nx, ny, nz = gathered[3, t], gathered[4, t], gathered[5, t]
+        flip = -1.0 if nx * nix + ny * niy + nz * niz < 0.0 else 1.0
+        vv = vx * vx + vy * vy + vz * vz
+        members[0, size] = vx
+        members[1, size] = vy
+        members[2, size] = vz
+        members[3, size] = flip * nx
+        members[4, size] = flip * ny
+        members[5, size] = flip * nz
+        members[6, size] = vv
+        inside = (reach[t] >> shift) & one
+        r2 = max(r2, vv if inside else 0.0)
+        size += inside
+    sigma = 2.0 * math.sqrt(r2) / 3.0
+    inv_sigma = 1.0 / sigma if sigma > 0.0 else 0.0
+
+    t00 = t01 = t02 = t11 = t12 = t22 = 0.0
+    bx = by = bz = 0.0
+    for t in range(size):
+        vx, vy, vz = members[0, t], members[1, t], members[2, t]
+        nx, ny, nz = members[3, t], members[4, t], members[5, t]
+        vv = members[6, t]
+        # w = (v x n) x v is the part of n perpendicular to v; n' = 2 (n . w) w / |w|^2 - n
+        # reflects n's component along v (Page et al.'s vote of n_j at p_i along the arc).
+        # v = 0 (p_i itself or a twin) or w = 0 (n along v): n votes itself.
+        vn = (vx * nx + vy * ny + vz * nz) / vv if vv > 0.0 else 0.0
+        wx = nx - vn * vx
+        wy = ny - vn * vy
+        wz = nz - vn * vz
+        ww = wx * wx + wy * wy + wz * wz
+        if vv > 0.0 and ww > TINY:
+            nw = 2.0 * (nx * wx + ny * wy + nz * wz) / ww
+            nx, ny, nz = nw * wx - nx, nw * wy - ny, nw * wz - nz
+        u = math.exp(-math.sqrt(vv) * inv_sigma)
+        t00 += u * nx * nx
+        t01 += u * nx * ny
+        t02 += u * nx * nz
+        t11 += u * ny * ny
+        t12 += u * ny * nz
+        t22 += u * nz * nz
+        bx += u * nx
+        by += u * ny
+        bz += u * nz
+    set_sym3(tensor, t00, t01, t02, t11, t12, t22)
+    return _classify(tensor, w, v, bx, by, bz, delta, alpha, beta), size
 
 
 @parallel_kernel
@@ -139,27 +228,43 @@ def feature_intensity(points, normals, indptr, indices, radius, n_vote, delta, a
     A neighbour whose normal is parallel to the connecting line, or that coincides with
     ``p_i``, votes its own normal. A zero vote sum counts as ``|nbar . e1| = 0`` (``s_i = 1``).
 
-    Scratch: per thread, a stamp per point (``4 n`` bytes, written) and a queue and distance
-    buffer of ``n`` entries each, of which only the first ``|N_R|`` entries are ever touched.
-    Per-thread rather than per-chunk arrays, because marks that never need clearing make the
-    membership test a single load, and arrays that are never reallocated inside the loop spare
-    numba's reference counting (together 2.4x faster than a growable per-chunk hash set).
+    Regions are grown for blocks of ``BLOCK`` consecutive points at once (see
+    :func:`grow_block`); in Morton order these are close in space and share most members.
+    Scratch per thread: ``slot_of`` (``4 n`` bytes, written) and node tables of capacity ``n``
+    of which only the block's nodes (a few times ``|N_R|``) are touched. Per-thread rather
+    than per-chunk arrays: arrays never reallocated inside the loop spare numba's reference
+    counting.
     """
     n = points.shape[0]
     radius2 = radius * radius
-    stamps = np.full((n_slots, n), -1, indices.dtype)
-    queues = np.empty((n_slots, n), indices.dtype)
-    dists = np.empty((n_slots, n))
+    slot_ofs = np.full((n_slots, n), -1, indices.dtype)
+    nodess = np.empty((n_slots, n), indices.dtype)
+    works = np.empty((n_slots, n), indices.dtype)
+    balls = np.empty((n_slots, n), np.uint64)
+    reaches = np.empty((n_slots, n), np.uint64)
+    queueds = np.empty((n_slots, n), np.bool_)
+    gathereds = np.empty((n_slots, 6, n))
+    memberss = np.empty((n_slots, 7, n))
     for c in prange((n + CHUNK - 1) // CHUNK):
         slot = numba.get_thread_id()
-        stamp = stamps[slot]
-        queue = queues[slot]
-        dist2 = dists[slot]
+        slot_of = slot_ofs[slot]
+        nodes = nodess[slot]
+        reach = reaches[slot]
+        gathered = gathereds[slot]
+        sources = np.empty((3, BLOCK))
         tensor = np.empty((3, 3))
         w = np.empty(3)
         v = np.empty((3, 3))
-        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            count = grow_region(points, indptr, indices, i, radius2, n_vote, stamp, queue, dist2)
-            out[i] = _vote(points, normals, i, queue, dist2, count, tensor, w, v, delta, alpha,
-                           beta)
-            region_size[i] = count
+        for start in range(c * CHUNK, min(n, (c + 1) * CHUNK), BLOCK):
+            stop = min(n, start + BLOCK, (c + 1) * CHUNK)
+            count = grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources,
+                               slot_of, nodes, balls[slot], reach, queueds[slot], works[slot])
+            for t in range(count):
+                j = nodes[t]
+                for a in range(3):
+                    gathered[a, t] = points[j, a]
+                    gathered[3 + a, t] = normals[j, a]
+            for i in range(start, stop):
+                out[i], region_size[i] = _vote(points, normals, i, i - start, count, reach,
+                                               gathered, memberss[slot], tensor, w, v, delta,
+                                               alpha, beta)

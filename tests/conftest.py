@@ -2,6 +2,8 @@
 import numpy as np
 import pytest
 
+from pssd_fast.kernels import feature
+
 
 def wavy(n=400, noise=0.005, seed=0):
     """A noisy height field z = 0.1 sin(3x) cos(2y) over the unit square."""
@@ -50,3 +52,17 @@ def cloud(request):
     """(name, points, k) for each named cloud."""
     points = CLOUDS[request.param]()
     return request.param, points, min(25, len(points) - 1)
+
+
+def block_regions(points, graph, start, stop, radius):
+    """``N_R(i)`` for ``i`` in ``start..stop`` from one call of the block kernel, as sets."""
+    n = len(points)
+    slot_of = np.full(n, -1, np.int32)
+    nodes, work = np.empty(n, np.int32), np.empty(n, np.int32)
+    ball, reach = np.empty(n, np.uint64), np.empty(n, np.uint64)
+    count = feature.grow_block(points, graph.indptr, graph.indices, start, stop, radius * radius,
+                               9, np.empty((3, feature.BLOCK)), slot_of, nodes, ball, reach,
+                               np.empty(n, np.bool_), work)
+    assert np.all(slot_of == -1)  # the scratch is left clean for the next block
+    return [set(nodes[:count][(reach[:count] >> np.uint64(b)) & np.uint64(1) == 1].tolist())
+            for b in range(stop - start)]

@@ -8,7 +8,7 @@ from pssd_fast.denoise import METHOD_DEFAULTS
 from pssd_fast.kernels import feature
 
 from . import reference
-from .conftest import sphere, wavy
+from .conftest import block_regions, sphere, wavy
 
 
 @pytest.fixture(scope="module")
@@ -296,14 +296,11 @@ def test_two_close_sheets_are_not_bridged():
     _, size = stages._feature(points, np.tile([0, 0, 1.0], (len(points), 1)), graph,
                               10 * stages.mean_spacing(graph), 0.2, 0.3, 0.3)
     assert size.max() < len(u)  # a bridged region would reach the other sheet's points
-    stamp = np.full(len(points), -1, np.int32)
-    queue = np.empty(len(points), np.int32)
-    dist2 = np.empty(len(points))
-    for i in (0, 820, len(u) + 820):
-        count = feature.grow_region(points, graph.indptr, graph.indices, i,
-                                    (10 * stages.mean_spacing(graph)) ** 2, 9, stamp, queue,
-                                    dist2)
-        assert np.all(points[queue[:count], 2] == points[i, 2])
+    radius = 10 * stages.mean_spacing(graph)
+    for start in (0, 800, len(u) + 800):
+        regions = block_regions(points, graph, start, start + feature.BLOCK, radius)
+        for i, members in zip(range(start, start + feature.BLOCK), regions):
+            assert np.all(points[list(members), 2] == points[i, 2])
     result = pssd_fast.denoise(points + np.random.default_rng(16).normal(0, 0.002, points.shape))
     lower, upper = result.points[:len(u), 2], result.points[len(u):, 2]
     assert abs(lower.mean()) < 0.002 and abs(upper.mean() - gap) < 0.002

@@ -7,7 +7,7 @@ from pssd_fast import stages
 from pssd_fast.kernels import feature, normals
 
 from . import reference
-from .conftest import plane, sphere, wavy
+from .conftest import block_regions, plane, sphere, wavy
 
 
 def _setup(points, k):
@@ -142,15 +142,11 @@ def test_region_growing_matches_reference(cloud):
     graph, lists = _setup(points, k)
     radius = 10 * stages.mean_spacing(graph)
     n = len(points)
-    stamp = np.full(n, -1, np.int32)
-    queue = np.empty(n, np.int32)
-    dist2 = np.empty(n)
-    for i in range(0, n, max(1, n // 25)):
-        count = feature.grow_region(points, graph.indptr, graph.indices, i, radius * radius, 9,
-                                    stamp, queue, dist2)
-        assert list(queue[:count]) == reference.region(points, lists, i, radius)
-        np.testing.assert_allclose(dist2[:count], ((points[queue[:count]] - points[i]) ** 2).sum(
-            axis=1), rtol=1e-15)
+    for start in sorted({0, n // 3, max(0, n - feature.BLOCK)}):
+        stop = min(n, start + feature.BLOCK)
+        for i, got in zip(range(start, stop), block_regions(points, graph, start, stop, radius)):
+            assert got == set(reference.region(points, lists, i, radius))
+
 
 
 def test_feature_intensity(cloud):
