@@ -5,8 +5,9 @@ from .config import CHUNK, helper, parallel_kernel
 
 
 @parallel_kernel
-def put_self_first(indices, dists):
-    """Make every row ``i`` of a distance-sorted kNN result start with ``i`` itself, in place.
+def put_self_first(indices, dists, first):
+    """Make every row ``r`` of a distance-sorted kNN result start with its own point
+    ``i = first + r``, in place.
 
     With exact duplicates the query may list a twin before the point itself (a tie at distance
     0), or, with more than ``k`` twins, not list it at all. The point is moved to the front
@@ -19,22 +20,25 @@ def put_self_first(indices, dists):
         Neighbour indices of each row, sorted by distance.
     dists : (n, k) float64
         Matching distances.
+    first : int
+        Index of the point of row 0 (the rows are a chunk of the whole query).
     """
     n, k = indices.shape
     for c in prange((n + CHUNK - 1) // CHUNK):
-        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            if indices[i, 0] == i:
+        for r in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            i = first + r
+            if indices[r, 0] == i:
                 continue
             pos = k - 1
             for t in range(1, k):
-                if indices[i, t] == i:
+                if indices[r, t] == i:
                     pos = t
                     break
             for t in range(pos, 0, -1):
-                indices[i, t] = indices[i, t - 1]
-                dists[i, t] = dists[i, t - 1]
-            indices[i, 0] = i
-            dists[i, 0] = 0.0
+                indices[r, t] = indices[r, t - 1]
+                dists[r, t] = dists[r, t - 1]
+            indices[r, 0] = i
+            dists[r, 0] = 0.0
 
 
 @helper

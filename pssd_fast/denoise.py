@@ -175,7 +175,7 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
         out_normals = None
         for iteration in range(iterations):
             clock = _Clock(report, iteration, iterations)
-            graph = clock.run("neighbors", knn_graph, current, k)
+            graph = clock.run("neighbors", knn_graph, current, k, False)
             if given is not None:
                 nrm, degenerate = clock.run("normals", _given_normals, given)
             else:

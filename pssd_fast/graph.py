@@ -74,16 +74,67 @@ def _spread_bits(x):
     return x
 
 
-def knn_graph(points, k):
-    """kNN graph of already validated, C-contiguous float64 points, in their own order."""
+class ListScales(NamedTuple):
+    """The part of a kNN graph :func:`pssd_fast.denoise` keeps: the lists and two distances
+    per point instead of one per list entry (``8 k`` fewer bytes per point).
+
+    Attributes
+    ----------
+    indptr, indices : as in :class:`NeighborGraph`
+    radius : (n,) float64
+        Distance to the farthest member of each list (:meth:`NeighborGraph.list_radius`).
+    nearest : (n,) float64
+        Distance to the nearest other member (:meth:`NeighborGraph.nearest_distance`).
+    """
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    radius: np.ndarray
+    nearest: np.ndarray
+
+    def list_radius(self):
+        return self.radius
+
+    def nearest_distance(self):
+        return self.nearest
+
+
+#: Points per pykdtree query call: bounds the query's float64 distance output (8 k bytes per
+#: point) to a few megabytes while keeping each call long enough for its OpenMP threads.
+QUERY_CHUNK = 65536
+
+
+def knn_graph(points, k, keep_distances=True):
+    """kNN graph of already validated, C-contiguous float64 points, in their own order.
+
+    Returns a :class:`NeighborGraph`, or with ``keep_distances=False`` a :class:`ListScales`.
+    The query runs in chunks of ``QUERY_CHUNK`` points, written straight into the final index
+    array, so the peak memory is the graph itself.
+    """
     n = points.shape[0]
-    dists, idx = KDTree(points).query(points, k=k)
-    index_dtype = np.int32 if n < 2**31 else np.int64
-    indices = np.ascontiguousarray(idx, dtype=index_dtype)
-    dists = np.ascontiguousarray(dists, dtype=np.float64)
-    put_self_first(indices, dists)
+    tree = KDTree(points)
+    indices = np.empty((n, k), np.int32 if n < 2**31 else np.int64)
+    if keep_distances:
+        dists = np.empty((n, k))
+    else:
+        radius = np.empty(n)
+        nearest = np.empty(n)
+    for start in range(0, n, QUERY_CHUNK):
+        stop = min(n, start + QUERY_CHUNK)
+        chunk_dists, chunk_idx = tree.query(points[start:stop], k=k)
+        chunk_dists = np.ascontiguousarray(chunk_dists, dtype=np.float64).reshape(-1, k)
+        rows = indices[start:stop]
+        rows[:] = chunk_idx.reshape(-1, k)
+        put_self_first(rows, chunk_dists, start)
+        if keep_distances:
+            dists[start:stop] = chunk_dists
+        else:
+            radius[start:stop] = chunk_dists[:, -1]
+            nearest[start:stop] = chunk_dists[:, 1]
     indptr = np.arange(0, n * k + 1, k, dtype=np.int64)
-    return NeighborGraph(indptr, indices.reshape(-1), dists.reshape(-1))
+    if keep_distances:
+        return NeighborGraph(indptr, indices.reshape(-1), dists.reshape(-1))
+    return ListScales(indptr, indices.reshape(-1), radius, nearest)
 
 
 def neighbors(points, k=25, *, n_jobs=None):

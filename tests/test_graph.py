@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 import pssd_fast
-from pssd_fast.graph import check_graph, morton_order
+from pssd_fast import graph as graph_module
+from pssd_fast.graph import check_graph, knn_graph, morton_order
 
 from . import reference
 from .conftest import CLOUDS
@@ -29,6 +30,20 @@ def test_neighbors_match_brute_force(name):
     # Stored distances are the true distances of the stored indices.
     np.testing.assert_allclose(
         got_d, np.linalg.norm(points[got] - points[:, None, :], axis=2), rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", ["wavy", "duplicates"])
+def test_chunked_query_and_lean_graph_match_one_query(name, monkeypatch):
+    points = CLOUDS[name]()
+    whole = knn_graph(points, 12)
+    monkeypatch.setattr(graph_module, "QUERY_CHUNK", 7)  # many chunks, the last one short
+    chunked = knn_graph(points, 12)
+    lean = knn_graph(points, 12, keep_distances=False)
+    for a, b in zip(whole, chunked):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(lean.indices, whole.indices)
+    np.testing.assert_array_equal(lean.list_radius(), whole.list_radius())
+    np.testing.assert_array_equal(lean.nearest_distance(), whole.nearest_distance())
 
 
 def test_self_first_with_more_twins_than_k():
