@@ -149,6 +149,13 @@ def test_region_growing_matches_reference(cloud):
 
 
 
+def test_exp_polynomial_matches_exp():
+    # The vote's weights exp(-|p_j - p_i| / sigma_e) have arguments in [0, 1.5].
+    x = np.linspace(0.0, 1.5 * (1 + 1e-12), 10001)
+    got = np.array([feature._exp_neg(v) for v in x])
+    np.testing.assert_allclose(got, np.exp(-x), rtol=4e-15)
+
+
 def test_feature_intensity(cloud):
     name, points, k = cloud
     graph, lists = _setup(points, k)
