@@ -191,9 +191,10 @@ def _vote(points, normals, i, b, count, reach, gathered, members, tensor, w, v, 
         nx, ny, nz = gathered[3, t], gathered[4, t], gathered[5, t]
         if nx * nix + ny * niy + nz * niz < 0.0:
             nx, ny, nz = -nx, -ny, -nz
-        # w = (v x n) x v is the part of n perpendicular to v; n' = 2 (n . w) w / |w|^2 - n
-        # reflects n's component along v (Page et al.'s vote of n_j at p_i along the arc).
-        # v = 0 (p_i itself or a twin) or w = 0 (n along v): n votes itself.
+        # w = (v x n) x v / |v|^2 is the part of n perpendicular to v; Page et al.'s vote
+        # n' = 2 (n . w^) w^ - n, with w^ = w / |w|, is 2 w - n for a unit n (then n . w = |w|^2):
+        # n with its component along v reflected. v = 0 (p_i itself or a twin) or w = 0 (n along
+        # v): n votes itself.
         vx = px - gathered[0, t]
         vy = py - gathered[1, t]
         vz = pz - gathered[2, t]
@@ -204,8 +205,7 @@ def _vote(points, normals, i, b, count, reach, gathered, members, tensor, w, v, 
         wz = nz - vn * vz
         ww = wx * wx + wy * wy + wz * wz
         if vv > 0.0 and ww > TINY:
-            nw = 2.0 * (nx * wx + ny * wy + nz * wz) / ww
-            nx, ny, nz = nw * wx - nx, nw * wy - ny, nw * wz - nz
+            nx, ny, nz = 2.0 * wx - nx, 2.0 * wy - ny, 2.0 * wz - nz
         u = _exp_neg(math.sqrt(vv) * inv_sigma)
         t00 += u * nx * nx
         t01 += u * nx * ny
