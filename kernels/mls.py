@@ -23,18 +23,19 @@ CUBIC, QUADRATIC, PLANE = 3, 2, 0
 
 
 @helper
-def _basis(x, y, phi):
-    """Monomials of eq. (1) in coefficient order a0..a9; the first six span the quadratic."""
-    phi[0] = 1.0
-    phi[1] = y
-    phi[2] = x
-    phi[3] = x * y
-    phi[4] = y * y
-    phi[5] = x * x
-    phi[6] = x * y * y
-    phi[7] = x * x * y
-    phi[8] = y * y * y
-    phi[9] = x * x * x
+def _basis(x, y, phi, t):
+    """Monomials of eq. (1) at ``(x, y)`` in coefficient order a0..a9 into column ``t`` of
+    ``phi`` (10, m); the first six span the quadratic."""
+    phi[0, t] = 1.0
+    phi[1, t] = y
+    phi[2, t] = x
+    phi[3, t] = x * y
+    phi[4, t] = y * y
+    phi[5, t] = x * x
+    phi[6, t] = x * y * y
+    phi[7, t] = x * x * y
+    phi[8, t] = y * y * y
+    phi[9, t] = x * x * x
 
 
 @helper
@@ -95,27 +96,26 @@ def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov
     ox, oy, oz = off * nx, off * ny, off * nz
     radius = math.sqrt(radius2)
     inv_r = 1.0 / radius if radius > 0.0 else 1.0
-    for p in range(10):
-        b[p] = 0.0
-        for q in range(p + 1):
-            a[p, q] = 0.0
     for t in range(count):
         dx = xs[t] - ox
         dy = ys[t] - oy
         dz = zs[t] - oz
         x = (dx * ux + dy * uy + dz * uz) * inv_r
         y = (dx * vx + dy * vy + dz * vz) * inv_r
-        z = dx * nx + dy * ny + dz * nz
-        xs[t] = x
-        ys[t] = y
-        zs[t] = z
-        _basis(x, y, phi)
-        th = wts[t]
-        for p in range(10):
-            tp = th * phi[p]
-            b[p] += tp * z
-            for q in range(p + 1):
-                a[p, q] += tp * phi[q]
+        zs[t] = dx * nx + dy * ny + dz * nz
+        _basis(x, y, phi, t)
+    # Normal equations A = Phi W Phi^T, b = Phi W z as dot products over the neighbours, whose
+    # inner loops are contiguous and vectorise.
+    for p in range(10):
+        s = 0.0
+        for t in range(count):
+            s += wts[t] * phi[p, t] * zs[t]
+        b[p] = s
+        for q in range(p + 1):
+            s = 0.0
+            for t in range(count):
+                s += wts[t] * phi[p, t] * phi[q, t]
+            a[p, q] = s
 
     # Cubic if the whole system is well posed, else the quadratic, else the plane g = 0.
     rank = cholesky_prefix(a, 10, PIVOT_TOL)
@@ -147,13 +147,14 @@ def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov
     proj[i, 0] = px + ox + b[0] * nx
     proj[i, 1] = py + oy + b[0] * ny
     proj[i, 2] = pz + oz + b[0] * nz
+    for t in range(count):
+        xs[t] = zs[t]
+    for p in range(m):
+        for t in range(count):
+            xs[t] -= b[p] * phi[p, t]
     se = 0.0
     for t in range(count):
-        _basis(xs[t], ys[t], phi)
-        g = 0.0
-        for p in range(m):
-            g += b[p] * phi[p]
-        se += wts[t] * abs(zs[t] - g)
+        se += wts[t] * abs(xs[t])
     resid[i] = se / sw
 
 
@@ -201,7 +202,7 @@ def mls_fit(points, normals, indptr, indices, h, proj, resid, degree, curvature)
         v = np.empty((3, 3))
         a = np.empty((10, 10))
         b = np.empty(10)
-        phi = np.empty(10)
+        phi = np.empty((10, longest))
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov, w, v,
                        a, b, phi, proj, resid, degree, curvature)
