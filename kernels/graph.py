@@ -1,4 +1,8 @@
-"""Kernels over the CSR neighbour graph itself: repairing raw kNN results, list lengths."""
+"""Kernels over the CSR neighbour graph itself: repairing raw kNN results, re-sorting lists
+after the points moved, list lengths."""
+import math
+
+import numpy as np
 from numba import prange
 
 from .config import CHUNK, helper, parallel_kernel
@@ -48,3 +52,36 @@ def max_degree(indptr):
     for i in range(indptr.shape[0] - 1):
         longest = max(longest, indptr[i + 1] - indptr[i])
     return longest
+
+
+@parallel_kernel
+def refresh_lists(points, indptr, indices, radius, nearest):
+    """Re-sort every list by the current distances, in place, after the points have moved.
+
+    Each list keeps its members (a later iteration reuses the first iteration's neighbours)
+    and is put back in order of distance by a stable insertion sort, so the point itself stays
+    first and ties keep their order. ``radius`` and ``nearest`` receive the distances to the
+    last and the second member: the list radius and the nearest other point.
+    """
+    n = indptr.shape[0] - 1
+    longest = max_degree(indptr)
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        dist = np.empty(longest)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            start = indptr[i]
+            count = indptr[i + 1] - start
+            for t in range(count):
+                j = indices[start + t]
+                dx = points[j, 0] - points[i, 0]
+                dy = points[j, 1] - points[i, 1]
+                dz = points[j, 2] - points[i, 2]
+                d = math.sqrt(dx * dx + dy * dy + dz * dz)
+                s = t
+                while s > 0 and dist[s - 1] > d:
+                    dist[s] = dist[s - 1]
+                    indices[start + s] = indices[start + s - 1]
+                    s -= 1
+                dist[s] = d
+                indices[start + s] = j
+            radius[i] = dist[count - 1]
+            nearest[i] = dist[1] if count > 1 else 0.0

@@ -6,7 +6,7 @@ from pykdtree.kdtree import KDTree
 
 from ._threads import threads
 from ._validation import as_points, check_k
-from .kernels.graph import put_self_first
+from .kernels.graph import put_self_first, refresh_lists
 
 _MORTON_BITS = 21  # per axis: 3 * 21 = 63 bits fit an unsigned 64-bit code
 
@@ -135,6 +135,17 @@ def knn_graph(points, k, keep_distances=True):
     if keep_distances:
         return NeighborGraph(indptr, indices.reshape(-1), dists.reshape(-1))
     return ListScales(indptr, indices.reshape(-1), radius, nearest)
+
+
+def refresh_graph(graph, points):
+    """``graph``'s lists re-sorted by the distances between the current ``points`` (in place),
+    as a :class:`ListScales`: the next iteration keeps its neighbours but not stale orders or
+    scales."""
+    n = graph.indptr.shape[0] - 1
+    radius = np.empty(n)
+    nearest = np.empty(n)
+    refresh_lists(points, graph.indptr, graph.indices, radius, nearest)
+    return ListScales(graph.indptr, graph.indices, radius, nearest)
 
 
 def neighbors(points, k=25, *, n_jobs=None):

@@ -226,9 +226,21 @@ def move_points(points, proj, filtered, lik, feat, lam):
     return out
 
 
-def robust_iteration(points, normals, k, lam=0.5, form="exp", radius_factor=10.0):
-    """One full iteration of the robust method with brute-force neighbours."""
-    lists, dists = knn_lists(points, k)
+def resort_lists(points, lists):
+    """Each list's members sorted by their current distance (stable: self stays first)."""
+    out, dists = [], []
+    for i, members in enumerate(lists):
+        d = np.sqrt(((points[members] - points[i]) ** 2).sum(axis=1))
+        order = np.argsort(d, kind="stable")
+        out.append(np.asarray(members)[order])
+        dists.append(d[order])
+    return out, dists
+
+
+def robust_iteration(points, normals, k, lam=0.5, form="exp", radius_factor=10.0, lists=None):
+    """One full iteration of the robust method with brute-force neighbours, or with the members
+    of ``lists`` (from earlier positions) re-sorted by the current distances."""
+    lists, dists = knn_lists(points, k) if lists is None else resort_lists(points, lists)
     if normals is None:
         normals = pca_normals(points, lists)
         hints = points - points.mean(axis=0)

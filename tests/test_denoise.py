@@ -29,7 +29,7 @@ def test_one_iteration_matches_the_reference(noisy):
 
 def test_two_iterations_chain_the_reference(noisy):
     given = np.tile([0.0, 0.0, 1.0], (len(noisy), 1))
-    result = pssd_fast.denoise(noisy, given, iterations=2, k=20, lam=0.3)
+    result = pssd_fast.denoise(noisy, given, iterations=2, k=20, lam=0.3, rebuild_graph=True)
     first, filtered, _, _ = reference.robust_iteration(noisy, given, 20, lam=0.3)
     # The second pass re-estimates normals by PCA, oriented like the first pass's normals.
     lists, _ = reference.knn_lists(first, 20)
@@ -38,6 +38,19 @@ def test_two_iterations_chain_the_reference(noisy):
     second, _, _, _ = reference.robust_iteration(first, pca, 20, lam=0.3)
     np.testing.assert_allclose(result.points, second, atol=1e-8)
     assert (result.normals[:, 2] > 0).all()  # the caller's orientation is kept
+
+
+def test_two_iterations_on_one_graph_chain_the_reference(noisy):
+    given = np.tile([0.0, 0.0, 1.0], (len(noisy), 1))
+    result = pssd_fast.denoise(noisy, given, iterations=2, k=20, lam=0.3)
+    first, filtered, _, _ = reference.robust_iteration(noisy, given, 20, lam=0.3)
+    # The second pass keeps the first pass's neighbours, re-sorted by the new distances.
+    lists, _ = reference.resort_lists(first, reference.knn_lists(noisy, 20)[0])
+    pca = reference.pca_normals(first, lists)
+    pca *= np.where((pca * filtered).sum(axis=1) < 0, -1.0, 1.0)[:, None]
+    second, _, _, _ = reference.robust_iteration(first, pca, 20, lam=0.3,
+                                                 lists=reference.knn_lists(noisy, 20)[0])
+    np.testing.assert_allclose(result.points, second, atol=1e-8)
 
 
 def test_bit_identical_across_thread_counts_and_calls(noisy):
@@ -137,6 +150,7 @@ def test_keep_normals(noisy):
     ({"radius_factor": 0}, ValueError, "radius_factor must be positive"),
     ({"n_jobs": -3}, ValueError, "n_jobs"),
     ({"smoothness": 1}, TypeError, "unknown parameter"),
+    ({"rebuild_graph": "yes"}, TypeError, "rebuild_graph must be True or False"),
 ])
 def test_bad_parameters_are_named(noisy, kwargs, error, match):
     with pytest.raises(error, match=match):
@@ -261,8 +275,9 @@ def test_degenerate_geometry_gives_finite_output(name):
 def test_presets(noisy):
     paper = pssd_fast.denoise(noisy, preset="paper")
     assert (paper.stats["k"], paper.stats["lam"]) == (25, 0.5)
-    explicit = pssd_fast.denoise(noisy, k=25, lam=0.5)
+    explicit = pssd_fast.denoise(noisy, k=25, lam=0.5, rebuild_graph=True)
     np.testing.assert_array_equal(paper.points, explicit.points)
+    assert paper.stats["rebuild_graph"] and not pssd_fast.denoise(noisy).stats["rebuild_graph"]
     default = pssd_fast.denoise(noisy)
     assert (default.stats["k"], default.stats["lam"]) == (35, 1.0)
     assert pssd_fast.denoise(noisy, preset="paper", k=30).stats["k"] == 30

@@ -46,6 +46,20 @@ def test_chunked_query_and_lean_graph_match_one_query(name, monkeypatch):
     np.testing.assert_array_equal(lean.nearest_distance(), whole.nearest_distance())
 
 
+@pytest.mark.parametrize("name", ["wavy", "duplicates", "tiny"])
+def test_refreshed_lists_match_a_stable_sort(name):
+    points = CLOUDS[name]()
+    graph = knn_graph(points, 10)
+    moved = points + np.random.default_rng(4).normal(0, 0.02, points.shape)
+    if name == "duplicates":
+        moved = points[:, ::-1].copy()  # still tied at distance 0, in a new geometry
+    expected, dists = reference.resort_lists(moved, reference.graph_lists(graph))
+    refreshed = graph_module.refresh_graph(graph, moved)
+    np.testing.assert_array_equal(refreshed.indices, np.concatenate(expected))
+    np.testing.assert_allclose(refreshed.list_radius(), [d[-1] for d in dists], rtol=1e-15)
+    np.testing.assert_allclose(refreshed.nearest_distance(), [d[1] for d in dists], rtol=1e-15)
+
+
 def test_self_first_with_more_twins_than_k():
     points = np.repeat(CLOUDS["wavy"](40), 15, axis=0)  # 15 copies > k = 10
     graph = pssd_fast.neighbors(points, 10)
