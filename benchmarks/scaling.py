@@ -4,6 +4,7 @@ Usage::
 
     python -m benchmarks.scaling                              # 1e4..1e6 points, 1..all cores
     python -m benchmarks.scaling --sizes 10000000 --threads 2 --out scaling_10M
+    python -m benchmarks.scaling --preset default --k 0 --sizes 1000000 --out scaling_default
 
 Each (size, threads) cell runs in a fresh process, so that its peak resident size (the OS's
 ``ru_maxrss``) belongs to that run alone: the child loads the cloud from a ``.npy`` file (no
@@ -31,18 +32,19 @@ from .stages import STAGES, RESULTS, knn_query_seconds, machine, write_atomic
 THREADS = (1, 2, 4, 8, 16)
 
 
-def child(path, k, method, repeats):
+def child(path, k, method, preset, repeats):
     """Measure one cell in this process; print the result as one JSON line."""
     import pssd_fast
     from pssd_fast.graph import morton_order
 
     points = np.load(path)
-    pssd_fast.denoise(points[:5000], iterations=1, k=k, method=method)
+    run = dict(iterations=1, k=k or None, method=method, preset=preset)
+    pssd_fast.denoise(points[:5000], **run)
     rss_before = _resident_bytes()
     times, total = {}, np.inf
     for _ in range(repeats):
         started = time.perf_counter()
-        result = pssd_fast.denoise(points, iterations=1, k=k, method=method)
+        result = pssd_fast.denoise(points, **run)
         total = min(total, time.perf_counter() - started)
         for stage, seconds in result.stats["iterations"][0]["times"].items():
             times[stage] = min(times.get(stage, np.inf), seconds)
@@ -50,11 +52,12 @@ def child(path, k, method, repeats):
     output = sum(a.nbytes for a in (result.points, result.normals, result.likelihood,
                                      result.feature_intensity, result.displacement)
                  if a is not None)
+    result_k = result.stats["k"]
     del result
     ordered = points[morton_order(points)]
     knn = min(knn_query_seconds(ordered, 25) for _ in range(repeats))
     n = len(points)
-    print(json.dumps({"times": times, "total": total, "knn_query": knn,
+    print(json.dumps({"times": times, "total": total, "knn_query": knn, "k": result_k,
                       "peak_bytes": peak, "rss_before": rss_before,
                       "bytes_per_point": (peak - rss_before - output) / n}))
 
@@ -64,10 +67,11 @@ def _resident_bytes():
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
-def measure(path, threads, k, method, repeats):
+def measure(path, threads, k, method, preset, repeats):
     env = dict(os.environ, NUMBA_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads))
     out = subprocess.run([sys.executable, "-m", "benchmarks.scaling", "--child", str(path),
-                          "--k", str(k), "--method", method, "--repeats", str(repeats)],
+                          "--k", str(k), "--method", method, "--preset", preset,
+                          "--repeats", str(repeats)],
                          env=env, capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -79,17 +83,20 @@ def exponent(sizes, seconds):
     return float(np.polyfit(np.log(sizes), np.log(seconds), 1)[0])
 
 
-def table(cells, k, method):
-    head = ("| points | threads | kNN k=25 (s) | " + " | ".join(STAGES)
+def table(cells, method, preset):
+    seen = {stage for c in cells for stage in c["times"]}
+    stages_run = [s for s in STAGES if s in seen] + sorted(seen - set(STAGES))
+    head = ("| points | threads | k | kNN k=25 (s) | " + " | ".join(stages_run)
             + " | iteration (s) | iteration / kNN | peak RSS (MB) | bytes/point |")
-    lines = [head, "|" + "---|" * (len(STAGES) + 7)]
+    lines = [head, "|" + "---|" * (len(stages_run) + 8)]
     for c in cells:
         t = c["times"]
-        stages = " | ".join(f"{t.get(s, float('nan')):.3f}" for s in STAGES)
-        lines.append(f"| {c['points']:,} | {c['threads']} | {c['knn_query']:.3f} | {stages} | "
+        stages = " | ".join(f"{t.get(s, float('nan')):.3f}" for s in stages_run)
+        lines.append(f"| {c['points']:,} | {c['threads']} | {c['k']} | {c['knn_query']:.3f} | "
+                     f"{stages} | "
                      f"{c['total']:.3f} | {c['total'] / c['knn_query']:.1f} | "
                      f"{c['peak_bytes'] / 1e6:.0f} | {c['bytes_per_point']:.0f} |")
-    text = "\n".join(lines) + (f"\n\nOne {method} iteration at k={k}, times in seconds "
+    text = "\n".join(lines) + (f"\n\nOne {method} iteration, preset {preset!r}, times in seconds "
                                "(best of the repeats); bytes/point: peak resident size above "
                                "the input and the result arrays.\n")
     by_threads = {}
@@ -127,7 +134,7 @@ def plot(cells, path):
         left.loglog(n, [c["knn_query"] for c in group], "x--", label=f"kNN query, {t} thread(s)")
     left.set_xlabel("points")
     left.set_ylabel("seconds")
-    left.set_title("One robust iteration (k=25) vs pykdtree's query")
+    left.set_title("One iteration vs pykdtree's k=25 query")
     left.legend(fontsize=7)
     sizes = sorted({c["points"] for c in cells})
     for n in sizes:
@@ -151,15 +158,17 @@ def main(argv=None):
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
     parser.add_argument("--threads", type=int, nargs="+",
                         default=[t for t in THREADS if t <= (os.cpu_count() or 1)])
-    parser.add_argument("--k", type=int, default=25)
+    parser.add_argument("--k", type=int, default=25, help="0: the preset's choice")
     parser.add_argument("--method", default="robust", choices=("robust", "bilateral", "mls"))
+    parser.add_argument("--preset", default="paper",
+                        help="denoise preset (default: the paper's pipeline, the issue's target)")
     parser.add_argument("--noise", type=float, default=0.005)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--out", default="scaling", help="file stem in benchmarks/results/")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
-        child(args.child, args.k, args.method, args.repeats)
+        child(args.child, args.k, args.method, args.preset, args.repeats)
         return
 
     from pssd_fast import datasets
@@ -171,18 +180,19 @@ def main(argv=None):
             np.save(path, datasets.cad_part(n_points=n, noise=args.noise, seed=0).points)
             for threads in args.threads:
                 cell = {"points": n, "threads": threads,
-                        **measure(path, threads, args.k, args.method, args.repeats)}
+                        **measure(path, threads, args.k, args.method, args.preset,
+                                  args.repeats)}
                 cells.append(cell)
                 print(f"{n:>10,} points {threads:>2} threads: {cell['total']:8.2f} s "
                       f"({cell['total'] / cell['knn_query']:.1f}x kNN), "
                       f"{cell['bytes_per_point']:.0f} B/point", flush=True)
     text = (f"Machine: {machine()}\n\nInput: the generated CAD part, noise {args.noise:.2%} of "
-            f"the diagonal.\n\n" + table(cells, args.k, args.method))
+            f"the diagonal.\n\n" + table(cells, args.method, args.preset))
     print(text)
     RESULTS.mkdir(exist_ok=True)
     write_atomic(RESULTS / f"{args.out}.md", text)
     write_atomic(RESULTS / f"{args.out}.json", json.dumps(
-        {"machine": machine(), "k": args.k, "method": args.method, "noise": args.noise,
+        {"machine": machine(), "method": args.method, "preset": args.preset, "noise": args.noise,
          "cells": cells}, indent=2))
     plot(cells, RESULTS / f"{args.out}.png")
 
