@@ -12,6 +12,7 @@ from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_k,
 )
 from .graph import knn_graph, morton_order, refresh_graph
+from .kernels.order import gather_rows, scatter_rows
 
 #: Parameters of each method beyond the common ones, with their defaults.
 METHOD_DEFAULTS = {
@@ -178,7 +179,8 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
     # Work relative to the bounding-box centre: georeferenced coordinates (1e6 m offsets) would
     # otherwise cost the kNN distances most of their digits.
     centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-    current = pts[order] - centre
+    current = np.empty_like(pts)
+    gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
     step = _STEPS[method]
     records = []
@@ -203,9 +205,7 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
             if not params["keep_normals"]:
                 given = None
 
-    inverse = np.empty_like(order)
-    inverse[order] = np.arange(n)
-    shift = current[inverse]
+    shift = _to_caller_order(current, order)
     out = shift + centre
     stats = {
         "method": method,
@@ -220,15 +220,26 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
         "iterations": records,
         "total_seconds": time.perf_counter() - started,
     }
-    lik, feat = (None, None) if extra is None else (x[inverse].astype(dtype) for x in extra)
+    lik, feat = (None, None) if extra is None else (
+        _to_caller_order(x, order).astype(dtype, copy=False) for x in extra)
     return DenoiseResult(
         points=out.astype(dtype, copy=False),
-        normals=out_normals[inverse].astype(dtype, copy=False),
+        normals=_to_caller_order(out_normals, order).astype(dtype, copy=False),
         likelihood=lik,
         feature_intensity=feat,
         displacement=np.linalg.norm(shift - (pts - centre), axis=1).astype(dtype, copy=False),
         stats=stats,
     )
+
+
+def _to_caller_order(values, order):
+    """``values`` (rows in Morton order ``order``) back in the caller's order."""
+    out = np.empty_like(values)
+    if values.ndim == 1:
+        out[order] = values
+    else:
+        scatter_rows(values, order, np.zeros(values.shape[1]), out)
+    return out
 
 
 def _method_params(method, method_params):

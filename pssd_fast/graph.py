@@ -7,6 +7,7 @@ from pykdtree.kdtree import KDTree
 from ._threads import threads
 from ._validation import as_points, check_k
 from .kernels.graph import put_self_first, refresh_lists
+from .kernels.order import morton_codes
 
 _MORTON_BITS = 21  # per axis: 3 * 21 = 63 bits fit an unsigned 64-bit code
 
@@ -59,19 +60,9 @@ def morton_order(points):
     low = points.min(axis=0)
     extent = float((points.max(axis=0) - low).max())
     scale = (2**_MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
-    cells = ((points - low) * scale).astype(np.uint64)
-    code = np.zeros(points.shape[0], np.uint64)
-    for axis in range(3):
-        code |= _spread_bits(cells[:, axis]) << np.uint64(axis)
+    code = np.empty(points.shape[0], np.uint64)
+    morton_codes(np.ascontiguousarray(points, dtype=np.float64), low, scale, code)
     return np.argsort(code, kind="stable")
-
-
-def _spread_bits(x):
-    """Insert two zero bits between each of the low 21 bits of ``x`` (uint64)."""
-    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
-                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
-        x = (x | (x << np.uint64(shift))) & np.uint64(mask)
-    return x
 
 
 class ListScales(NamedTuple):

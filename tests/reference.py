@@ -13,6 +13,21 @@ DEGENERATE_RATIO = 1e-12  # second covariance eigenvalue / largest below this: n
 FIT_TOL = 1e-9  # smallest eigenvalue of the column-normalised Gram matrix below this: singular
 
 
+def morton_order(points):
+    """Stable sort by interleaved 21-bit cell coordinates (x in bit 0 of each triple)."""
+    low = points.min(axis=0)
+    extent = float((points.max(axis=0) - low).max())
+    scale = (2**21 - 1) / extent if extent > 0.0 else 0.0
+    cells = ((points - low) * scale).astype(np.uint64)
+    code = np.zeros(len(points), np.uint64)
+    for i in range(len(points)):
+        for bit in range(21):
+            for axis in range(3):
+                if (int(cells[i, axis]) >> bit) & 1:
+                    code[i] |= np.uint64(1) << np.uint64(3 * bit + axis)
+    return np.argsort(code, kind="stable")
+
+
 def knn_lists(points, k):
     """Brute-force k nearest neighbours (self included), sorted by distance, self first."""
     lists, dists = [], []

@@ -5,6 +5,7 @@ import pytest
 import pssd_fast
 from pssd_fast import graph as graph_module
 from pssd_fast.graph import check_graph, knn_graph, morton_order
+from pssd_fast.kernels.order import gather_rows, scatter_rows
 
 from . import reference
 from .conftest import CLOUDS
@@ -77,6 +78,24 @@ def test_morton_order_is_a_locality_preserving_permutation():
     random_step = np.linalg.norm(np.diff(points, axis=0), axis=1).mean()
     assert step < random_step / 5
     np.testing.assert_array_equal(morton_order(np.zeros((5, 3))), np.arange(5))
+
+
+@pytest.mark.parametrize("name", sorted(CLOUDS))
+def test_morton_order_matches_the_reference(name):
+    points = CLOUDS[name]() * 1e3 + [5e5, -4e6, 300.0]
+    np.testing.assert_array_equal(morton_order(points), reference.morton_order(points))
+
+
+def test_row_permutations_are_inverse():
+    points = CLOUDS["sphere"]()
+    order = np.random.default_rng(5).permutation(len(points))
+    offset = np.array([1.0, -2.0, 3.0])
+    moved = np.empty_like(points)
+    gather_rows(points, order, offset, moved)
+    np.testing.assert_array_equal(moved, points[order] - offset)
+    back = np.empty_like(points)
+    scatter_rows(moved, order, offset, back)
+    np.testing.assert_allclose(back, points, rtol=1e-15, atol=1e-15)
 
 
 def test_neighbors_in_caller_order_for_any_permutation():
