@@ -119,8 +119,9 @@ def grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources, s
         queued[s] = False
         bits = reach[s]
         j = nodes[s]
-        first = indptr[j]
-        for t in range(first, min(indptr[j + 1], first + n_vote)):
+        # The list's first entry is j itself, which has its own bits already.
+        first = indptr[j] + 1
+        for t in range(first, min(indptr[j + 1], first + n_vote - 1)):
             c = indices[t]
             cs = slot_of[c]
             if cs < 0:
