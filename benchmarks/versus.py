@@ -19,9 +19,11 @@ minimum over its settings separately for the mean and for the edge column (the t
 come from different settings). Peer runs are deterministic and slow, so their scores are cached
 in ``benchmarks/results/versus_peers.json`` (``--refresh-peers`` recomputes them).
 
-Ours: ``denoise(points)`` at its defaults and ``denoise(points, preset="paper")``. Times are
+Ours: ``denoise(points)`` at its defaults, ``preset="fast"`` and ``preset="paper"``. Times are
 warm wall times divided by pykdtree's k=25 kNN query (tree build + query, points in Morton
-order) measured in the same run. Results go to ``benchmarks/results/versus.md`` and ``.json``.
+order) measured in the same run; *per it.* is the default's mean iteration (all stages, the
+noise probe that chooses ``k`` excluded). Results go to ``benchmarks/results/versus.md`` and
+``.json``.
 """
 import argparse
 import json
@@ -126,8 +128,12 @@ def run_ours(case, preset, repeats=1):
         result = pssd_fast.denoise(case.points, preset=preset)
         seconds = min(seconds, time.perf_counter() - started)
     mean, edge = case.score(result.points)
+    per_iteration = [sum(r["times"].values()) for r in result.stats["iterations"]]
+    probe = result.stats["auto_k"]
     return {"mean": mean, "edge": edge, "seconds": seconds,
-            "iterations": result.stats["n_iterations"], "k": result.stats["k"]}
+            "iterations": result.stats["n_iterations"], "k": result.stats["k"],
+            "iteration_seconds": float(np.mean(per_iteration)),
+            "probe_seconds": None if probe is None else probe["seconds"]}
 
 
 def knn_reference(points, k=25, repeats=3):
@@ -153,21 +159,24 @@ def markdown(rows, compile_seconds):
            "over settings taken separately for each column. *W/L*: win or lose of our default "
            "against that peer, mean then edge. Time: wall time divided by pykdtree's k=25 kNN "
            "query on the same points in the same run (*kNN* in seconds).", "",
-           "| shape | noise | noisy | ours default | ours paper | best jet | W/L jet | "
-           "best bil. | W/L bil. | kNN (s) | default / kNN | paper / kNN | jet / kNN | "
-           "bil. / kNN |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| shape | noise | noisy | ours default (k) | ours paper | best jet | W/L jet | "
+           "best bil. | W/L bil. | ours fast | kNN (s) | default / kNN | default per it. / kNN "
+           "| fast / kNN | paper / kNN | jet / kNN | bil. / kNN |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        d, p, j, b = r["default"], r["paper"], r["jet"], r["bilateral"]
+        d, p, j, b, f = r["default"], r["paper"], r["jet"], r["bilateral"], r["fast"]
         knn = r["knn_seconds"]
         out.append(
             f"| {r['shape']} | {r['noise']:.2%} | {_fmt(r['noisy']['mean'])} / "
-            f"{_fmt(r['noisy']['edge'])} | **{_fmt(d['mean'])} / {_fmt(d['edge'])}** | "
+            f"{_fmt(r['noisy']['edge'])} | **{_fmt(d['mean'])} / {_fmt(d['edge'])}** "
+            f"({d['k']}) | "
             f"{_fmt(p['mean'])} / {_fmt(p['edge'])} | {_fmt(j['mean'])} / {_fmt(j['edge'])} | "
             f"{_wl(d['mean'], j['mean'])} / {_wl(d['edge'], j['edge'])} | "
             f"{_fmt(b['mean'])} / {_fmt(b['edge'])} | "
-            f"{_wl(d['mean'], b['mean'])} / {_wl(d['edge'], b['edge'])} | {knn:.3f} | "
-            f"{d['seconds'] / knn:.0f} | {p['seconds'] / knn:.0f} | "
+            f"{_wl(d['mean'], b['mean'])} / {_wl(d['edge'], b['edge'])} | "
+            f"{_fmt(f['mean'])} / {_fmt(f['edge'])} | {knn:.3f} | "
+            f"{d['seconds'] / knn:.0f} | {d['iteration_seconds'] / knn:.0f} | "
+            f"{f['seconds'] / knn:.0f} | {p['seconds'] / knn:.0f} | "
             f"{j['seconds'] / knn:.0f} | {b['seconds'] / knn:.0f} |")
     losses = [f"{r['shape']} {r['noise']:.2%} {col} vs {fam}" for r in rows
               for fam in ("jet", "bilateral") for col in ("mean", "edge")
@@ -176,7 +185,8 @@ def markdown(rows, compile_seconds):
             + (f" Lost: {'; '.join(losses)}." if losses else "")]
     out += ["", "Peer setting behind each minimum (mean / edge) and its time in seconds "
             "(peer times are cached with the scores, from the run that made the cache):", "",
-            "| shape | noise | jet mean | jet edge | bil. mean | bil. edge |", "|---|---|---|---|---|---|"]
+            "| shape | noise | jet mean | jet edge | bil. mean | bil. edge |",
+            "|---|---|---|---|---|---|"]
     for r in rows:
         cells = [f"{r[fam][col + '_setting']} ({r[fam][col + '_seconds']:.1f} s)"
                  for fam in ("jet", "bilateral") for col in ("mean", "edge")]
@@ -222,7 +232,7 @@ def main(argv=None):
             row = {"shape": shape, "noise": noise, "points": len(case.points),
                    "noisy": {"mean": noisy[0], "edge": noisy[1]},
                    "knn_seconds": knn_reference(case.points)}
-            for preset in ("default", "paper"):
+            for preset in ("default", "fast", "paper"):
                 row[preset] = run_ours(case, preset, args.repeats)
                 log(f"  ours {preset:8s} {row[preset]['mean']:7.2f} {row[preset]['edge']:7.2f} "
                     f"{row[preset]['seconds']:7.2f} s")
