@@ -64,10 +64,10 @@ class Case:
     score: Callable[[np.ndarray], tuple]
 
 
-def make_case(shape, noise, model_cache=None):
+def make_case(shape, noise, model_cache=None, cad_points=CAD_POINTS):
     """The noisy input of ``shape`` at ``noise`` and its scorer."""
     if shape == "cad_part":
-        cloud = datasets.cad_part(n_points=CAD_POINTS, noise=noise, seed=0)
+        cloud = datasets.cad_part(n_points=cad_points, noise=noise, seed=0)
         near = cloud.edge_distance < models.EDGE_BAND * cloud.diagonal
         unit = UNIT * cloud.diagonal
 
@@ -204,6 +204,9 @@ def main(argv=None):
                         help="re-run CGAL instead of using versus_peers.json")
     parser.add_argument("--peers-only", action="store_true", help="only fill the peer cache")
     parser.add_argument("--repeats", type=int, default=1, help="timed runs of ours per cell")
+    parser.add_argument("--cad-points", type=int, default=CAD_POINTS,
+                        help="points of the generated part (cached peers are per cell: use "
+                             "--out elsewhere when changing it)")
     parser.add_argument("--out", type=Path, default=RESULTS, help="folder for versus.md/.json")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
@@ -218,7 +221,7 @@ def main(argv=None):
     rows = []
     for shape in args.shapes:
         for noise in args.noise:
-            case = make_case(shape, noise, model_cache)
+            case = make_case(shape, noise, model_cache, args.cad_points)
             key = _key(shape, noise)
             log(f"{shape} {noise:.2%} ({len(case.points)} points)")
             if args.refresh_peers or key not in cache["cells"]:
