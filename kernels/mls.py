@@ -206,3 +206,134 @@ def mls_fit(points, normals, indptr, indices, h, proj, resid, degree, curvature)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov, w, v,
                        a, b, phi, proj, resid, degree, curvature)
+
+
+@helper
+def _quadratic_monomials(x, y, phi):
+    """The first six monomials of eq. (1): 1, y, x, xy, y^2, x^2 (plane = first three)."""
+    phi[0] = 1.0
+    phi[1] = y
+    phi[2] = x
+    phi[3] = x * y
+    phi[4] = y * y
+    phi[5] = x * x
+
+
+@helper
+def _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, ys, zs, a, b, phi,
+                 height, rms, degree):
+    px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+    nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+    ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
+    start = indptr[i]
+    count = indptr[i + 1] - start
+    radius2 = 0.0
+    for t in range(count):
+        j = indices[start + t]
+        dx = points[j, 0] - px
+        dy = points[j, 1] - py
+        dz = points[j, 2] - pz
+        radius2 = max(radius2, dx * dx + dy * dy + dz * dz)
+    inv_r = 1.0 / math.sqrt(radius2) if radius2 > 0.0 else 1.0
+    inv_r2 = 1.0 / radius2 if radius2 > 0.0 else 0.0
+    for p in range(6):
+        b[p] = 0.0
+        for q in range(p + 1):
+            a[p, q] = 0.0
+    for t in range(count):
+        j = indices[start + t]
+        dx = points[j, 0] - px
+        dy = points[j, 1] - py
+        dz = points[j, 2] - pz
+        x = (dx * ux + dy * uy + dz * uz) * inv_r
+        y = (dx * vx + dy * vy + dz * vz) * inv_r
+        z = dx * nx + dy * ny + dz * nz
+        wgt = math.exp(-(dx * dx + dy * dy + dz * dz) * inv_r2)
+        if inv_sigma_n > 0.0:
+            u = (1.0 - min(abs(nx * normals[j, 0] + ny * normals[j, 1] + nz * normals[j, 2]),
+                           1.0)) * inv_sigma_n
+            wgt *= math.exp(-u * u)
+        xs[t] = x
+        ys[t] = y
+        zs[t] = z
+        wts[t] = wgt
+        _quadratic_monomials(x, y, phi)
+        for p in range(6):
+            tp = wgt * phi[p]
+            b[p] += tp * z
+            for q in range(p + 1):
+                a[p, q] += tp * phi[q]
+
+    # Quadratic if well posed, else the plane, else the weighted mean height, else nothing.
+    rank = cholesky_prefix(a, 6, PIVOT_TOL)
+    if rank == 6:
+        m = 6
+    elif rank >= 3:
+        m = 3
+    else:
+        m = min(rank, 1)
+    degree[i] = m
+    cholesky_solve(a, b, m)
+    for p in range(m, 6):
+        b[p] = 0.0
+    height[i] = b[0]
+    se = 0.0
+    sw = 0.0
+    for t in range(count):
+        _quadratic_monomials(xs[t], ys[t], phi)
+        g = 0.0
+        for p in range(m):
+            g += b[p] * phi[p]
+        r = zs[t] - g
+        se += wts[t] * r * r
+        sw += wts[t]
+    rms[i] = math.sqrt(se / sw) if sw > 0.0 else 0.0
+
+
+@parallel_kernel
+def aware_fit(points, normals, indptr, indices, sigma_n, height, rms, degree):
+    """Feature-aware local quadratic in each point's own normal frame (the default pipeline).
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    normals : (n, 3) float64
+        Unit normals ``n*_i`` (the filtered normals); only ``|n_i . n_j|`` is used, so signs
+        need not agree.
+    indptr, indices : CSR neighbour graph (each list contains the point itself)
+    sigma_n : float
+        Width of the normal-agreement weight ``exp(-((1 - |n_i . n_j|) / sigma_n)^2)``; 0 or
+        less turns it off (weights by distance only).
+    height : (n,) float64
+        Output: ``g(0, 0)``, the height of the fitted surface above ``p_i`` along ``n_i``, so
+        that ``p_i + height_i n_i`` is the projection of ``p_i`` along its normal.
+    rms : (n,) float64
+        Output: weighted root-mean-square residual of the list about the fit.
+    degree : (n,) int8
+        Output: number of coefficients fitted: 6 (quadratic), 3 (plane fallback), 1 (weighted
+        mean height) or 0 (no fit, ``height = 0``).
+
+    Notes
+    -----
+    Frame: origin ``p_i``, axis ``n_i``, tangent coordinates scaled by the list radius ``r_i``.
+    Weights: ``exp(-|p_j - p_i|^2 / r_i^2)`` times the normal-agreement weight, the point itself
+    included with weight 1. Neighbours whose normal disagrees with ``n_i`` (the other side of a
+    crease) hardly count, so points near a sharp edge are fitted to their own face. The
+    quadratic's normal equations are factored with the same pivot test as :func:`mls_fit`; a
+    leading block that fails falls back to the plane (first three monomials), then to the
+    weighted mean height.
+    """
+    n = points.shape[0]
+    longest = max_degree(indptr)
+    inv_sigma_n = 1.0 / sigma_n if sigma_n > 0.0 else 0.0
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        wts = np.empty(longest)
+        xs = np.empty(longest)
+        ys = np.empty(longest)
+        zs = np.empty(longest)
+        a = np.empty((6, 6))
+        b = np.empty(6)
+        phi = np.empty(6)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, ys, zs, a, b,
+                         phi, height, rms, degree)

@@ -130,10 +130,12 @@ def _parser():
 
 
 def _add_common(parser):
-    parser.add_argument("--iterations", type=int, default=2, help="iterations (2)")
-    parser.add_argument("--preset", choices=("default", "paper"), default="default",
-                        help="where --k and --lam come from: default (k=35, lam=1) or paper "
-                             "(k=25, lam=0.5)")
+    parser.add_argument("--iterations", type=int, default=None,
+                        help="iterations (preset: 4 default, 2 fast, 2 paper)")
+    parser.add_argument("--preset", choices=("default", "fast", "paper"), default="default",
+                        help="default: feature-aware fit, k from the estimated noise, 4 "
+                             "iterations; fast: the same with k=48, 2 iterations; paper: the "
+                             "paper's method (k=25, lam=0.5, 2 iterations)")
     parser.add_argument("--k", type=int, default=None, help="neighbours per point (preset)")
     parser.add_argument("--lam", type=float, default=None,
                         help="lambda, weight of the likelihood term (preset)")
@@ -227,7 +229,8 @@ def _denoise(args):
     if not args.quiet:
         disp = result.displacement
         print(f"{args.input} -> {args.output}: {len(disp):,} points, method {args.method}, "
-              f"{args.iterations} iterations, {seconds:.2f} s; displacement max {disp.max():.4g}"
+              f"{result.stats['n_iterations']} iterations, {seconds:.2f} s; displacement max "
+              f"{disp.max():.4g}"
               f", mean {disp.mean():.4g}")
     return 0
 
@@ -273,7 +276,8 @@ def _demo(args):
     print("| Method | Iters. | Max. error (1e-4) | Ave. error (1e-4) | Exec time | "
           "mean dist. noisy -> denoised | near edges |")
     print("|---|---|---|---|---|---|---|")
-    print(f"| Robust ({args.preset}) | {args.iterations} | {disp.max():.1f} | {disp.mean():.1f} | "
+    print(f"| Robust ({args.preset}) | {result.stats['n_iterations']} | {disp.max():.1f} | "
+          f"{disp.mean():.1f} | "
           f"{seconds:.2f}s | {before.mean():.1f} -> {after.mean():.1f} | "
           f"{before[edge].mean():.1f} -> {after[edge].mean():.1f} |")
     for path in written + pictures:

@@ -17,19 +17,37 @@ from .kernels.order import gather_rows, scatter_rows
 #: Parameters of each method beyond the common ones, with their defaults.
 METHOD_DEFAULTS = {
     "robust": {"h": None, "radius_factor": 10.0, "delta": 0.2, "alpha": 0.3, "beta": 0.3,
-               "likelihood": "exp", "keep_normals": False},
+               "likelihood": "exp", "sigma_n": 0.05, "keep_normals": False},
     "bilateral": {"sigma_c": None, "sigma_s": None, "keep_normals": False},
     "mls": {"h": None, "keep_normals": False},
 }
 #: Methods :func:`denoise` offers.
 METHODS = tuple(METHOD_DEFAULTS)
-#: Settings of ``k``, ``lam`` and ``rebuild_graph`` by preset. "paper" is the paper's (k = 25,
-#: lambda = 0.5, neighbours found anew in every iteration); "default" is chosen by the ablation
-#: of the Table 1 suite (docs/DECISIONS.md): on Fandisk, the dragon head and Igea at 0.5% noise,
-#: k = 35 and lambda = 1 lower both the mean and the sharp-edge error of the paper's settings,
-#: and keeping the first iteration's neighbours changes no error measurably.
-PRESETS = {"default": {"k": 35, "lam": 1.0, "rebuild_graph": False},
-           "paper": {"k": 25, "lam": 0.5, "rebuild_graph": True}}
+#: Robust-method parameters that only the paper's pipeline uses, and those only the
+#: feature-aware pipeline uses.
+PAPER_ONLY = ("h", "radius_factor", "delta", "alpha", "beta", "likelihood")
+AWARE_ONLY = ("sigma_n",)
+#: Presets: the pipeline of the robust method and where ``k``, ``lam``, ``iterations`` and
+#: ``rebuild_graph`` come from when not given (``k=None``: chosen from the estimated noise, see
+#: ``AUTO_K``). "default" and "fast" run the feature-aware pipeline chosen on generated shapes
+#: (docs/DECISIONS.md, "Beyond the paper"); "fast" keeps the first iteration's neighbours
+#: (1.2-2x faster, errors unchanged or lower), "default" queries them anew, which keeps its
+#: sharp-edge error up to 1% lower. "paper" is the paper's formulation.
+PRESETS = {
+    "default": {"pipeline": "aware", "k": None, "lam": None, "iterations": 4,
+                "rebuild_graph": True},
+    "fast": {"pipeline": "aware", "k": 48, "lam": None, "iterations": 2, "rebuild_graph": False},
+    "paper": {"pipeline": "paper", "k": 25, "lam": 0.5, "iterations": 2, "rebuild_graph": True},
+}
+#: The noise-driven choice of ``k`` (preset "default"). A probe fit with ``probe_k``
+#: neighbours measures the noise ``sigma`` (median RMS residual of the unweighted quadratic
+#: fits) relative to the probe's mean list radius ``r``; ``k`` is interpolated, linearly in
+#: ``log(sigma / r)`` and ``log k``, between the anchors ``(ratio, k)`` and held at the end
+#: values outside them. Each anchor is the ratio the probe measures on the generated CAD part
+#: (100,000 points) at 0.25%, 0.5% and 1% noise and the smallest ``k`` of the grid tried there
+#: (48, 64, 96, 128, 160, 192) that beat both CGAL peers on both errors (docs/DECISIONS.md,
+#: "Beyond the paper").
+AUTO_K = {"probe_k": 96, "anchors": ((0.133, 64), (0.227, 96), (0.304, 160))}
 
 
 @dataclass(frozen=True)
@@ -44,7 +62,8 @@ class DenoiseResult:
         Robust method: the filtered unit normals ``n*_i`` of the last iteration. Baselines: the
         normals the last iteration used.
     likelihood : (n,) ndarray or None
-        Sampling likelihood ``l_i`` of the last iteration (robust method only).
+        Sampling likelihood ``l_i`` of the last iteration (robust method only; the
+        feature-aware presets compute it from the RMS residual of their fit).
     feature_intensity : (n,) ndarray or None
         Feature intensity ``s_i`` of the last iteration (robust method only).
     displacement : (n,) ndarray
@@ -54,8 +73,9 @@ class DenoiseResult:
         (``"times"``), the derived scales (``h``, ``mean_spacing``, ``region_radius``,
         ``mean_residual``), fallback counts (``fit_degree`` counts of cubic, quadratic and
         plane fits; ``degenerate_normals``; ``held_points``, points left in place because their
-        step was not finite), region sizes and the mean step; plus the run's settings and
-        ``"total_seconds"``. JSON-serialisable.
+        step was not finite), region sizes and the mean step; plus the run's settings
+        (``"pipeline"``: "paper" or "aware"; ``"auto_k"``: the noise probe behind a ``k``
+        chosen from the data, else None) and ``"total_seconds"``. JSON-serialisable.
     """
 
     points: np.ndarray
@@ -66,7 +86,7 @@ class DenoiseResult:
     stats: dict = field(repr=False)
 
 
-def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=None,
+def denoise(points, normals=None, *, method="robust", iterations=None, k=None, lam=None,
             preset="default", rebuild_graph=None, n_jobs=None, progress=None, **method_params):
     """Denoise a point-sampled surface while keeping its sharp features.
 
@@ -81,27 +101,32 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
         normals are estimated by PCA from the current positions in each iteration, oriented
         like the previous ones.
     method : {"robust", "bilateral", "mls"}, default "robust"
-        ``"robust"``: the paper's method. The paper's two baselines (Section 5, ALGORITHM.md):
-        ``"bilateral"`` (BIL) moves each point along its normal by the bilateral mean of its
-        neighbours' heights; ``"mls"`` moves it to its MLS projection ``q_i``.
-    iterations : int, default 2
-        Number of passes (paper: 1 to 3). Each recomputes everything from the current positions.
+        ``"robust"``: the paper's method (``preset="paper"``) or the library's feature-aware
+        refinement of it (the other presets, see Notes). The paper's two baselines (Section 5,
+        ALGORITHM.md): ``"bilateral"`` (BIL) moves each point along its normal by the bilateral
+        mean of its neighbours' heights; ``"mls"`` moves it to its MLS projection ``q_i``.
+    iterations : int, optional
+        Number of passes; each recomputes everything from the current positions. Default from
+        ``preset``: 4 ("default"), 2 ("fast", "paper"; the paper uses 1 to 3).
     k : int, optional
         Neighbourhood size including the point itself (paper Section 2.2: ``k in [20, 35]``);
-        at least 10 and at most ``n - 1``. Default from ``preset``: 35 ("default"), 25
-        ("paper").
+        at least 10 and at most ``n - 1``. Default from ``preset``: chosen from the estimated
+        noise, 64 to 160 ("default", see ``AUTO_K``), 48 ("fast"), 25 ("paper").
     lam : float, optional
         ``lambda`` in [0, 1] of Section 4.2: weight of the likelihood term against the feature
-        term in the step ``m_i``. Default from ``preset``: 1.0 ("default"), 0.5 ("paper").
-    preset : {"default", "paper"}, default "default"
-        Where ``k``, ``lam`` and ``rebuild_graph`` come from when not given. ``"paper"`` is
-        the paper's formulation; ``"default"`` the settings the Table 1 ablation found more
-        accurate (docs/DECISIONS.md).
+        term in the step ``m_i``. Paper's pipeline only (default 0.5); the other presets refuse
+        it, since their move does not use it.
+    preset : {"default", "fast", "paper"}, default "default"
+        ``"paper"``: the paper's formulation (k = 25, lambda = 0.5, 2 iterations; the Notes'
+        first paragraph). ``"default"``: the feature-aware pipeline (Notes), ``k`` from the
+        estimated noise, 4 iterations; chosen on generated shapes to beat CGAL's jet and
+        bilateral smoothing (docs/DECISIONS.md, README "Beyond the paper"). ``"fast"``: the
+        same pipeline with k = 48 and 2 iterations. For the baselines a preset only sets ``k``
+        and ``iterations``.
     rebuild_graph : bool, optional
         ``True``: query the k nearest neighbours anew in every iteration. ``False``: later
         iterations keep the first iteration's lists, re-sorted by the current distances (one
-        kNN query in all; the errors against the truth do not change measurably, see
-        docs/DECISIONS.md). Default from ``preset``: False ("default"), True ("paper").
+        kNN query in all; see docs/DECISIONS.md for what it changes). Default from ``preset``: False ("fast"), True ("default", "paper").
     n_jobs : int or None, default None
         Threads for the kernels: ``None`` or -1 use every thread numba may use (by default one
         per core), a positive number that many (capped at that maximum). Numba's setting is
@@ -122,6 +147,14 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
             Form of the sampling likelihood, eq. (2) (see :func:`sampling_likelihood`).
         keep_normals : bool, default False
             Use the given ``normals`` in every iteration instead of re-estimating them.
+        sigma_n : float, default 0.05
+            Width of the normal-agreement weight of the feature-aware fit (presets "default"
+            and "fast" only): a neighbour ``j`` counts ``exp(-((1 - |n*_i . n*_j|) / sigma_n)^2)``
+            times its distance weight.
+
+        ``h``, ``radius_factor``, ``delta``, ``alpha``, ``beta`` and ``likelihood`` shape the
+        paper's pipeline only; the other presets refuse them (ValueError) rather than ignore
+        them.
 
         ``"mls"``: ``h`` and ``keep_normals`` as above. ``"bilateral"``: ``keep_normals`` and
 
@@ -139,7 +172,8 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
         Non-numeric or complex points, non-integer ``k``, ``iterations`` or ``n_jobs``, or an
         unknown keyword in ``method_params``.
     ValueError
-        Wrong shapes, NaN or Inf, too few points for ``k``, and parameters out of range.
+        Wrong shapes, NaN or Inf, too few points for ``k``, parameters out of range, and
+        parameters the preset's pipeline does not use.
 
     Notes
     -----
@@ -150,6 +184,15 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
     quantities of an iteration use the positions at its start (Jacobi updates). The points are
     processed in Morton order for memory locality and returned in the caller's order.
 
+    Feature-aware iteration (presets "default" and "fast"; docs/DECISIONS.md): kNN graph; PCA
+    normals; bilateral filtering to ``n*_i``; a quadratic fitted in the frame of ``p_i`` and
+    ``n*_i`` with each neighbour weighted by distance and by normal agreement (so a point near a
+    crease is fitted to its own face); and the projection ``p*_i = p_i + g_i(0, 0) n*_i`` along
+    the filtered normal. With ``k=None`` under "default", a probe fit on the input measures the
+    noise and sets ``k`` (``stats["auto_k"]``). The last iteration also computes ``l_i`` (from
+    the fit's RMS residual) and ``s_i`` (the paper's voting) for the result; the moves use
+    neither.
+
     References
     ----------
     .. [1] "Robust Denoising of Point-Sampled Surfaces" (the paper in ``shared/seed``), with
@@ -157,19 +200,23 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
     """
     check_choice(method, "method", METHODS)
     check_choice(preset, "preset", tuple(PRESETS))
-    k = PRESETS[preset]["k"] if k is None else k
-    lam = PRESETS[preset]["lam"] if lam is None else lam
-    if rebuild_graph is None:
-        rebuild_graph = PRESETS[preset]["rebuild_graph"]
+    setting = PRESETS[preset]
+    pipeline = setting["pipeline"] if method == "robust" else "paper"
+    explicit = set(method_params)
+    rebuild_graph = setting["rebuild_graph"] if rebuild_graph is None else rebuild_graph
     if not isinstance(rebuild_graph, (bool, np.bool_)):
         raise TypeError(f"rebuild_graph must be True or False; got {rebuild_graph!r}")
     params = _method_params(method, method_params)
+    _check_pipeline_params(method, preset, pipeline, explicit, lam)
     report = _progress_reporter(progress)
     pts, dtype = as_points(points)
     n = pts.shape[0]
+    iterations = setting["iterations"] if iterations is None else iterations
     iterations = check_int(iterations, "iterations", minimum=1)
-    k = check_k(k, n)
-    lam = check_float(lam, "lam", low=0.0, high=1.0)
+    auto = k is None and setting["k"] is None
+    k = None if auto else check_k(setting["k"] if k is None else k, n)
+    lam = setting["lam"] if lam is None else lam
+    lam = None if lam is None else check_float(lam, "lam", low=0.0, high=1.0)
     given = None if normals is None else as_normals(normals, n)
     if params["keep_normals"] and given is None:
         raise ValueError("keep_normals=True needs normals; pass normals=... or drop keep_normals")
@@ -182,9 +229,12 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
     current = np.empty_like(pts)
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
-    step = _STEPS[method]
+    step = _aware_step if pipeline == "aware" else _STEPS[method]
     records = []
+    scale = None
     with threads(n_jobs) as n_threads:
+        if auto:
+            k, scale = _auto_k(current, given)
         out_normals = graph = None
         for iteration in range(iterations):
             clock = _Clock(report, iteration, iterations)
@@ -197,7 +247,8 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
             else:
                 hints = stages.outward_hints(current) if out_normals is None else out_normals
                 nrm, degenerate = clock.run("normals", stages._pca, current, graph, hints)
-            moved, out_normals, extra, record = step(current, nrm, graph, lam, params, clock)
+            moved, out_normals, extra, record = step(current, nrm, graph, lam, params, clock,
+                                                     iteration == iterations - 1)
             record["degenerate_normals"] = int(degenerate.sum())
             record["mean_step"] = float(np.linalg.norm(moved - current, axis=1).mean())
             records.append(record)
@@ -213,6 +264,8 @@ def denoise(points, normals=None, *, method="robust", iterations=2, k=None, lam=
         "k": k,
         "lam": lam,
         "preset": preset,
+        "pipeline": pipeline,
+        "auto_k": scale,
         "rebuild_graph": bool(rebuild_graph),
         "n_iterations": iterations,
         "params": dict(params),
@@ -242,6 +295,46 @@ def _to_caller_order(values, order):
     return out
 
 
+def _check_pipeline_params(method, preset, pipeline, explicit, lam):
+    """Refuse parameters that the chosen pipeline would silently ignore."""
+    if method != "robust":
+        return
+    if pipeline == "aware":
+        unused = sorted(explicit & set(PAPER_ONLY)) + (["lam"] if lam is not None else [])
+        if unused:
+            raise ValueError(f"{', '.join(unused)} only appl{'ies' if len(unused) == 1 else 'y'}"
+                             f" to the paper's pipeline; pass preset='paper' to use "
+                             f"{'it' if len(unused) == 1 else 'them'} (preset {preset!r} runs "
+                             "the feature-aware pipeline)")
+    else:
+        unused = sorted(explicit & set(AWARE_ONLY))
+        if unused:
+            raise ValueError(f"{', '.join(unused)} only applies to the feature-aware presets "
+                             f"'default' and 'fast', not to preset {preset!r}")
+
+
+def _auto_k(points, given):
+    """``k`` from the noise: a probe fit gives ``sigma`` and the list radius (``AUTO_K``)."""
+    started = time.perf_counter()
+    n = points.shape[0]
+    probe = min(AUTO_K["probe_k"], n - 1)
+    graph = knn_graph(points, probe, False)
+    if given is None:
+        nrm, _ = stages._pca(points, graph, stages.outward_hints(points))
+    else:
+        nrm = given
+    filtered = stages._filter(points, nrm, graph)
+    _, rms, _ = stages._aware(points, filtered, graph, 0.0)
+    sigma = float(np.median(rms))
+    radius = float(np.mean(graph.list_radius()))
+    ratio = sigma / radius if radius > 0.0 else 0.0
+    anchors = np.log(np.array(AUTO_K["anchors"], dtype=float))
+    k = int(round(np.exp(np.interp(np.log(max(ratio, 1e-12)), anchors[:, 0], anchors[:, 1]))))
+    k = max(min(k, n - 1), min(10, n - 1))
+    return check_k(k, n), {"k": k, "probe_k": probe, "noise": sigma, "probe_radius": radius,
+                           "ratio": ratio, "seconds": time.perf_counter() - started}
+
+
 def _method_params(method, method_params):
     """The method's defaults overlaid with the caller's parameters, validated."""
     defaults = METHOD_DEFAULTS[method]
@@ -253,7 +346,7 @@ def _method_params(method, method_params):
     for name in ("h", "sigma_c", "sigma_s"):
         if params.get(name) is not None:
             params[name] = check_float(params[name], name, positive=True)
-    for name in ("radius_factor", "delta", "alpha", "beta"):
+    for name in ("radius_factor", "delta", "alpha", "beta", "sigma_n"):
         if name in params:
             params[name] = check_float(params[name], name, positive=True)
     if "likelihood" in params:
@@ -308,7 +401,7 @@ def _fit_record(times, h, degree):
             "fit_degree": {name: int(counts[code]) for name, code in stages.FIT_DEGREES.items()}}
 
 
-def _robust_step(points, nrm, graph, lam, params, clock):
+def _robust_step(points, nrm, graph, lam, params, clock, last=True):
     """The rest of one robust iteration once the graph and normals exist."""
     h = stages.default_h(graph, params["h"])
     proj, resid, degree, _ = clock.run("mls", stages._mls, points, nrm, graph, h)
@@ -331,18 +424,45 @@ def _robust_step(points, nrm, graph, lam, params, clock):
     return moved, filtered, (lik, feat), record
 
 
-def _mls_step(points, nrm, graph, lam, params, clock):
+def _mls_step(points, nrm, graph, lam, params, clock, last=True):
     """MLS baseline: every point moves to its projection onto its local cubic."""
     h = stages.default_h(graph, params["h"])
     proj, _, degree, _ = clock.run("mls", stages._mls, points, nrm, graph, h)
     return proj, nrm, None, _fit_record(clock.times, h, degree)
 
 
-def _bilateral_step(points, nrm, graph, lam, params, clock):
+def _bilateral_step(points, nrm, graph, lam, params, clock, last=True):
     """BIL baseline: every point moves along its normal by the bilateral mean height."""
     moved = clock.run("bilateral", stages._bilateral, points, nrm, graph,
                       params["sigma_c"] or 0.0, params["sigma_s"] or 0.0)
     return moved, nrm, None, {"times": clock.times}
+
+
+def _aware_step(points, nrm, graph, lam, params, clock, last=True):
+    """One iteration of the feature-aware pipeline once the graph and normals exist: bilateral
+    normal filter, normal-weighted quadratic fit in each point's filtered frame, projection.
+
+    The move uses neither the likelihood nor the feature intensity; the last iteration still
+    computes both (from the fit's RMS residual and the paper's voting, at the paper's
+    constants) so that every preset returns them."""
+    filtered = clock.run("filter", stages._filter, points, nrm, graph)
+    height, rms, degree = clock.run("mls", stages._aware, points, filtered, graph,
+                                    params["sigma_n"])
+    moved, held = clock.run("update", stages._project, points, filtered, height)
+    extra = None
+    if last:
+        lik, _ = clock.run("likelihood", stages._likelihood, rms, "exp")
+        defaults = METHOD_DEFAULTS["robust"]
+        feat, _ = clock.run("feature", stages._feature, points, nrm, graph,
+                            defaults["radius_factor"] * stages.mean_spacing(graph),
+                            defaults["delta"], defaults["alpha"], defaults["beta"])
+        extra = (lik, feat)
+    counts = np.bincount(degree, minlength=7)
+    record = {"times": clock.times, "held_points": int(held.sum()),
+              "mean_residual": float(rms.mean()),
+              "fit_degree": {name: int(counts[code])
+                             for name, code in stages.AWARE_FIT_DEGREES.items()}}
+    return moved, filtered, extra, record
 
 
 _STEPS = {"robust": _robust_step, "bilateral": _bilateral_step, "mls": _mls_step}

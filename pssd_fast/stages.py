@@ -22,6 +22,8 @@ LIKELIHOOD_FORMS = {"exp": likelihood.EXP, "ratio": likelihood.RATIO,
 GROW_NEIGHBOURS = 9
 #: Fit degree codes of :class:`MLSFit` ``degree``.
 FIT_DEGREES = {"cubic": mls.CUBIC, "quadratic": mls.QUADRATIC, "plane": mls.PLANE}
+#: Fit codes of the feature-aware fit (number of coefficients fitted).
+AWARE_FIT_DEGREES = {"quadratic": 6, "plane": 3, "mean_height": 1, "none": 0}
 
 
 class MLSFit(NamedTuple):
@@ -86,6 +88,23 @@ def _mls(points, nrm, graph, h):
     curvature = np.empty(n)
     mls.mls_fit(points, nrm, graph.indptr, graph.indices, h, proj, resid, degree, curvature)
     return proj, resid, degree, curvature
+
+
+def _aware(points, nrm, graph, sigma_n):
+    n = points.shape[0]
+    height = np.empty(n)
+    rms = np.empty(n)
+    degree = np.empty(n, np.int8)
+    mls.aware_fit(points, nrm, graph.indptr, graph.indices, sigma_n, height, rms, degree)
+    return height, rms, degree
+
+
+def _project(points, nrm, height):
+    """``p_i + height_i n_i``; points whose step is not finite stay where they are."""
+    step = height[:, None] * nrm
+    held = ~np.isfinite(step).all(axis=1)
+    step[held] = 0.0
+    return points + step, held
 
 
 def _likelihood(resid, form):

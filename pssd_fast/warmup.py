@@ -23,5 +23,6 @@ def warmup():
     points /= np.linalg.norm(points, axis=1)[:, None]
     for method in METHODS:
         denoise(points, method=method, k=10, iterations=1)
+    denoise(points, k=10, iterations=1, preset="paper")
     denoise(points.astype(np.float32), points, k=10, iterations=1)
     return time.perf_counter() - started

@@ -122,6 +122,50 @@ def mls_fit(points, normals, lists, h):
     return tuple(np.array([o[c] for o in out]) for c in range(4))
 
 
+def aware_point(points, normals, members, i, sigma_n):
+    """Feature-aware fit of point i: height of the weighted quadratic at p_i along n_i, the
+    weighted RMS residual and the number of coefficients fitted (docs/DECISIONS.md)."""
+    n = normals[i]
+    rel = points[members] - points[i]
+    d2 = (rel ** 2).sum(axis=1)
+    radius2 = d2.max()
+    weights = np.exp(-d2 / radius2) if radius2 > 0 else np.ones(len(members))
+    if sigma_n > 0:
+        agree = np.minimum(np.abs(normals[members] @ n), 1.0)
+        weights = weights * np.exp(-((1 - agree) / sigma_n) ** 2)
+    u, v = _basis(n)
+    scale = np.sqrt(radius2) if radius2 > 0 else 1.0
+    x, y, z = rel @ u / scale, rel @ v / scale, rel @ n
+    design = _monomials(x, y)[:, :6]
+    coef = np.zeros(6)
+    fitted = 0
+    for m in (6, 3, 1):
+        if _well_posed(design[:, :m], weights):
+            sw = np.sqrt(weights)
+            coef[:m] = np.linalg.lstsq(sw[:, None] * design[:, :m], sw * z, rcond=None)[0]
+            fitted = m
+            break
+    rms = np.sqrt((weights * (z - design @ coef) ** 2).sum() / weights.sum())
+    return coef[0], rms, fitted
+
+
+def aware_fit(points, normals, lists, sigma_n):
+    out = [aware_point(points, normals, m, i, sigma_n) for i, m in enumerate(lists)]
+    return tuple(np.array([o[c] for o in out]) for c in range(3))
+
+
+def aware_iteration(points, normals, k, sigma_n=0.05):
+    """One iteration of the feature-aware pipeline: PCA normals (oriented like ``normals``, or
+    away from the centroid), bilateral filter, feature-aware fit, projection along n*_i."""
+    lists, _ = knn_lists(points, k)
+    nrm = pca_normals(points, lists)
+    hints = points - points.mean(axis=0) if normals is None else normals
+    nrm *= np.where((nrm * hints).sum(axis=1) < 0, -1.0, 1.0)[:, None]
+    filtered = filter_normals(points, nrm, lists)
+    height, _, _ = aware_fit(points, filtered, lists, sigma_n)
+    return points + height[:, None] * filtered, filtered
+
+
 def likelihood(resid, form):
     """Eq. (2) as reconstructed in ALGORITHM.md."""
     dbar = resid.mean()

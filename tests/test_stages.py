@@ -86,6 +86,40 @@ def test_mls_fit(cloud):
         np.testing.assert_allclose(fit.projections[:, 2], 0, atol=1e-15)
 
 
+@pytest.mark.parametrize("sigma_n", [0.0, 0.05, 0.5])
+def test_aware_fit(cloud, sigma_n):
+    name, points, k = cloud
+    graph, lists = _setup(points, k)
+    nrm = _normals_for(name, points, lists)
+    height, rms, degree = stages._aware(points, nrm, graph, sigma_n)
+    ref_height, ref_rms, ref_degree = reference.aware_fit(points, nrm, lists, sigma_n)
+    np.testing.assert_array_equal(degree, ref_degree)
+    scale = np.ptp(points, axis=0).max()
+    np.testing.assert_allclose(height, ref_height, atol=1e-9 * scale, rtol=0)
+    np.testing.assert_allclose(rms, ref_rms, atol=1e-9 * scale, rtol=0)
+    expected_degree = {"collinear": 1, "duplicates": 6, "tiny": 6}.get(name)
+    if expected_degree is not None and sigma_n == 0.0:
+        assert (degree == expected_degree).all()
+    if name == "plane":
+        np.testing.assert_allclose(height, 0, atol=1e-15)
+        np.testing.assert_allclose(rms, 0, atol=1e-15)
+
+
+def test_aware_fit_keeps_each_side_of_a_crease():
+    """A noiseless 90-degree fold: with the normal-agreement weight each point is fitted to its
+    own face (height 0); without it the fit rounds the crease."""
+    g = np.linspace(0, 1, 21)
+    u, v = (a.ravel() for a in np.meshgrid(g, g))
+    points = np.vstack([np.column_stack([u, v, 0 * u]), np.column_stack([0 * u[21:], v[21:],
+                                                                         u[21:]])])
+    nrm = np.vstack([np.tile([0, 0, 1.0], (len(u), 1)), np.tile([1.0, 0, 0], (len(u) - 21, 1))])
+    graph = pssd_fast.neighbors(points, 25)
+    aware, _, _ = stages._aware(points, nrm, graph, 0.05)
+    blind, _, _ = stages._aware(points, nrm, graph, 0.0)
+    np.testing.assert_allclose(aware, 0, atol=1e-12)
+    assert np.abs(blind).max() > 1e-3
+
+
 def test_mls_fit_reproduces_planes_and_smooth_surfaces():
     rng = np.random.default_rng(5)
     xy = rng.uniform(-1, 1, (300, 2))

@@ -1,0 +1,34 @@
+"""The CGAL comparison suite: its verdicts and its output, without running CGAL."""
+import json
+
+import pytest
+
+from benchmarks import versus
+
+pytest.importorskip("point_cloud_utils")
+
+
+def test_best_of_takes_each_column_separately():
+    family = {"a": {"mean": 1.0, "edge": 9.0, "seconds": 1.0},
+              "b": {"mean": 2.0, "edge": 3.0, "seconds": 2.0}}
+    assert versus.best_of(family, "mean") == (1.0, "a")
+    assert versus.best_of(family, "edge") == (3.0, "b")
+
+
+def test_versus_writes_the_table_from_a_peer_cache(tmp_path):
+    fake = {"mean": 1e9, "edge": 0.0, "seconds": 1.0}  # peers win every edge, lose every mean
+    cells = {versus._key("cad_part", 0.005): {
+        family: {label: dict(fake) for label in settings}
+        for family, settings in versus.PEER_SETTINGS.items()}}
+    (tmp_path / versus.PEER_CACHE.name).write_text(json.dumps({"machine": "test",
+                                                                "cells": cells}))
+    rows = versus.main(["--shapes", "cad_part", "--noise", "0.005", "--cad-points", "3000",
+                        "--out", str(tmp_path), "--quiet"])
+    (row,) = rows
+    assert row["default"]["mean"] < row["noisy"]["mean"]
+    assert row["paper"]["mean"] < row["noisy"]["mean"]
+    assert row["default"]["k"] >= 10 and row["knn_seconds"] > 0
+    text = (tmp_path / "versus.md").read_text()
+    assert "| cad_part | 0.50% |" in text and "win / lose" in text
+    assert "Cells won: 2 of 4." in text and "cad_part 0.50% edge vs jet" in text
+    assert len(json.loads((tmp_path / "versus.json").read_text())["rows"]) == 1
