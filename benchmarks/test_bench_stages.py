@@ -47,9 +47,11 @@ def test_stage(benchmark, prepared, stage):
     benchmark(calls[stage])
 
 
-@pytest.mark.parametrize("method", pssd_fast.METHODS)
-def test_method_one_iteration(benchmark, prepared, method):
+@pytest.mark.parametrize("method, preset", [("robust", "default"), ("robust", "fast"),
+                                            ("robust", "paper"), ("bilateral", "paper"),
+                                            ("mls", "paper")])
+def test_method_one_iteration(benchmark, prepared, method, preset):
     n, points, _, _ = prepared
     benchmark.group = f"method-{n // 1000}k"
     benchmark.pedantic(pssd_fast.denoise, args=(points,),
-                       kwargs={"method": method, "iterations": 1}, rounds=3)
+                       kwargs={"method": method, "preset": preset, "iterations": 1}, rounds=3)
