@@ -209,18 +209,7 @@ def mls_fit(points, normals, indptr, indices, h, proj, resid, degree, curvature)
 
 
 @helper
-def _quadratic_monomials(x, y, phi):
-    """The first six monomials of eq. (1): 1, y, x, xy, y^2, x^2 (plane = first three)."""
-    phi[0] = 1.0
-    phi[1] = y
-    phi[2] = x
-    phi[3] = x * y
-    phi[4] = y * y
-    phi[5] = x * x
-
-
-@helper
-def _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, ys, zs, a, b, phi,
+def _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, zs, a, b, phi,
                  height, rms, degree):
     px, py, pz = points[i, 0], points[i, 1], points[i, 2]
     nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
@@ -236,10 +225,6 @@ def _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, ys, 
         radius2 = max(radius2, dx * dx + dy * dy + dz * dz)
     inv_r = 1.0 / math.sqrt(radius2) if radius2 > 0.0 else 1.0
     inv_r2 = 1.0 / radius2 if radius2 > 0.0 else 0.0
-    for p in range(6):
-        b[p] = 0.0
-        for q in range(p + 1):
-            a[p, q] = 0.0
     for t in range(count):
         j = indices[start + t]
         dx = points[j, 0] - px
@@ -253,16 +238,21 @@ def _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, ys, 
             u = (1.0 - min(abs(nx * normals[j, 0] + ny * normals[j, 1] + nz * normals[j, 2]),
                            1.0)) * inv_sigma_n
             wgt *= math.exp(-u * u)
-        xs[t] = x
-        ys[t] = y
         zs[t] = z
         wts[t] = wgt
-        _quadratic_monomials(x, y, phi)
-        for p in range(6):
-            tp = wgt * phi[p]
-            b[p] += tp * z
-            for q in range(p + 1):
-                a[p, q] += tp * phi[q]
+        _basis(x, y, phi, t)
+    # Normal equations of the quadratic (the first six monomials) as dot products over the
+    # neighbours, as in _fit_point.
+    for p in range(6):
+        s = 0.0
+        for t in range(count):
+            s += wts[t] * phi[p, t] * zs[t]
+        b[p] = s
+        for q in range(p + 1):
+            s = 0.0
+            for t in range(count):
+                s += wts[t] * phi[p, t] * phi[q, t]
+            a[p, q] = s
 
     # Quadratic if well posed, else the plane, else the weighted mean height, else nothing.
     rank = cholesky_prefix(a, 6, PIVOT_TOL)
@@ -277,15 +267,15 @@ def _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, ys, 
     for p in range(m, 6):
         b[p] = 0.0
     height[i] = b[0]
+    for t in range(count):
+        xs[t] = zs[t]
+    for p in range(m):
+        for t in range(count):
+            xs[t] -= b[p] * phi[p, t]
     se = 0.0
     sw = 0.0
     for t in range(count):
-        _quadratic_monomials(xs[t], ys[t], phi)
-        g = 0.0
-        for p in range(m):
-            g += b[p] * phi[p]
-        r = zs[t] - g
-        se += wts[t] * r * r
+        se += wts[t] * xs[t] * xs[t]
         sw += wts[t]
     rms[i] = math.sqrt(se / sw) if sw > 0.0 else 0.0
 
@@ -329,11 +319,10 @@ def aware_fit(points, normals, indptr, indices, sigma_n, height, rms, degree):
     for c in prange((n + CHUNK - 1) // CHUNK):
         wts = np.empty(longest)
         xs = np.empty(longest)
-        ys = np.empty(longest)
         zs = np.empty(longest)
         a = np.empty((6, 6))
         b = np.empty(6)
-        phi = np.empty(6)
+        phi = np.empty((10, longest))
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, ys, zs, a, b,
+            _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, zs, a, b,
                          phi, height, rms, degree)
