@@ -90,17 +90,18 @@ class ListScales(NamedTuple):
         return self.nearest
 
 
-#: Points per pykdtree query call: bounds the query's float64 distance output (8 k bytes per
-#: point) to a few megabytes while keeping each call long enough for its OpenMP threads.
-QUERY_CHUNK = 65536
+#: List entries per pykdtree query call (points per call: this over k): bounds the query's own
+#: output (12 bytes per entry, float64 distances and uint32 indices) to 24 MB whatever k is,
+#: while keeping each call long enough for its OpenMP threads.
+QUERY_ENTRIES = 2**21
 
 
 def knn_graph(points, k, keep_distances=True):
     """kNN graph of already validated, C-contiguous float64 points, in their own order.
 
     Returns a :class:`NeighborGraph`, or with ``keep_distances=False`` a :class:`ListScales`.
-    The query runs in chunks of ``QUERY_CHUNK`` points, written straight into the final index
-    array, so the peak memory is the graph itself.
+    The query runs in chunks of ``QUERY_ENTRIES // k`` points, written straight into the final
+    index array, so the peak memory is the graph itself.
     """
     n = points.shape[0]
     tree = KDTree(points)
@@ -110,8 +111,9 @@ def knn_graph(points, k, keep_distances=True):
     else:
         radius = np.empty(n)
         nearest = np.empty(n)
-    for start in range(0, n, QUERY_CHUNK):
-        stop = min(n, start + QUERY_CHUNK)
+    chunk = max(1, QUERY_ENTRIES // k)
+    for start in range(0, n, chunk):
+        stop = min(n, start + chunk)
         chunk_dists, chunk_idx = tree.query(points[start:stop], k=k)
         chunk_dists = np.ascontiguousarray(chunk_dists, dtype=np.float64).reshape(-1, k)
         rows = indices[start:stop]

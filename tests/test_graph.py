@@ -37,7 +37,7 @@ def test_neighbors_match_brute_force(name):
 def test_chunked_query_and_lean_graph_match_one_query(name, monkeypatch):
     points = CLOUDS[name]()
     whole = knn_graph(points, 12)
-    monkeypatch.setattr(graph_module, "QUERY_CHUNK", 7)  # many chunks, the last one short
+    monkeypatch.setattr(graph_module, "QUERY_ENTRIES", 7 * 12)  # 7-point chunks, last short
     chunked = knn_graph(points, 12)
     lean = knn_graph(points, 12, keep_distances=False)
     for a, b in zip(whole, chunked):
