@@ -30,6 +30,7 @@ KERNELS = {
     "filter": "bilateral.filter_normals",
     "update": "update.move_points",
     "bilateral (BIL)": "bilateral.filter_points",
+    "aware fit (default preset)": "mls.aware_fit",
 }
 
 
@@ -60,6 +61,7 @@ def cold_child():
     filtered = timed("filter", stages._filter, points, nrm, graph)
     timed("update", stages._move, points, proj, filtered, lik, feat, 0.5)
     timed("bilateral (BIL)", stages._bilateral, points, nrm, graph, 0.0, 0.0)
+    timed("aware fit (default preset)", stages._aware, points, filtered, graph, 0.05)
     started = time.perf_counter()
     pssd_fast.warmup()
     rest = time.perf_counter() - started
