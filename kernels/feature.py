@@ -166,8 +166,8 @@ def _vote(points, normals, i, b, count, reach, gathered, members, tensor, w, v, 
     Row ``t < count`` of ``gathered`` holds the position (columns 0-2) and normal (3-5) of the
     block's node ``t``, padded to 8 values: one cache line per member, which the vote reads in
     a data-dependent order (25% faster than one row per coordinate). The region is the nodes
-    with bit ``b`` of ``reach`` set. Their slots are first listed
-    in ``members`` by a loop without branches (a store to every position, kept or not).
+    with bit ``b`` of ``reach`` set; their slots are first listed in ``members`` by a loop
+    without branches (a store to every position, kept or not).
     """
     shift = np.uint64(b)
     one = np.uint64(1)
@@ -271,7 +271,7 @@ def feature_intensity(points, normals, indptr, indices, radius, n_vote, delta, a
     reaches = np.empty((n_slots, n), np.uint64)
     queueds = np.empty((n_slots, n), np.bool_)
     gathereds = np.empty((n_slots, n, 8))
-    memberss = np.empty((n_slots, n), np.int64)
+    memberss = np.empty((n_slots, n), indices.dtype)
     for c in prange((n + CHUNK - 1) // CHUNK):
         slot = numba.get_thread_id()
         slot_of = slot_ofs[slot]
