@@ -84,9 +84,11 @@ class ListScales(NamedTuple):
     nearest: np.ndarray
 
     def list_radius(self):
+        """``r_i``, shape (n,)."""
         return self.radius
 
     def nearest_distance(self):
+        """Distance to the nearest other listed point, shape (n,)."""
         return self.nearest
 
 
