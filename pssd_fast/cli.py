@@ -139,6 +139,9 @@ def _add_common(parser):
     parser.add_argument("--k", type=int, default=None, help="neighbours per point (preset)")
     parser.add_argument("--lam", type=float, default=None,
                         help="lambda, weight of the likelihood term (preset)")
+    parser.add_argument("--rebuild-graph", action=argparse.BooleanOptionalAction, default=None,
+                        help="find the neighbours anew in every iteration (preset: yes for "
+                             "default and paper, no for fast)")
     parser.add_argument("--n-jobs", type=int, default=None,
                         help="threads (default: all cores); the result does not depend on it")
 
@@ -178,7 +181,8 @@ def _run_denoise(points, normals, args, method_params):
     started = time.perf_counter()
     try:
         result = denoise(points, normals, method=args.method, iterations=args.iterations,
-                         k=args.k, lam=args.lam, preset=args.preset, n_jobs=args.n_jobs,
+                         k=args.k, lam=args.lam, preset=args.preset,
+                         rebuild_graph=args.rebuild_graph, n_jobs=args.n_jobs,
                          progress=progress, **method_params)
     finally:
         progress.close()

@@ -126,7 +126,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     rebuild_graph : bool, optional
         ``True``: query the k nearest neighbours anew in every iteration. ``False``: later
         iterations keep the first iteration's lists, re-sorted by the current distances (one
-        kNN query in all; see docs/DECISIONS.md for what it changes). Default from ``preset``: False ("fast"), True ("default", "paper").
+        kNN query in all; see docs/DECISIONS.md for what it changes). Default from
+        ``preset``: False ("fast"), True ("default", "paper").
     n_jobs : int or None, default None
         Threads for the kernels: ``None`` or -1 use every thread numba may use (by default one
         per core), a positive number that many (capped at that maximum). Numba's setting is

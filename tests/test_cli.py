@@ -55,7 +55,7 @@ def test_help_is_complete():
     status, out, _ = pssd("denoise", "--help")
     assert status == 0
     for option in ["--method", "--iterations", "--preset", "--k", "--lam", "--n-jobs",
-                   "--keep-normals",
+                   "--keep-normals", "--rebuild-graph", "--no-rebuild-graph",
                    "--force", "--quiet", "--verbose"] + [
                        "--" + d.replace("_", "-") for d in cli.METHOD_OPTIONS]:
         assert option in out
@@ -194,6 +194,19 @@ def test_a_failing_write_leaves_nothing(tmp_path, cloud, monkeypatch, capsys):
     assert_one_line_error(status, err, "No space left on device")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.xyz"]
     assert source.read_bytes() == before
+
+
+@pytest.mark.parametrize("flag, rebuild", [("--rebuild-graph", True),
+                                           ("--no-rebuild-graph", False)])
+def test_graph_reuse_reaches_the_library(tmp_path, cloud, flag, rebuild):
+    source, out = tmp_path / "in.npy", tmp_path / "out.npz"
+    np.save(source, cloud.points)
+    status = cli.main(["denoise", str(source), str(out), "--preset", "paper", "--iterations",
+                       "2", flag, "--quiet"])
+    assert status == 0
+    expected = pssd_fast.denoise(cloud.points, preset="paper", iterations=2,
+                                 rebuild_graph=rebuild)
+    np.testing.assert_array_equal(np.load(out)["points"], expected.points)
 
 
 def test_an_unwritable_folder_is_one_line(tmp_path, cloud, monkeypatch, capsys):
