@@ -39,6 +39,32 @@ def _basis(x, y, phi, t):
 
 
 @helper
+def _normal_equations(phi, wts, zs, count, m, a, b):
+    """Lower triangle of ``A = Phi W Phi^T`` and ``b = Phi W z`` for the first ``m`` monomials,
+    as dot products over the neighbours: contiguous inner loops that vectorise."""
+    for p in range(m):
+        s = 0.0
+        for t in range(count):
+            s += wts[t] * phi[p, t] * zs[t]
+        b[p] = s
+        for q in range(p + 1):
+            s = 0.0
+            for t in range(count):
+                s += wts[t] * phi[p, t] * phi[q, t]
+            a[p, q] = s
+
+
+@helper
+def _residuals(phi, b, m, zs, count, out):
+    """``out[t] = z_t - g(x_t, y_t)`` for the fit of the first ``m`` coefficients ``b``."""
+    for t in range(count):
+        out[t] = zs[t]
+    for p in range(m):
+        for t in range(count):
+            out[t] -= b[p] * phi[p, t]
+
+
+@helper
 def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov, w, v,
                a, b, phi, proj, resid, degree, curvature):
     px, py, pz = points[i, 0], points[i, 1], points[i, 2]
@@ -104,18 +130,7 @@ def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov
         y = (dx * vx + dy * vy + dz * vz) * inv_r
         zs[t] = dx * nx + dy * ny + dz * nz
         _basis(x, y, phi, t)
-    # Normal equations A = Phi W Phi^T, b = Phi W z as dot products over the neighbours, whose
-    # inner loops are contiguous and vectorise.
-    for p in range(10):
-        s = 0.0
-        for t in range(count):
-            s += wts[t] * phi[p, t] * zs[t]
-        b[p] = s
-        for q in range(p + 1):
-            s = 0.0
-            for t in range(count):
-                s += wts[t] * phi[p, t] * phi[q, t]
-            a[p, q] = s
+    _normal_equations(phi, wts, zs, count, 10, a, b)
 
     # Cubic if the whole system is well posed, else the quadratic, else the plane g = 0.
     rank = cholesky_prefix(a, 10, PIVOT_TOL)
@@ -147,11 +162,7 @@ def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov
     proj[i, 0] = px + ox + b[0] * nx
     proj[i, 1] = py + oy + b[0] * ny
     proj[i, 2] = pz + oz + b[0] * nz
-    for t in range(count):
-        xs[t] = zs[t]
-    for p in range(m):
-        for t in range(count):
-            xs[t] -= b[p] * phi[p, t]
+    _residuals(phi, b, m, zs, count, xs)
     se = 0.0
     for t in range(count):
         se += wts[t] * abs(xs[t])
@@ -241,18 +252,7 @@ def _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, zs, 
         zs[t] = z
         wts[t] = wgt
         _basis(x, y, phi, t)
-    # Normal equations of the quadratic (the first six monomials) as dot products over the
-    # neighbours, as in _fit_point.
-    for p in range(6):
-        s = 0.0
-        for t in range(count):
-            s += wts[t] * phi[p, t] * zs[t]
-        b[p] = s
-        for q in range(p + 1):
-            s = 0.0
-            for t in range(count):
-                s += wts[t] * phi[p, t] * phi[q, t]
-            a[p, q] = s
+    _normal_equations(phi, wts, zs, count, 6, a, b)
 
     # Quadratic if well posed, else the plane, else the weighted mean height, else nothing.
     rank = cholesky_prefix(a, 6, PIVOT_TOL)
@@ -267,11 +267,7 @@ def _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, zs, 
     for p in range(m, 6):
         b[p] = 0.0
     height[i] = b[0]
-    for t in range(count):
-        xs[t] = zs[t]
-    for p in range(m):
-        for t in range(count):
-            xs[t] -= b[p] * phi[p, t]
+    _residuals(phi, b, m, zs, count, xs)
     se = 0.0
     sw = 0.0
     for t in range(count):
