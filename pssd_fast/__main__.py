@@ -6,7 +6,7 @@ import numpy as np
 
 from . import __version__, datasets
 from .cli import truth_errors
-from .denoise import denoise
+from .denoise import PRESETS, denoise
 from .warmup import warmup
 
 
@@ -18,11 +18,14 @@ def main(argv=None):
     parser.add_argument("--points", type=int, default=100_000, help="points sampled (100000)")
     parser.add_argument("--noise", type=float, default=0.0025,
                         help="Gaussian noise sigma as a fraction of the diagonal (0.0025)")
-    parser.add_argument("--iterations", type=int, default=2, help="iterations (2)")
-    parser.add_argument("--preset", choices=("default", "paper"), default="default",
-                        help="k and lambda: default (35, 1.0) or the paper's (25, 0.5)")
+    parser.add_argument("--iterations", type=int, default=None,
+                        help="iterations (preset: 4 default, 2 fast, 2 paper)")
+    parser.add_argument("--preset", choices=tuple(PRESETS), default="default",
+                        help="default: feature-aware, k from the noise; fast: the same with "
+                             "k=48; paper: the paper's method (k=25, lambda=0.5)")
     parser.add_argument("--k", type=int, default=None, help="neighbours per point (preset)")
-    parser.add_argument("--lam", type=float, default=None, help="weight lambda (preset)")
+    parser.add_argument("--lam", type=float, default=None,
+                        help="weight lambda (preset 'paper' only)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (0)")
     parser.add_argument("--n-jobs", type=int, default=None, help="threads (all cores)")
     args = parser.parse_args(argv)
@@ -36,10 +39,10 @@ def main(argv=None):
 
     before, after, moved, edge = truth_errors(cloud, result)
     print(f"pssd_fast {__version__}: robust denoising of the built-in CAD part")
+    lam = "" if result.stats["lam"] is None else f", lambda={result.stats['lam']}"
     print(f"{len(cloud.points):,} points, noise sigma {args.noise:.2%} of the diagonal, "
-          f"{args.iterations} iterations, k={result.stats['k']}, "
-          f"lambda={result.stats['lam']} ({args.preset} settings), "
-          f"{result.stats['n_jobs']} threads")
+          f"preset {args.preset!r}: {result.stats['n_iterations']} iterations, "
+          f"k={result.stats['k']}{lam}, {result.stats['n_jobs']} threads")
     print(f"kernels ready in {compile_seconds:.1f} s (compiled or loaded from cache); "
           f"denoised in {seconds:.2f} s")
     print(f"\n{'distance to the true surface (1e-4 diag)':44s}{'noisy':>9s}{'denoised':>10s}")

@@ -228,3 +228,13 @@ def test_an_unwritable_folder_is_one_line(tmp_path, cloud, monkeypatch, capsys):
                        "--quiet"])
     assert_one_line_error(status, capsys.readouterr().err, "Permission denied")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.xyz"]
+
+
+@pytest.mark.parametrize("preset, iterations", [("default", 4), ("paper", 2)])
+def test_quick_start_demo_reports_the_preset(capsys, preset, iterations):
+    from pssd_fast.__main__ import main
+
+    assert main(["--points", "3000", "--preset", preset]) == 0
+    out = capsys.readouterr().out
+    assert f"preset '{preset}': {iterations} iterations" in out
+    assert "within 1% of a sharp edge, mean" in out
