@@ -121,8 +121,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         first paragraph). ``"default"``: the feature-aware pipeline (Notes), ``k`` from the
         estimated noise, 4 iterations; chosen on generated shapes to beat CGAL's jet and
         bilateral smoothing (docs/DECISIONS.md, README "Beyond the paper"). ``"fast"``: the
-        same pipeline with k = 48 and 2 iterations. For the baselines a preset only sets ``k``
-        and ``iterations``.
+        same pipeline with k = 48, 2 iterations and one kNN query per call. For the baselines a
+        preset sets ``k``, ``iterations`` and ``rebuild_graph``.
     rebuild_graph : bool, optional
         ``True``: query the k nearest neighbours anew in every iteration. ``False``: later
         iterations keep the first iteration's lists, re-sorted by the current distances (one
