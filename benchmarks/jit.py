@@ -92,7 +92,7 @@ def main(argv=None):
         cold_child() if args.child == "cold" else warm_child()
         return
     # Not at module level: the children must import pssd_fast inside their timers.
-    from .stages import RESULTS, machine, write_atomic
+    from .stages import RESULTS, machine, write_results
 
     with tempfile.TemporaryDirectory() as cache:
         cold = _run("cold", cache)
@@ -108,10 +108,7 @@ def main(argv=None):
             f"{cold['rest_of_warmup']:.2f} s.\n\nWarm cache (a new process): import "
             f"{warm['import']:.2f} s, `warmup()` {warm['warmup']:.2f} s.\n")
     print(text)
-    RESULTS.mkdir(exist_ok=True)
-    write_atomic(RESULTS / "jit.md", text)
-    write_atomic(RESULTS / "jit.json", json.dumps({"machine": machine(), "cold": cold,
-                                                   "warm": warm}, indent=2))
+    write_results(RESULTS, "jit", text, {"cold": cold, "warm": warm})
 
 
 if __name__ == "__main__":

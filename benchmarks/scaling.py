@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .stages import STAGES, RESULTS, knn_query_seconds, machine, write_atomic
+from .stages import STAGES, RESULTS, knn_query_seconds, machine, write_results
 
 THREADS = (1, 2, 4, 8, 16)
 
@@ -190,11 +190,8 @@ def main(argv=None):
     text = (f"Machine: {machine()}\n\nInput: the generated CAD part, noise {args.noise:.2%} of "
             f"the diagonal.\n\n" + table(cells, args.method, args.preset))
     print(text)
-    RESULTS.mkdir(exist_ok=True)
-    write_atomic(RESULTS / f"{args.out}.md", text)
-    write_atomic(RESULTS / f"{args.out}.json", json.dumps(
-        {"machine": machine(), "method": args.method, "preset": args.preset, "noise": args.noise,
-         "cells": cells}, indent=2))
+    write_results(RESULTS, args.out, text, {"method": args.method, "preset": args.preset,
+                                            "noise": args.noise, "cells": cells})
     plot(cells, RESULTS / f"{args.out}.png")
 
 

@@ -94,12 +94,18 @@ def main(argv=None):
             f"the diagonal. Warm-up (compile or cache load): {compile_seconds:.1f} s.\n\n"
             + table(rows, args.k))
     print(text)
-    RESULTS.mkdir(exist_ok=True)
-    write_atomic(RESULTS / "stages.md", text)
-    write_atomic(RESULTS / "stages.json", json.dumps(
-        {"machine": machine(), "k": args.k, "noise": args.noise,
-         "compile_seconds": compile_seconds, "seconds": {str(n): t for n, t in rows.items()}},
-        indent=2))
+    write_results(RESULTS, "stages", text,
+                  {"k": args.k, "noise": args.noise, "compile_seconds": compile_seconds,
+                   "seconds": {str(n): t for n, t in rows.items()}})
+
+
+def write_results(folder, stem, text, data, indent=2):
+    """``stem.md`` (``text``) and ``stem.json`` (``data`` with the machine first) in
+    ``folder``, each written atomically."""
+    folder.mkdir(parents=True, exist_ok=True)
+    write_atomic(folder / f"{stem}.md", text)
+    write_atomic(folder / f"{stem}.json",
+                 json.dumps({"machine": machine(), **data}, indent=indent))
 
 
 def write_atomic(path, text):

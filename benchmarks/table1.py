@@ -15,7 +15,6 @@ at the default noise level. Results go to ``benchmarks/results/table1.md`` and `
 Times are warm wall times; JIT compilation is done first and reported apart.
 """
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -23,7 +22,7 @@ import pssd_fast
 from pssd_fast import meshes
 
 from . import metrics, models
-from .stages import machine, write_atomic
+from .stages import machine, write_results
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: Rows of our methods: label -> (method, preset). The paper's comparison uses its settings
@@ -169,10 +168,8 @@ def main(argv=None):
         rows += run_model(name, args.noise, args.iterations, peers, not args.no_ablations,
                           args.scale, log)
     text = markdown(rows, compile_seconds)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_atomic(args.out / "table1.md", text)
-    write_atomic(args.out / "table1.json", json.dumps(
-        {"machine": machine(), "compile_seconds": compile_seconds, "rows": rows}, indent=1))
+    write_results(args.out, "table1", text, {"compile_seconds": compile_seconds, "rows": rows},
+                  indent=1)
     log(text)
     return rows
 

@@ -39,7 +39,7 @@ from pssd_fast import datasets
 
 from . import models
 from .metrics import UNIT
-from .stages import knn_query_seconds, machine, write_atomic
+from .stages import knn_query_seconds, machine, write_atomic, write_results
 
 RESULTS = Path(__file__).resolve().parent / "results"
 PEER_CACHE = RESULTS / "versus_peers.json"
@@ -251,10 +251,8 @@ def main(argv=None):
     if args.peers_only:
         return rows
     text = markdown(rows, compile_seconds)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_atomic(args.out / "versus.md", text)
-    write_atomic(args.out / "versus.json", json.dumps(
-        {"machine": machine(), "compile_seconds": compile_seconds, "rows": rows}, indent=1))
+    write_results(args.out, "versus", text, {"compile_seconds": compile_seconds, "rows": rows},
+                  indent=1)
     log(text)
     return rows
 
