@@ -4,7 +4,7 @@ Usage::
 
     python -m benchmarks.jit
 
-Each measurement runs in a fresh process. "Empty cache" points ``NUMBA_CACHE_DIR`` at a new
+Each measurement runs in a fresh process. "Empty cache" points ``PSSD_FAST_CACHE_DIR`` at a new
 temporary folder, so every kernel compiles; the stages are then called one at a time on a small
 cloud and each first call's time is its kernel's compile time. "Warm cache" uses the same
 folder again, now filled, and reports the import time and the time of ``pssd_fast.warmup()``
@@ -38,7 +38,7 @@ def cold_child():
     """First call of each stage on a small cloud, in pipeline order (all compile)."""
     started = time.perf_counter()
     import pssd_fast
-    from pssd_fast import datasets, stages
+    from pssd_fast import core, datasets
     from pssd_fast.graph import knn_graph
     imported = time.perf_counter() - started
     # A writable copy: read-only arrays (the dataset's) are a separate numba specialisation.
@@ -52,16 +52,16 @@ def cold_child():
         return out
 
     graph = timed("neighbors", knn_graph, points, 25, False)
-    nrm, _ = timed("normals", stages._pca, points, graph, stages.outward_hints(points))
-    h = stages.default_h(graph)
-    proj, resid, _, _ = timed("mls", stages._mls, points, nrm, graph, h)
-    lik, _ = timed("likelihood", stages._likelihood, resid, "exp")
-    radius = 10 * stages.mean_spacing(graph)
-    feat, _ = timed("feature", stages._feature, points, nrm, graph, radius, 0.2, 0.3, 0.3)
-    filtered = timed("filter", stages._filter, points, nrm, graph)
-    timed("update", stages._move, points, proj, filtered, lik, feat, 0.5)
-    timed("bilateral (BIL)", stages._bilateral, points, nrm, graph, 0.0, 0.0)
-    timed("aware fit (default preset)", stages._aware, points, filtered, graph, 0.05)
+    nrm, _ = timed("normals", core.pca_normals, points, graph, core.outward_hints(points))
+    h = core.default_h(graph)
+    proj, resid, _, _ = timed("mls", core.mls_fit, points, nrm, graph, h)
+    lik, _ = timed("likelihood", core.sampling_likelihood, resid, "exp")
+    radius = 10 * core.mean_spacing(graph)
+    feat, _ = timed("feature", core.feature_intensity, points, nrm, graph, radius, 0.2, 0.3, 0.3)
+    filtered = timed("filter", core.filter_normals, points, nrm, graph)
+    timed("update", core.move, points, proj, filtered, lik, feat, 0.5)
+    timed("bilateral (BIL)", core.filter_points, points, nrm, graph, 0.0, 0.0)
+    timed("aware fit (default preset)", core.aware_fit, points, filtered, graph, 0.05)
     started = time.perf_counter()
     pssd_fast.warmup()
     rest = time.perf_counter() - started
@@ -78,7 +78,7 @@ def warm_child():
 
 
 def _run(role, cache):
-    env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    env = dict(os.environ, PSSD_FAST_CACHE_DIR=cache)
     out = subprocess.run([sys.executable, "-m", "benchmarks.jit", "--child", role], env=env,
                          capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])

@@ -1,23 +1,24 @@
-"""The iteration schedule of the robust method and its result object."""
-import sys
+"""`denoise`: resolves the parameters, then runs the iterations of the chosen pipeline."""
 import time
 from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
 
-from . import stages
+from . import core
 from ._threads import threads
 from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_k,
 )
 from .graph import knn_graph, morton_order, refresh_graph
 from .kernels.order import gather_rows, scatter_rows
+from .pipelines import STEPS, aware
+from .progress import Clock, reporter
 
 #: Parameters of each method beyond the common ones, with their defaults.
 METHOD_DEFAULTS = {
-    "robust": {"h": None, "radius_factor": 10.0, "delta": 0.2, "alpha": 0.3, "beta": 0.3,
-               "likelihood": "exp", "sigma_n": 0.05, "keep_normals": False},
+    "robust": {"h": None, **core.FEATURE_DEFAULTS, "likelihood": "exp", "sigma_n": 0.05,
+               "keep_normals": False},
     "bilateral": {"sigma_c": None, "sigma_s": None, "keep_normals": False},
     "mls": {"h": None, "keep_normals": False},
 }
@@ -29,8 +30,8 @@ PAPER_ONLY = ("h", "radius_factor", "delta", "alpha", "beta", "likelihood")
 AWARE_ONLY = ("sigma_n",)
 #: Presets: the pipeline of the robust method and where ``k``, ``lam``, ``iterations`` and
 #: ``rebuild_graph`` come from when not given (``k=None``: chosen from the estimated noise, see
-#: ``AUTO_K``). "default" and "fast" run the feature-aware pipeline chosen on generated shapes
-#: (docs/DECISIONS.md, "Beyond the paper"); "fast" keeps the first iteration's neighbours
+#: ``pssd_fast.pipelines.aware.AUTO_K``). "default" and "fast" run the feature-aware pipeline
+#: chosen on generated shapes (docs/DECISIONS.md, "Beyond the paper"); "fast" keeps the first iteration's neighbours
 #: (1.2-2x faster, errors unchanged or lower), "default" queries them anew, which keeps its
 #: sharp-edge error up to 1% lower. "paper" is the paper's formulation.
 PRESETS = {
@@ -39,17 +40,6 @@ PRESETS = {
     "fast": {"pipeline": "aware", "k": 48, "lam": None, "iterations": 2, "rebuild_graph": False},
     "paper": {"pipeline": "paper", "k": 25, "lam": 0.5, "iterations": 2, "rebuild_graph": True},
 }
-#: The noise-driven choice of ``k`` (preset "default"). A probe fit with ``probe_k``
-#: neighbours measures the noise ``sigma`` (median RMS residual of the unweighted quadratic
-#: fits) relative to the probe's mean list radius ``r``; ``k`` is interpolated, linearly in
-#: ``log(sigma / r)`` and ``log k``, between the anchors ``(ratio, k)`` and held at the end
-#: values outside them. Each anchor is the ratio the probe measures on the generated CAD part
-#: (100,000 points) at 0.25%, 0.5% and 1% noise and the smallest ``k`` of the grid tried there
-#: (48, 64, 96, 128, 160, 192) that beat both CGAL peers on both errors (docs/DECISIONS.md,
-#: "Beyond the paper").
-AUTO_K = {"probe_k": 96, "anchors": ((0.133, 64), (0.227, 96), (0.304, 160))}
-
-
 @dataclass(frozen=True)
 class DenoiseResult:
     """Output of :func:`denoise`; arrays are in the caller's point order and float dtype.
@@ -111,7 +101,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     k : int, optional
         Neighbourhood size including the point itself (paper Section 2.2: ``k in [20, 35]``);
         at least 10 and at most ``n - 1``. Default from ``preset``: chosen from the estimated
-        noise, 64 to 160 ("default", see ``AUTO_K``), 48 ("fast"), 25 ("paper").
+        noise, 64 to 160 ("default", see ``pssd_fast.pipelines.aware.AUTO_K``), 48 ("fast"),
+        25 ("paper").
     lam : float, optional
         ``lambda`` in [0, 1] of Section 4.2: weight of the likelihood term against the feature
         term in the step ``m_i``. Paper's pipeline only (default 0.5); the other presets refuse
@@ -196,7 +187,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
 
     References
     ----------
-    .. [1] "Robust Denoising of Point-Sampled Surfaces" (the paper in ``shared/seed``), with
+    .. [1] "Robust Denoising of Point-Sampled Surfaces", the paper this library implements, with
        every ambiguity decided in ``docs/ALGORITHM.md``.
     """
     check_choice(method, "method", METHODS)
@@ -209,7 +200,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         raise TypeError(f"rebuild_graph must be True or False; got {rebuild_graph!r}")
     params = _method_params(method, method_params)
     _check_pipeline_params(method, preset, pipeline, explicit, lam)
-    report = _progress_reporter(progress)
+    report = reporter(progress)
     pts, dtype = as_points(points)
     n = pts.shape[0]
     iterations = setting["iterations"] if iterations is None else iterations
@@ -230,15 +221,15 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     current = np.empty_like(pts)
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
-    step = _aware_step if pipeline == "aware" else _STEPS[method]
+    step = STEPS[pipeline if method == "robust" else method]
     records = []
     scale = None
     with threads(n_jobs) as n_threads:
         if auto:
-            k, scale = _auto_k(current, given)
+            k, scale = aware.choose_k(current, given)
         out_normals = graph = None
         for iteration in range(iterations):
-            clock = _Clock(report, iteration, iterations)
+            clock = Clock(report, iteration, iterations)
             if graph is None or rebuild_graph:
                 graph = clock.run("neighbors", knn_graph, current, k, False)
             else:
@@ -246,8 +237,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             if given is not None:
                 nrm, degenerate = clock.run("normals", _given_normals, given)
             else:
-                hints = stages.outward_hints(current) if out_normals is None else out_normals
-                nrm, degenerate = clock.run("normals", stages._pca, current, graph, hints)
+                hints = core.outward_hints(current) if out_normals is None else out_normals
+                nrm, degenerate = clock.run("normals", core.pca_normals, current, graph, hints)
             moved, out_normals, extra, record = step(current, nrm, graph, lam, params, clock,
                                                      iteration == iterations - 1)
             record["degenerate_normals"] = int(degenerate.sum())
@@ -314,28 +305,6 @@ def _check_pipeline_params(method, preset, pipeline, explicit, lam):
                              f"'default' and 'fast', not to preset {preset!r}")
 
 
-def _auto_k(points, given):
-    """``k`` from the noise: a probe fit gives ``sigma`` and the list radius (``AUTO_K``)."""
-    started = time.perf_counter()
-    n = points.shape[0]
-    probe = min(AUTO_K["probe_k"], n - 1)
-    graph = knn_graph(points, probe, False)
-    if given is None:
-        nrm, _ = stages._pca(points, graph, stages.outward_hints(points))
-    else:
-        nrm = given
-    filtered = stages._filter(points, nrm, graph)
-    _, rms, _ = stages._aware(points, filtered, graph, 0.0)
-    sigma = float(np.median(rms))
-    radius = float(np.mean(graph.list_radius()))
-    ratio = sigma / radius if radius > 0.0 else 0.0
-    anchors = np.log(np.array(AUTO_K["anchors"], dtype=float))
-    k = int(round(np.exp(np.interp(np.log(max(ratio, 1e-12)), anchors[:, 0], anchors[:, 1]))))
-    k = max(min(k, n - 1), min(10, n - 1))
-    return check_k(k, n), {"k": k, "probe_k": probe, "noise": sigma, "probe_radius": radius,
-                           "ratio": ratio, "seconds": time.perf_counter() - started}
-
-
 def _method_params(method, method_params):
     """The method's defaults overlaid with the caller's parameters, validated."""
     defaults = METHOD_DEFAULTS[method]
@@ -351,119 +320,13 @@ def _method_params(method, method_params):
         if name in params:
             params[name] = check_float(params[name], name, positive=True)
     if "likelihood" in params:
-        check_choice(params["likelihood"], "likelihood", tuple(stages.LIKELIHOOD_FORMS))
+        check_choice(params["likelihood"], "likelihood", tuple(core.LIKELIHOOD_FORMS))
     if not isinstance(params["keep_normals"], (bool, np.bool_)):
         raise TypeError(f"keep_normals must be True or False; got {params['keep_normals']!r}")
     params["keep_normals"] = bool(params["keep_normals"])
     return params
 
 
-class _Clock:
-    """Times the stages of one iteration and reports each to the progress callback."""
-
-    def __init__(self, report, iteration, iterations):
-        self.times = {}
-        self.report = report
-        self.iteration = iteration
-        self.iterations = iterations
-
-    def run(self, stage, func, *args):
-        started = time.perf_counter()
-        result = func(*args)
-        self.times[stage] = time.perf_counter() - started
-        if self.report is not None:
-            self.report(self.iteration + 1, self.iterations, stage, self.times[stage])
-        return result
-
-
-def _progress_reporter(progress):
-    """``None``/``False``: silent; ``True``: a line per stage on stderr; else the callable."""
-    if progress is None or progress is False:
-        return None
-    if progress is True:
-        def show(iteration, iterations, stage, seconds):
-            sys.stderr.write(f"pssd_fast: iteration {iteration}/{iterations} {stage:<10s} "
-                             f"{seconds:8.3f} s\n")
-            sys.stderr.flush()
-        return show
-    if not callable(progress):
-        raise TypeError(f"progress must be True, False, None or a callable; got {progress!r}")
-    return progress
-
-
 def _given_normals(normals):
     """The caller's normals, with no degenerate neighbourhood to report."""
     return normals, np.zeros(normals.shape[0], np.bool_)
-
-
-def _fit_record(times, h, degree):
-    counts = np.bincount(degree, minlength=4)
-    return {"times": times, "h": h,
-            "fit_degree": {name: int(counts[code]) for name, code in stages.FIT_DEGREES.items()}}
-
-
-def _robust_step(points, nrm, graph, lam, params, clock, last=True):
-    """The rest of one robust iteration once the graph and normals exist."""
-    h = stages.default_h(graph, params["h"])
-    proj, resid, degree, _ = clock.run("mls", stages._mls, points, nrm, graph, h)
-    lik, dbar = clock.run("likelihood", stages._likelihood, resid, params["likelihood"])
-    spacing = stages.mean_spacing(graph)
-    radius = params["radius_factor"] * spacing
-    feat, region = clock.run("feature", stages._feature, points, nrm, graph, radius,
-                             params["delta"], params["alpha"], params["beta"])
-    filtered = clock.run("filter", stages._filter, points, nrm, graph)
-    moved, held = clock.run("update", stages._move, points, proj, filtered, lik, feat, lam)
-    record = _fit_record(clock.times, h, degree)
-    record.update({
-        "held_points": int(held.sum()),
-        "mean_spacing": spacing,
-        "region_radius": radius,
-        "mean_residual": dbar,
-        "region_size_mean": float(region.mean()),
-        "region_size_max": int(region.max()),
-    })
-    return moved, filtered, (lik, feat), record
-
-
-def _mls_step(points, nrm, graph, lam, params, clock, last=True):
-    """MLS baseline: every point moves to its projection onto its local cubic."""
-    h = stages.default_h(graph, params["h"])
-    proj, _, degree, _ = clock.run("mls", stages._mls, points, nrm, graph, h)
-    return proj, nrm, None, _fit_record(clock.times, h, degree)
-
-
-def _bilateral_step(points, nrm, graph, lam, params, clock, last=True):
-    """BIL baseline: every point moves along its normal by the bilateral mean height."""
-    moved = clock.run("bilateral", stages._bilateral, points, nrm, graph,
-                      params["sigma_c"] or 0.0, params["sigma_s"] or 0.0)
-    return moved, nrm, None, {"times": clock.times}
-
-
-def _aware_step(points, nrm, graph, lam, params, clock, last=True):
-    """One iteration of the feature-aware pipeline once the graph and normals exist: bilateral
-    normal filter, normal-weighted quadratic fit in each point's filtered frame, projection.
-
-    The move uses neither the likelihood nor the feature intensity; the last iteration still
-    computes both (from the fit's RMS residual and the paper's voting, at the paper's
-    constants) so that every preset returns them."""
-    filtered = clock.run("filter", stages._filter, points, nrm, graph)
-    height, rms, degree = clock.run("mls", stages._aware, points, filtered, graph,
-                                    params["sigma_n"])
-    moved, held = clock.run("update", stages._project, points, filtered, height)
-    extra = None
-    if last:
-        lik, _ = clock.run("likelihood", stages._likelihood, rms, "exp")
-        defaults = METHOD_DEFAULTS["robust"]
-        feat, _ = clock.run("feature", stages._feature, points, nrm, graph,
-                            defaults["radius_factor"] * stages.mean_spacing(graph),
-                            defaults["delta"], defaults["alpha"], defaults["beta"])
-        extra = (lik, feat)
-    counts = np.bincount(degree, minlength=7)
-    record = {"times": clock.times, "held_points": int(held.sum()),
-              "mean_residual": float(rms.mean()),
-              "fit_degree": {name: int(counts[code])
-                             for name, code in stages.AWARE_FIT_DEGREES.items()}}
-    return moved, filtered, extra, record
-
-
-_STEPS = {"robust": _robust_step, "bilateral": _bilateral_step, "mls": _mls_step}

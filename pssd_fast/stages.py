@@ -2,29 +2,17 @@
 
 Each public function takes points in the caller's order (and optionally normals and a
 neighbour graph from :func:`pssd_fast.neighbors`, to share work between stages) and returns new
-arrays in the input's float dtype. The underscore functions are the same stages on validated
-float64 arrays, used by :func:`pssd_fast.denoise`.
+arrays in the input's float dtype. The same stages on validated float64 arrays, which the
+pipelines of :func:`pssd_fast.denoise` use, are in :mod:`pssd_fast.core`.
 """
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from . import core
 from ._threads import threads
 from ._validation import as_normals, as_points, check_choice, check_float, check_k
 from .graph import caller_order_graph, check_graph
-from .kernels import bilateral, feature, likelihood, mls, normals, update
-
-#: ``likelihood`` forms of ALGORITHM.md and their kernel codes.
-LIKELIHOOD_FORMS = {"exp": likelihood.EXP, "ratio": likelihood.RATIO,
-                    "residual": likelihood.RESIDUAL}
-#: Length of the list prefix used to grow ``N_R`` (the paper's 9 nearest neighbours).
-GROW_NEIGHBOURS = 9
-#: Fit degree codes of :class:`MLSFit` ``degree``.
-FIT_DEGREES = {"cubic": mls.CUBIC, "quadratic": mls.QUADRATIC, "plane": mls.PLANE}
-#: Fit codes of the feature-aware fit (number of coefficients fitted).
-AWARE_FIT_DEGREES = {"quadratic": 6, "plane": 3, "mean_height": 1, "none": 0}
-
 
 class MLSFit(NamedTuple):
     """Result of :func:`mls_fit`.
@@ -51,99 +39,6 @@ class MLSFit(NamedTuple):
     h: float
 
 
-# --- stages on validated float64 arrays ------------------------------------------------------
-
-def default_h(graph, h=None):
-    """MLS width: ``h`` when given, else the mean list radius ``r_i`` (1 if every list is a
-    single location)."""
-    if h is not None:
-        return h
-    h = float(np.mean(graph.list_radius()))
-    return h if h > 0.0 else 1.0
-
-
-def mean_spacing(graph):
-    """``|E|``: mean distance from each point to its nearest other point."""
-    return float(np.mean(graph.nearest_distance()))
-
-
-def outward_hints(points):
-    """Orientation hints pointing away from the cloud's centroid (deterministic, outward for
-    star-shaped objects)."""
-    return points - points.mean(axis=0)
-
-
-def _pca(points, graph, hints):
-    out = np.empty_like(points)
-    degenerate = np.empty(points.shape[0], np.bool_)
-    normals.pca_normals(points, graph.indptr, graph.indices, hints, out, degenerate)
-    return out, degenerate
-
-
-def _mls(points, nrm, graph, h):
-    n = points.shape[0]
-    proj = np.empty_like(points)
-    resid = np.empty(n)
-    degree = np.empty(n, np.int8)
-    curvature = np.empty(n)
-    mls.mls_fit(points, nrm, graph.indptr, graph.indices, h, proj, resid, degree, curvature)
-    return proj, resid, degree, curvature
-
-
-def _aware(points, nrm, graph, sigma_n):
-    n = points.shape[0]
-    height = np.empty(n)
-    rms = np.empty(n)
-    degree = np.empty(n, np.int8)
-    mls.aware_fit(points, nrm, graph.indptr, graph.indices, sigma_n, height, rms, degree)
-    return height, rms, degree
-
-
-def _project(points, nrm, height):
-    """``p_i + height_i n_i``; points whose step is not finite stay where they are."""
-    step = height[:, None] * nrm
-    held = ~np.isfinite(step).all(axis=1)
-    step[held] = 0.0
-    return points + step, held
-
-
-def _likelihood(resid, form):
-    dbar = float(np.mean(resid))
-    out = np.empty_like(resid)
-    likelihood.sampling_likelihood(resid, dbar, LIKELIHOOD_FORMS[form], out)
-    return out, dbar
-
-
-def _feature(points, nrm, graph, radius, delta, alpha, beta):
-    n = points.shape[0]
-    out = np.empty(n)
-    size = np.empty(n, np.int64)
-    feature.feature_intensity(points, nrm, graph.indptr, graph.indices, radius, GROW_NEIGHBOURS,
-                              delta, alpha, beta, numba.config.NUMBA_NUM_THREADS, out, size)
-    return out, size
-
-
-def _filter(points, nrm, graph):
-    out = np.empty_like(points)
-    bilateral.filter_normals(points, nrm, graph.indptr, graph.indices, out)
-    return out
-
-
-def _bilateral(points, nrm, graph, sigma_c, sigma_s):
-    out = np.empty_like(points)
-    bilateral.filter_points(points, nrm, graph.indptr, graph.indices, sigma_c, sigma_s, out)
-    return out
-
-
-def _move(points, proj, filtered, lik, feat, lam):
-    out = np.empty_like(points)
-    held = np.empty(points.shape[0], np.bool_)
-    update.move_points(points, proj, filtered, lik, feat, lam, out, held)
-    return out, held
-
-
-# --- public stage functions -------------------------------------------------------------------
-
 def _graph(points, k, graph):
     """The caller's graph, validated, or a new one."""
     if graph is not None:
@@ -158,7 +53,7 @@ def _prepare(points, normals_, k, graph, n_jobs):
     with threads(n_jobs):
         graph = _graph(pts, k, graph)
         if nrm is None:
-            nrm, _ = _pca(pts, graph, outward_hints(pts))
+            nrm, _ = core.pca_normals(pts, graph, core.outward_hints(pts))
     return pts, dtype, nrm, graph
 
 
@@ -166,9 +61,9 @@ def _fit(points, normals_, k, h, graph, n_jobs):
     """The MLS stage for the public functions: a float64 :class:`MLSFit` and the output dtype."""
     h = None if h is None else check_float(h, "h", positive=True)
     pts, dtype, nrm, graph = _prepare(points, normals_, k, graph, n_jobs)
-    h = default_h(graph, h)
+    h = core.default_h(graph, h)
     with threads(n_jobs):
-        return MLSFit(*_mls(pts, nrm, graph, h), h), dtype
+        return MLSFit(*core.mls_fit(pts, nrm, graph, h), h), dtype
 
 
 def estimate_normals(points, *, k=25, graph=None, orient=None, n_jobs=None):
@@ -202,12 +97,12 @@ def estimate_normals(points, *, k=25, graph=None, orient=None, n_jobs=None):
     """
     pts, dtype = as_points(points)
     n = pts.shape[0]
-    hints = outward_hints(pts) if orient is None else as_points(orient, "orient")[0]
+    hints = core.outward_hints(pts) if orient is None else as_points(orient, "orient")[0]
     if hints.shape[0] != n:
         raise ValueError(f"orient must have one row per point: got {hints.shape[0]} rows for "
                          f"{n} points")
     with threads(n_jobs):
-        out, _ = _pca(pts, _graph(pts, k, graph), hints)
+        out, _ = core.pca_normals(pts, _graph(pts, k, graph), hints)
     return out.astype(dtype, copy=False)
 
 
@@ -266,9 +161,9 @@ def sampling_likelihood(points, normals=None, *, k=25, h=None, likelihood="exp",
     (n,) ndarray
         ``l_i``; for ``"exp"`` and ``"ratio"`` in (0, 1], 1 on a clean surface.
     """
-    check_choice(likelihood, "likelihood", tuple(LIKELIHOOD_FORMS))
+    check_choice(likelihood, "likelihood", tuple(core.LIKELIHOOD_FORMS))
     fit, dtype = _fit(points, normals, k, h, graph, n_jobs)
-    out, _ = _likelihood(fit.residuals, likelihood)
+    out, _ = core.sampling_likelihood(fit.residuals, likelihood)
     return out.astype(dtype, copy=False)
 
 
@@ -310,8 +205,8 @@ def feature_intensity(points, normals=None, *, k=25, radius_factor=10.0, delta=0
     beta = check_float(beta, "beta", positive=True)
     pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
     with threads(n_jobs):
-        out, _ = _feature(pts, nrm, graph, radius_factor * mean_spacing(graph), delta, alpha,
-                          beta)
+        out, _ = core.feature_intensity(pts, nrm, graph, radius_factor * core.mean_spacing(graph),
+                                        delta, alpha, beta)
     return out.astype(dtype, copy=False)
 
 
@@ -336,5 +231,5 @@ def filter_normals(points, normals=None, *, k=25, graph=None, n_jobs=None):
     """
     pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
     with threads(n_jobs):
-        out = _filter(pts, nrm, graph)
+        out = core.filter_normals(pts, nrm, graph)
     return out.astype(dtype, copy=False)

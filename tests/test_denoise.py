@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import pssd_fast
-from pssd_fast import stages
+from pssd_fast import core
 from pssd_fast.denoise import METHOD_DEFAULTS
 from pssd_fast.kernels import feature
 
@@ -73,7 +73,7 @@ def test_aware_iterations_chain_the_reference(noisy):
 
 
 def test_default_chooses_k_from_the_noise():
-    from pssd_fast.denoise import AUTO_K
+    from pssd_fast.pipelines.aware import AUTO_K
 
     low, high = AUTO_K["anchors"][0][1], AUTO_K["anchors"][-1][1]
     ks = []
@@ -377,10 +377,10 @@ def test_two_close_sheets_are_not_bridged():
     gap = 0.04
     points = np.vstack([np.column_stack([u, v, 0 * u]), np.column_stack([u, v, 0 * u + gap])])
     graph = pssd_fast.neighbors(points, 25)
-    _, size = stages._feature(points, np.tile([0, 0, 1.0], (len(points), 1)), graph,
-                              10 * stages.mean_spacing(graph), 0.2, 0.3, 0.3)
+    _, size = core.feature_intensity(points, np.tile([0, 0, 1.0], (len(points), 1)), graph,
+                              10 * core.mean_spacing(graph), 0.2, 0.3, 0.3)
     assert size.max() < len(u)  # a bridged region would reach the other sheet's points
-    radius = 10 * stages.mean_spacing(graph)
+    radius = 10 * core.mean_spacing(graph)
     for start in (0, 800, len(u) + 800):
         regions = block_regions(points, graph, start, start + feature.BLOCK, radius)
         for i, members in zip(range(start, start + feature.BLOCK), regions):

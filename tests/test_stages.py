@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import pssd_fast
-from pssd_fast import stages
+from pssd_fast import core
 from pssd_fast.kernels import feature, normals
 
 from . import reference
@@ -67,7 +67,7 @@ def test_mls_fit(cloud):
     name, points, k = cloud
     graph, lists = _setup(points, k)
     nrm = _normals_for(name, points, lists)
-    h = stages.default_h(graph)
+    h = core.default_h(graph)
     fit = pssd_fast.mls_fit(points, nrm, graph=graph)
     proj, resid, degree, curvature = reference.mls_fit(points, nrm, lists, h)
     assert fit.h == h
@@ -91,7 +91,7 @@ def test_aware_fit(cloud, sigma_n):
     name, points, k = cloud
     graph, lists = _setup(points, k)
     nrm = _normals_for(name, points, lists)
-    height, rms, degree = stages._aware(points, nrm, graph, sigma_n)
+    height, rms, degree = core.aware_fit(points, nrm, graph, sigma_n)
     ref_height, ref_rms, ref_degree = reference.aware_fit(points, nrm, lists, sigma_n)
     np.testing.assert_array_equal(degree, ref_degree)
     scale = np.ptp(points, axis=0).max()
@@ -114,8 +114,8 @@ def test_aware_fit_keeps_each_side_of_a_crease():
                                                                          u[21:]])])
     nrm = np.vstack([np.tile([0, 0, 1.0], (len(u), 1)), np.tile([1.0, 0, 0], (len(u) - 21, 1))])
     graph = pssd_fast.neighbors(points, 25)
-    aware, _, _ = stages._aware(points, nrm, graph, 0.05)
-    blind, _, _ = stages._aware(points, nrm, graph, 0.0)
+    aware, _, _ = core.aware_fit(points, nrm, graph, 0.05)
+    blind, _, _ = core.aware_fit(points, nrm, graph, 0.0)
     np.testing.assert_allclose(aware, 0, atol=1e-12)
     assert np.abs(blind).max() > 1e-3
 
@@ -153,10 +153,10 @@ def test_mls_curvature_of_spheres_and_planes():
 def test_likelihood_forms(form):
     rng = np.random.default_rng(6)
     resid = np.concatenate([rng.exponential(size=50), [0.0]])
-    out, dbar = stages._likelihood(resid, form)
+    out, dbar = core.sampling_likelihood(resid, form)
     assert dbar == resid.mean()
     np.testing.assert_allclose(out, reference.likelihood(resid, form), rtol=1e-14)
-    zero, _ = stages._likelihood(np.zeros(5), form)
+    zero, _ = core.sampling_likelihood(np.zeros(5), form)
     np.testing.assert_array_equal(zero, reference.likelihood(np.zeros(5), form))
 
 
@@ -174,7 +174,7 @@ def test_sampling_likelihood_orders_points_by_residual():
 def test_region_growing_matches_reference(cloud):
     name, points, k = cloud
     graph, lists = _setup(points, k)
-    radius = 10 * stages.mean_spacing(graph)
+    radius = 10 * core.mean_spacing(graph)
     n = len(points)
     for start in sorted({0, n // 3, max(0, n - feature.BLOCK)}):
         stop = min(n, start + feature.BLOCK)
@@ -194,10 +194,10 @@ def test_feature_intensity(cloud):
     name, points, k = cloud
     graph, lists = _setup(points, k)
     nrm = _normals_for(name, points, lists)
-    radius = 10 * stages.mean_spacing(graph)
+    radius = 10 * core.mean_spacing(graph)
     got = pssd_fast.feature_intensity(points, nrm, graph=graph)
     ref, sizes = reference.feature_intensity(points, nrm, lists, radius)
-    _, got_sizes = stages._feature(points, nrm, graph, radius, 0.2, 0.3, 0.3)
+    _, got_sizes = core.feature_intensity(points, nrm, graph, radius, 0.2, 0.3, 0.3)
     np.testing.assert_array_equal(got_sizes, sizes)
     assert np.all((got >= 0) & (got <= 1))
     np.testing.assert_allclose(got, ref, atol=1e-9)
@@ -264,7 +264,7 @@ def test_move_points():
     proj[0] = points[0]  # no offset: no move
     proj[1] = np.nan  # a failed projection: the point is held where it is
     for lam in (0.0, 0.3, 1.0):
-        got, held = stages._move(points, proj, filtered, lik, feat, lam)
+        got, held = core.move(points, proj, filtered, lik, feat, lam)
         ref = reference.move_points(points, proj, filtered, lik, feat, lam)
         np.testing.assert_allclose(got[2:], ref[2:], atol=1e-14)
         np.testing.assert_array_equal(got[:2], points[:2])
@@ -311,7 +311,7 @@ def test_bilateral_point_filter(cloud, sigmas):
     graph, lists = _setup(points, k)
     nrm = _normals_for(name, points, lists)
     sigma_c, sigma_s = sigmas
-    got = stages._bilateral(points, nrm, graph, sigma_c or 0.0, sigma_s or 0.0)
+    got = core.filter_points(points, nrm, graph, sigma_c or 0.0, sigma_s or 0.0)
     ref = reference.bilateral_points(points, nrm, lists, sigma_c, sigma_s)
     np.testing.assert_allclose(got, ref, atol=1e-12 * np.ptp(points, axis=0).max())
     if name == "plane":

@@ -1,6 +1,8 @@
 """JIT settings shared by every kernel, so that caching and fastmath change in one place."""
 import numba
 
+from .cache import Kernel, compile_kernel
+
 # No "nnan"/"ninf": degenerate fits are detected through NaN/Inf comparisons.
 # No "afn": approximate library calls may differ between vector and scalar code paths.
 FASTMATH = {"nsz", "arcp", "contract", "reassoc"}
@@ -12,9 +14,13 @@ CHUNK = 256
 
 def parallel_kernel(func):
     """Compile ``func`` as a cached, multi-threaded kernel (``prange`` over point chunks)."""
-    return numba.njit(parallel=True, cache=True, fastmath=FASTMATH)(func)
+    return Kernel(compile_kernel(func, parallel=True, fastmath=FASTMATH))
 
 
 def helper(func):
-    """Compile ``func`` as a cached scalar helper called from kernels."""
-    return numba.njit(cache=True, fastmath=FASTMATH)(func)
+    """Compile ``func`` as a scalar helper that numba inlines into every kernel calling it.
+
+    Inlined, a helper has no symbol of its own: a kernel loaded from the cache cannot end up
+    calling another kernel's copy of it, optimised in another context (see :mod:`.cache`).
+    """
+    return numba.njit(inline="always", fastmath=FASTMATH)(func)

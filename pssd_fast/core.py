@@ -1,0 +1,127 @@
+"""The array layer: each stage on validated float64 arrays, without checks or copies.
+
+The pipelines (:mod:`pssd_fast.pipelines`) and the public stage functions
+(:mod:`pssd_fast.stages`) call these; they allocate the outputs, run one kernel and return plain
+arrays. Inputs are trusted: C-contiguous float64 points and normals, and a
+:class:`~pssd_fast.graph.NeighborGraph` of the same points. Not public API.
+"""
+import numba
+import numpy as np
+
+from . import kernels
+
+#: ``likelihood`` forms of docs/ALGORITHM.md and their kernel codes.
+LIKELIHOOD_FORMS = {"exp": kernels.likelihood.EXP, "ratio": kernels.likelihood.RATIO,
+                    "residual": kernels.likelihood.RESIDUAL}
+#: Length of the list prefix used to grow ``N_R`` (the paper's 9 nearest neighbours).
+GROW_NEIGHBOURS = 9
+#: The paper's constants of the feature intensity (``R = radius_factor * |E|``; eq. (3)).
+FEATURE_DEFAULTS = {"radius_factor": 10.0, "delta": 0.2, "alpha": 0.3, "beta": 0.3}
+#: Fit degree codes of :class:`~pssd_fast.stages.MLSFit` ``degree``.
+FIT_DEGREES = {"cubic": kernels.mls.CUBIC, "quadratic": kernels.mls.QUADRATIC,
+               "plane": kernels.mls.PLANE}
+#: Fit codes of the feature-aware fit (number of coefficients fitted).
+AWARE_FIT_DEGREES = {"quadratic": 6, "plane": 3, "mean_height": 1, "none": 0}
+
+
+def default_h(graph, h=None):
+    """MLS width: ``h`` when given, else the mean list radius ``r_i`` (1 if every list is a
+    single location)."""
+    if h is not None:
+        return h
+    h = float(np.mean(graph.list_radius()))
+    return h if h > 0.0 else 1.0
+
+
+def mean_spacing(graph):
+    """``|E|``: mean distance from each point to its nearest other point."""
+    return float(np.mean(graph.nearest_distance()))
+
+
+def outward_hints(points):
+    """Orientation hints pointing away from the cloud's centroid (deterministic, outward for
+    star-shaped objects)."""
+    return points - points.mean(axis=0)
+
+
+def pca_normals(points, graph, hints):
+    """PCA normals oriented along ``hints``, and the mask of degenerate neighbourhoods."""
+    out = np.empty_like(points)
+    degenerate = np.empty(points.shape[0], np.bool_)
+    kernels.normals.pca_normals(points, graph.indptr, graph.indices, hints, out, degenerate)
+    return out, degenerate
+
+
+def mls_fit(points, nrm, graph, h):
+    """MLS cubic of every point: projections, residuals, fitted degree, mean curvature."""
+    n = points.shape[0]
+    proj = np.empty_like(points)
+    resid = np.empty(n)
+    degree = np.empty(n, np.int8)
+    curvature = np.empty(n)
+    kernels.mls.mls_fit(points, nrm, graph.indptr, graph.indices, h, proj, resid, degree,
+                        curvature)
+    return proj, resid, degree, curvature
+
+
+def aware_fit(points, nrm, graph, sigma_n):
+    """Feature-aware quadratic of every point in the frame of ``nrm``: height of the surface
+    above the point, RMS residual and number of coefficients fitted."""
+    n = points.shape[0]
+    height = np.empty(n)
+    rms = np.empty(n)
+    degree = np.empty(n, np.int8)
+    kernels.mls.aware_fit(points, nrm, graph.indptr, graph.indices, sigma_n, height, rms, degree)
+    return height, rms, degree
+
+
+def project(points, nrm, height):
+    """``p_i + height_i n_i``; points whose step is not finite stay where they are."""
+    step = height[:, None] * nrm
+    held = ~np.isfinite(step).all(axis=1)
+    step[held] = 0.0
+    return points + step, held
+
+
+def sampling_likelihood(resid, form):
+    """Eq. (2) in the chosen ``form``, and the mean residual ``dbar`` it is relative to."""
+    dbar = float(np.mean(resid))
+    out = np.empty_like(resid)
+    kernels.likelihood.sampling_likelihood(resid, dbar, LIKELIHOOD_FORMS[form], out)
+    return out, dbar
+
+
+def feature_intensity(points, nrm, graph, radius, delta, alpha, beta):
+    """Eq. (3) over the region-grown ``N_R`` of radius ``radius``, and each region's size."""
+    n = points.shape[0]
+    out = np.empty(n)
+    size = np.empty(n, np.int64)
+    kernels.feature.feature_intensity(points, nrm, graph.indptr, graph.indices, radius,
+                                      GROW_NEIGHBOURS, delta, alpha, beta,
+                                      numba.config.NUMBA_NUM_THREADS, out, size)
+    return out, size
+
+
+def filter_normals(points, nrm, graph):
+    """Bilateral filter of the normals, eq. (4)."""
+    out = np.empty_like(points)
+    kernels.bilateral.filter_normals(points, nrm, graph.indptr, graph.indices, out)
+    return out
+
+
+def filter_points(points, nrm, graph, sigma_c, sigma_s):
+    """The BIL baseline: each point moved along its normal by the bilateral mean height
+    (``sigma_c``, ``sigma_s`` 0: per-point defaults)."""
+    out = np.empty_like(points)
+    kernels.bilateral.filter_points(points, nrm, graph.indptr, graph.indices, sigma_c, sigma_s,
+                                    out)
+    return out
+
+
+def move(points, proj, filtered, lik, feat, lam):
+    """The paper's update ``p_i + m_i |q_i - p_i| n*_i``, and the mask of points held in place
+    because their step was not finite."""
+    out = np.empty_like(points)
+    held = np.empty(points.shape[0], np.bool_)
+    kernels.update.move_points(points, proj, filtered, lik, feat, lam, out, held)
+    return out, held

@@ -1,0 +1,104 @@
+"""Numba's cache: keyed by every kernel source, never different from a fresh compile, and
+optional when nothing is writable."""
+import os
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from pssd_fast.kernels import cache
+
+#: Run in a child: denoise a small cloud with every pipeline; print whether this process
+#: compiled any kernel itself; write the outputs' bytes to argv[1].
+CHILD = """
+import sys, numpy as np, pssd_fast
+from pssd_fast import datasets, kernels
+from pssd_fast.kernels.cache import Kernel
+points = datasets.cad_part(n_points=3000, noise=0.005, seed=3).points
+runs = [pssd_fast.denoise(points, iterations=2),
+        pssd_fast.denoise(points, preset="paper"),
+        pssd_fast.denoise(points, method="bilateral", k=20, iterations=1),
+        pssd_fast.denoise(points, method="mls", k=20, iterations=1)]
+with open(sys.argv[1], "wb") as out:
+    for r in runs:
+        for a in (r.points, r.normals, r.likelihood, r.feature_intensity):
+            if a is not None:
+                out.write(a.tobytes())
+compiled_here = sum(sum(k.stats.cache_misses.values())
+                    for m in kernels.__all__ for k in vars(getattr(kernels, m)).values()
+                    if isinstance(k, Kernel))
+print("compiled here:", compiled_here)
+"""
+
+
+def _child(script, cache_dir, *args, env=None):
+    env = dict(os.environ if env is None else env, PSSD_FAST_CACHE_DIR=str(cache_dir))
+    return subprocess.run([sys.executable, "-c", script, *map(str, args)], env=env,
+                          capture_output=True, text=True, check=True)
+
+
+def test_empty_and_warm_cache_give_identical_bytes(tmp_path):
+    cold = _child(CHILD, tmp_path / "cache", tmp_path / "cold.bin")
+    warm = _child(CHILD, tmp_path / "cache", tmp_path / "warm.bin")
+    assert (tmp_path / "cold.bin").read_bytes() == (tmp_path / "warm.bin").read_bytes()
+    # The calling process only ever loads kernels: children compiled them into the cache.
+    assert "compiled here: 0" in cold.stdout and "compiled here: 0" in warm.stdout
+    assert len(list((tmp_path / "cache").glob(f"kernels-{cache.source_key()}/built/*"))) >= 9
+
+
+def test_the_key_changes_with_any_kernel_source(tmp_path, monkeypatch):
+    copy = tmp_path / "kernels"
+    shutil.copytree(cache._KERNEL_DIR, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    monkeypatch.setattr(cache, "_KERNEL_DIR", copy)
+    before = cache.source_key()
+    assert before == cache.source_key()
+    for name in ("linalg.py", "config.py"):  # inlined helpers and constants, not kernels
+        path = copy / name
+        original = path.read_text()
+        path.write_text(original + "\n# changed\n")
+        assert cache.source_key() != before, name
+        path.write_text(original)
+    assert cache.source_key() == before
+
+
+def test_unwritable_cache_folder_falls_back_to_a_private_temporary_one(tmp_path, monkeypatch):
+    monkeypatch.setenv(cache.CACHE_ENV, "/proc/pssd_fast_cannot_be_created")
+    monkeypatch.setattr(cache.tempfile, "mkdtemp", lambda prefix: str(tmp_path / "scratch"))
+    with pytest.warns(RuntimeWarning, match="not writable") as caught:
+        folder, persistent = cache._resolve()
+    assert len(caught) == 1 and not persistent
+    assert folder == tmp_path / "scratch" / f"kernels-{cache.source_key()}"
+
+
+def test_nothing_writable_compiles_in_memory(monkeypatch):
+    monkeypatch.setenv(cache.CACHE_ENV, "/proc/pssd_fast_cannot_be_created")
+
+    def refuse(prefix):
+        raise PermissionError("read-only")
+
+    monkeypatch.setattr(cache.tempfile, "mkdtemp", refuse)
+    with pytest.warns(RuntimeWarning, match="compiled in memory") as caught:
+        assert cache._resolve() == (None, False)
+    assert len(caught) == 1
+
+
+def test_a_process_with_nothing_writable_runs_with_one_warning(tmp_path):
+    """End to end: numba's own locators would raise; the kernels compile in memory instead."""
+    script = ("import tempfile, warnings\n"
+              "def refuse(*a, **k): raise PermissionError('read-only')\n"
+              "tempfile.mkdtemp = refuse\n"
+              "warnings.simplefilter('always')\n"
+              "with warnings.catch_warnings(record=True) as caught:\n"
+              "    import numpy as np, pssd_fast\n"
+              "    n = pssd_fast.estimate_normals(np.random.default_rng(0).random((300, 3)))\n"
+              "print(len(caught), [str(w.message)[:40] for w in caught], np.isfinite(n).all())\n")
+    done = _child(script, "/proc/pssd_fast_cannot_be_created")
+    assert done.stdout.startswith("1 ") and done.stdout.rstrip().endswith("True"), done.stdout
+
+
+def test_kernel_wrapper_exposes_the_dispatcher():
+    from pssd_fast.kernels import normals
+    assert normals.pca_normals.py_func.__name__ == "pca_normals"
+    assert normals.pca_normals.__doc__.startswith("Unit normals by PCA")
+    assert cache.CACHE_DIR.name == f"kernels-{cache.source_key()}"
