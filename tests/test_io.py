@@ -609,7 +609,7 @@ def test_failed_overwrite_keeps_the_old_file(tmp_path, monkeypatch):
     (tmp_path / "a.xyz").write_text("1 2 3\n")
     old = (tmp_path / "a.xyz").read_bytes()
     cloud = PointCloud(np.zeros((2, 3)))
-    monkeypatch.setattr(pio, "_text_column", lambda values: 1 / 0)
+    monkeypatch.setattr(pio.text, "_text_column", lambda values: 1 / 0)
     with pytest.raises(ZeroDivisionError):
         pio.write(tmp_path / "a.xyz", cloud, overwrite=True)
     assert (tmp_path / "a.xyz").read_bytes() == old

@@ -1,0 +1,177 @@
+"""What the format modules share: the cloud, the errors, argument checks and atomic writing."""
+import importlib
+import os
+import secrets
+from dataclasses import dataclass, field
+
+import numpy as np
+
+_COORDS = ("x", "y", "z")
+_NORMALS = ("nx", "ny", "nz")
+_INSTALL = "pip install 'pssd_fast[io]'"
+
+
+class PointCloudFileError(ValueError):
+    """A point-cloud file that cannot be read or written; the message names the file."""
+
+
+class PointCloudFileNotFoundError(PointCloudFileError, FileNotFoundError):
+    """The file to read, or the folder to write into, does not exist."""
+
+
+@dataclass(frozen=True, eq=False)
+class PointCloud:
+    """A point cloud as read from a file, with whatever is needed to write it back.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like
+        Coordinates; stored as float64.
+    normals : (n, 3) array_like or None
+        Per-point normals (stored as float64), or None.
+    fields : dict of str to (n,) numpy.ndarray
+        Every other per-point attribute of the file, with its original dtype.
+    format : str
+        ``"ply"``, ``"xyz"`` (also ``.pts`` and ``.txt``), ``"npy"``, ``"npz"`` or ``"las"``
+        (also ``.laz``): the format read. Clouds built in memory default to ``"npy"``.
+    source : object
+        Opaque: what :func:`write` needs to reproduce the rest of the input file (the parsed
+        PLY, the LAS header and point records, the comment lines of a text file...). None for
+        clouds built in memory.
+
+    Notes
+    -----
+    ``len(cloud)`` is the number of points. Use ``dataclasses.replace`` to derive a cloud with
+    other points, normals or fields; it keeps ``source``.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray = None
+    fields: dict = field(default_factory=dict)
+    format: str = "npy"
+    source: object = field(default=None, repr=False)
+
+    def __post_init__(self):
+        points = np.asarray(self.points, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"points must have shape (n, 3); got {points.shape}")
+        object.__setattr__(self, "points", points)
+        if self.normals is not None:
+            normals = np.asarray(self.normals, dtype=np.float64)
+            if normals.shape != points.shape:
+                raise ValueError(f"normals must have shape {points.shape}; got {normals.shape}")
+            object.__setattr__(self, "normals", normals)
+        object.__setattr__(self, "fields", _as_fields(self.fields, len(points)))
+
+    def __len__(self):
+        return len(self.points)
+
+    def __repr__(self):
+        return (f"PointCloud(n={len(self)}, normals={self.normals is not None}, "
+                f"fields={list(self.fields)}, format={self.format!r})")
+
+
+@dataclass(frozen=True)
+class _Source:
+    """Where a cloud was read from; subclasses add what its format needs to be written back."""
+
+    path: str  # absolute, so that writing onto the input is recognised from any folder
+
+
+# ---------------------------------------------------------------------------------------------
+# Argument checks
+
+
+def _check_finite(path, points):
+    bad = ~np.isfinite(points).all(axis=1)
+    if bad.any():
+        raise PointCloudFileError(
+            f"{path}: {int(bad.sum()):,} of {len(points):,} points have NaN or Inf coordinates "
+            f"(the first is point {int(np.flatnonzero(bad)[0])})")
+
+
+def _as_array(path, values, name, shape):
+    arr = np.asarray(values)
+    if arr.shape != shape or arr.dtype.kind not in "fiu":
+        raise PointCloudFileError(f"{path}: {name} must be a real array of shape {shape}; got "
+                                  f"shape {arr.shape}, dtype {arr.dtype}")
+    return arr.astype(np.float64)
+
+
+def _as_fields(fields, n):
+    """A new dict of (n,) numeric arrays keyed by non-empty strings."""
+    out = {}
+    for name, values in fields.items():
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"field name {name!r} must be a non-empty string")
+        arr = np.asarray(values)
+        if arr.shape != (n,) or arr.dtype.kind not in "biuf":
+            raise ValueError(f"field {name!r} must be a numeric array of shape ({n},); got "
+                             f"shape {arr.shape}, dtype {arr.dtype}")
+        out[name] = arr
+    return out
+
+
+def _check_names(path, names, what):
+    """Refuse names that would break a PLY header line or a text column line."""
+    bad = [name for name in names if any(c.isspace() for c in name)]
+    if bad:
+        raise PointCloudFileError(f"{path}: {what} cannot hold names with spaces: {bad}")
+
+
+def _fit(name, values, dtype, where):
+    """``values`` as ``dtype``; integer and bool targets must hold them exactly."""
+    dtype = np.dtype(dtype)
+    if dtype.kind == "f":
+        return values.astype(dtype)
+    with np.errstate(invalid="ignore", over="ignore"):
+        cast = values.astype(dtype)
+    if not np.array_equal(cast, values):
+        raise ValueError(f"field {name!r} does not fit the {dtype} type of {where}")
+    return cast
+
+
+# ---------------------------------------------------------------------------------------------
+# Writing and optional dependencies
+
+
+def _exists_message(path, cloud):
+    src = cloud.source
+    if isinstance(src, _Source) and os.path.exists(src.path) and os.path.samefile(path, src.path):
+        return (f"{path}: is the file this cloud was read from; refusing to overwrite the input "
+                f"(pass overwrite=True, --force on the command line, to replace it)")
+    return (f"{path}: already exists; pass overwrite=True (--force on the command line) to "
+            f"replace it")
+
+
+def _atomic_write(path, payload, overwrite, cloud):
+    """Run ``payload(file)`` on a temporary file next to ``path``, then rename it onto ``path``.
+
+    The temporary file is in the same folder so that ``os.replace`` is an atomic rename on the
+    same file system; it is created with ``open(..., "xb")`` so that it gets the usual
+    permissions (umask) rather than mkstemp's private ones.
+    """
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+    try:
+        with open(tmp, "xb") as fh:
+            payload(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        # Checked again: another process may have created the file while this one wrote.
+        if not overwrite and path.exists():
+            raise FileExistsError(_exists_message(path, cloud))
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def _need(module, package, what):
+    """Import an optional dependency, or say how to install it."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise ImportError(f"{what} needs {package}: {_INSTALL}") from exc

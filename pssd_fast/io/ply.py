@@ -1,0 +1,238 @@
+"""PLY files, ASCII or binary, through ``plyfile``: every element, property and comment kept."""
+import os
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._common import _COORDS, _NORMALS, PointCloudFileError, _fit, _need, _Source
+
+# A PLY header is a few hundred bytes; a file without "end_header" in its first MiB is not PLY.
+_PLY_HEADER_LIMIT = 2**20
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2,
+              "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4,
+              "float32": 4, "double": 8, "float64": 8}
+_PLY_END = re.compile(rb"(?:^|[\r\n])end_header[ \t]*(?:\r\n|\r|\n)")
+# Types PLY can store, and where 64-bit or bool values go instead (if they fit exactly).
+_PLY_KINDS = {"i1", "u1", "i2", "u2", "i4", "u4", "f4", "f8"}
+_PLY_NARROW = {"b1": "u1", "i8": "i4", "u8": "u4"}
+
+
+@dataclass(frozen=True)
+class _PlySource(_Source):
+    ply: object  # plyfile.PlyData with all elements in memory
+
+
+@dataclass(frozen=True)
+class _PlyLayout:
+    ascii: bool
+    header_lines: int
+    counts: dict  # element name -> row count, in file order
+
+
+def _ply_layout(path, fh, size):
+    """Parse the header enough to check its element counts against the file size.
+
+    plyfile allocates every element from its header count before reading a row, so a header
+    claiming a billion vertices must be refused here, from the bytes a row needs at least:
+    its fixed size in binary files, two characters per value (digit and separator) in ASCII.
+    """
+    head = fh.read(_PLY_HEADER_LIMIT)
+    if not head.startswith(b"ply"):
+        raise PointCloudFileError(f"{path}: not a PLY file (it does not start with 'ply')")
+    end = _PLY_END.search(head)
+    if end is None:
+        raise PointCloudFileError(f"{path}: PLY header has no 'end_header' line (truncated or "
+                                  f"not a PLY file)")
+    lines = head[:end.end()].decode("ascii", "replace").splitlines()
+    fmt, elements = None, []  # elements: [name, count, bytes per row at least]
+    for lineno, line in enumerate(lines, 1):
+        tokens = line.split()
+        if not tokens:
+            continue
+        if tokens[0] == "format" and len(tokens) > 1:
+            fmt = tokens[1]
+        elif tokens[0] == "element":
+            if len(tokens) != 3 or not tokens[2].isdigit():
+                raise PointCloudFileError(f"{path}: bad PLY header line {lineno}: {line!r}")
+            elements.append([tokens[1], int(tokens[2]), 0])
+        elif tokens[0] == "property" and elements:
+            # A list costs at least its length field (it may be empty): its first type.
+            type_ = [*tokens, "", ""][2 if tokens[1:2] == ["list"] else 1]
+            if type_ not in _PLY_SIZES:
+                raise PointCloudFileError(f"{path}: unknown PLY type on header line {lineno}: "
+                                          f"{line!r}")
+            elements[-1][2] += 2 if fmt == "ascii" else _PLY_SIZES[type_]
+    have = size - end.end()
+    need = 0
+    for name, count, row in elements:
+        need += count * row
+        # An ASCII file may lack the final newline.
+        if need > have + (fmt == "ascii"):
+            raise PointCloudFileError(
+                f"{path}: header claims {count:,} '{name}' elements, which need at least "
+                f"{need:,} bytes, but only {have:,} bytes follow the header (truncated file or "
+                f"wrong header)")
+    return _PlyLayout(fmt == "ascii", len(lines), {name: count for name, count, _ in elements})
+
+
+def _ply_parse_error(path, exc, layout, plyfile):
+    """One-line message for a plyfile parse error, with the file line for ASCII data."""
+    if isinstance(exc, plyfile.PlyHeaderParseError):
+        return PointCloudFileError(f"{path}: bad PLY header (line {exc.line}): {exc.message}")
+    name = exc.element.name if exc.element is not None else "?"
+    if exc.message == "early end-of-file":
+        return PointCloudFileError(f"{path}: truncated: element '{name}' ends after {exc.row:,} "
+                                   f"of {layout.counts.get(name, 0):,} rows")
+    where = f"row {exc.row} of element '{name}'"
+    if layout.ascii and exc.row is not None:
+        before = 0
+        for other, count in layout.counts.items():
+            if other == name:
+                break
+            before += count
+        where = f"line {layout.header_lines + before + exc.row + 1} ('{name}' row {exc.row})"
+    prop = f", property '{exc.prop.name}'" if exc.prop is not None else ""
+    return PointCloudFileError(f"{path}: {exc.message} on {where}{prop}")
+
+
+def read(path):
+    """Read a PLY file, ASCII or binary.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        An existing ``.ply`` file.
+
+    Returns
+    -------
+    points : (n, 3) numpy.ndarray
+        The vertex ``x y z``, as float64.
+    normals : (n, 3) numpy.ndarray or None
+        The vertex ``nx ny nz`` as float64, or None if the vertices lack one of them.
+    fields : dict of str to (n,) numpy.ndarray
+        Every other scalar vertex property, in its type with native byte order.
+    source : object
+        The whole parsed file, for :func:`payload` to write back.
+
+    Raises
+    ------
+    PointCloudFileError
+        On a malformed or truncated file, a header claiming more rows than the file can hold
+        (checked before plyfile allocates them), or no vertex ``x y z``.
+    ImportError
+        If ``plyfile`` is not installed.
+    """
+    plyfile = _need("plyfile", "plyfile", "Reading .ply files")
+    with open(path, "rb") as fh:
+        layout = _ply_layout(path, fh, os.fstat(fh.fileno()).st_size)
+        fh.seek(0)
+        try:
+            ply = plyfile.PlyData.read(fh)
+        except plyfile.PlyParseError as exc:
+            raise _ply_parse_error(path, exc, layout, plyfile) from None
+        except UnicodeDecodeError:
+            raise PointCloudFileError(f"{path}: non-ASCII bytes in the PLY header or in its "
+                                      f"ASCII data") from None
+    for element in ply.elements:
+        # plyfile memory-maps binary elements copy-on-write; untouched pages of such a map
+        # follow later changes of the file, so the cloud takes its own copy.
+        element.data = np.array(element.data)
+    if "vertex" not in ply:
+        raise PointCloudFileError(f"{path}: has no 'vertex' element")
+    vertex = ply["vertex"]
+    scalar = [p.name for p in vertex.properties if not isinstance(p, plyfile.PlyListProperty)]
+    missing = [c for c in _COORDS if c not in scalar]
+    if missing:
+        raise PointCloudFileError(f"{path}: vertex element has no {', '.join(missing)} property")
+    data = vertex.data
+    points = np.column_stack([data[c] for c in _COORDS]).astype(np.float64)
+    normals = None
+    if all(c in scalar for c in _NORMALS):
+        normals = np.column_stack([data[c] for c in _NORMALS]).astype(np.float64)
+    fields = {name: data[name].astype(data.dtype[name].newbyteorder("="))
+              for name in scalar if name not in _COORDS + _NORMALS}
+    return points, normals, fields, _PlySource(os.path.abspath(path), ply)
+
+
+def _ply_values(name, values):
+    """``values`` in a type PLY can store (64-bit and bool values narrowed if they fit)."""
+    code = values.dtype.str[1:]
+    if code in _PLY_KINDS:
+        return values
+    if code in _PLY_NARROW:
+        return _fit(name, values, _PLY_NARROW[code], "a PLY property")
+    raise ValueError(f"field {name!r} has dtype {values.dtype}, which PLY cannot store")
+
+
+def payload(path, points, normals, fields, source):
+    """Prepare a PLY file, keeping everything of ``source`` but the values given.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The output file, named in error messages.
+    points : (n, 3) numpy.ndarray
+        Coordinates, written in the type of the source's ``x`` (float64 for a new file).
+    normals : (n, 3) numpy.ndarray or None
+        Normals, written in the type of the source's ``nx ny nz`` or of the coordinates.
+    fields : dict of str to (n,) numpy.ndarray
+        Vertex properties; one the source has keeps its type and must fit it, a new one keeps
+        its own (64-bit and bool values narrowed if they fit exactly).
+    source : object or None
+        What :func:`read` returned for a PLY input (its other elements, comments, ``obj_info``,
+        ASCII/binary and byte order are kept), or None for a new little-endian binary file.
+
+    Returns
+    -------
+    callable
+        Writes the file to the binary file object it is given.
+
+    Raises
+    ------
+    PointCloudFileError
+        If a value does not fit its property type, or a field is a list property of the source.
+    ImportError
+        If ``plyfile`` is not installed.
+    """
+    plyfile = _need("plyfile", "plyfile", "Writing .ply files")
+    columns, lists = {}, {}  # name -> (n,) values; name -> list property of the source
+    comments = []
+    if source is not None:
+        vertex = source.ply["vertex"]
+        comments = vertex.comments
+        for prop in vertex.properties:
+            columns[prop.name] = vertex.data[prop.name]
+            if isinstance(prop, plyfile.PlyListProperty):
+                lists[prop.name] = prop
+    coord_type = columns["x"].dtype if "x" in columns else np.dtype(np.float64)
+    try:
+        for group, values in ((_COORDS, points), (_NORMALS, normals)):
+            if values is not None:
+                for i, name in enumerate(group):
+                    stored = columns[name].dtype if name in columns else coord_type
+                    columns[name] = _fit(name, values[:, i], stored, "the PLY coordinates")
+        for name, values in fields.items():
+            if name in lists:
+                raise ValueError(f"field {name!r} is a list property of the input PLY")
+            if name in columns:
+                if not np.array_equal(columns[name], values):
+                    columns[name] = _fit(name, values, columns[name].dtype, "its PLY property")
+            else:
+                columns[name] = _ply_values(name, values)
+    except ValueError as exc:
+        raise PointCloudFileError(f"{path}: {exc}") from None
+    data = np.empty(len(points), dtype=[(name, col.dtype.newbyteorder("="))
+                                        for name, col in columns.items()])
+    for name, col in columns.items():
+        data[name] = col
+    element = plyfile.PlyElement.describe(
+        data, "vertex", len_types={k: p.len_dtype for k, p in lists.items()},
+        val_types={k: p.val_dtype for k, p in lists.items()},
+        comments=comments)
+    if source is None:
+        return plyfile.PlyData([element], text=False, byte_order="<").write
+    base = source.ply
+    return plyfile.PlyData([element if e.name == "vertex" else e for e in base.elements],
+                           text=base.text, byte_order=base.byte_order, comments=base.comments,
+                           obj_info=base.obj_info).write
