@@ -223,7 +223,7 @@ def test_an_unwritable_folder_is_one_line(tmp_path, cloud, monkeypatch, capsys):
             raise PermissionError(13, "Permission denied", str(file))
         return builtins.open(file, mode, *args, **kwargs)
 
-    monkeypatch.setattr(_common, "open", refuse, raising=False)  # _atomic_write's open
+    monkeypatch.setattr(_common, "open", refuse, raising=False)  # atomic_write's open
     status = cli.main(["denoise", str(source), str(tmp_path / "out.ply"), "--iterations", "1",
                        "--quiet"])
     assert_one_line_error(status, capsys.readouterr().err, "Permission denied")

@@ -38,9 +38,14 @@ import warnings
 from pathlib import Path
 
 from . import las, npy, ply, text
-from ._common import (_COORDS, _NORMALS, PointCloud, PointCloudFileError,
-                      PointCloudFileNotFoundError, _as_array, _as_fields, _atomic_write,
-                      _check_finite, _check_names, _exists_message)
+from ._common import (COORDS, NORMALS, PointCloud, PointCloudFileError,
+                      PointCloudFileNotFoundError, as_array, as_fields, atomic_write,
+                      check_finite, check_names, exists_message)
+
+# Report the public classes where users import them from, not from the private module.
+for _cls in (PointCloud, PointCloudFileError, PointCloudFileNotFoundError):
+    _cls.__module__ = __name__
+del _cls
 
 __all__ = ["PointCloud", "PointCloudFileError", "PointCloudFileNotFoundError", "formats", "read",
            "write"]
@@ -107,7 +112,7 @@ def read(path):
     points, normals, fields, source = _MODULES[kind].read(path)
     if len(points) == 0:
         raise PointCloudFileError(f"{path}: holds no points")
-    _check_finite(path, points)
+    check_finite(path, points)
     return PointCloud(points, normals, fields, kind, source)
 
 
@@ -161,17 +166,17 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     if path.is_dir():
         raise PointCloudFileError(f"{path}: is a directory, not a file name")
     if not overwrite and path.exists():
-        raise FileExistsError(_exists_message(path, cloud))
+        raise FileExistsError(exists_message(path, cloud))
     n = len(cloud)
-    pts = cloud.points if points is None else _as_array(path, points, "points", (n, 3))
-    _check_finite(path, pts)
-    nrm = cloud.normals if normals is None else _as_array(path, normals, "normals", (n, 3))
+    pts = cloud.points if points is None else as_array(path, points, "points", (n, 3))
+    check_finite(path, pts)
+    nrm = cloud.normals if normals is None else as_array(path, normals, "normals", (n, 3))
     try:
-        new = _as_fields(fields or {}, n)
+        new = as_fields(fields or {}, n)
     except ValueError as exc:
         raise PointCloudFileError(f"{path}: {exc}") from None
-    _check_names(path, new, "field names")
-    reserved = sorted(set(new) & set(_COORDS + _NORMALS))
+    check_names(path, new, "field names")
+    reserved = sorted(set(new) & set(COORDS + NORMALS))
     if reserved:
         raise PointCloudFileError(f"{path}: field names {reserved} are reserved for the "
                                   f"coordinates and normals (pass points= or normals=)")
@@ -179,13 +184,13 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     ext = path.suffix.lower()
     kind = _FORMATS[ext]
     if kind in ("ply", "xyz"):
-        _check_names(path, merged, f"a {ext} file")
+        check_names(path, merged, f"a {ext} file")
     source = cloud.source if cloud.format == kind else None
     if kind == "npy" and merged:
         warnings.warn(f"{path}: .npy holds only points and normals; fields {list(merged)} are "
                       f"not written (use .npz, .ply or .las to keep them)", stacklevel=2)
     payload = _MODULES[kind].payload(path, pts, nrm, merged, source)
-    _atomic_write(path, payload, overwrite, cloud)
+    atomic_write(path, payload, overwrite, cloud)
     return path
 
 

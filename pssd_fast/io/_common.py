@@ -6,9 +6,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-_COORDS = ("x", "y", "z")
-_NORMALS = ("nx", "ny", "nz")
-_INSTALL = "pip install 'pssd_fast[io]'"
+COORDS = ("x", "y", "z")
+NORMALS = ("nx", "ny", "nz")
+INSTALL = "pip install 'pssd_fast[io]'"
 
 
 class PointCloudFileError(ValueError):
@@ -61,7 +61,7 @@ class PointCloud:
             if normals.shape != points.shape:
                 raise ValueError(f"normals must have shape {points.shape}; got {normals.shape}")
             object.__setattr__(self, "normals", normals)
-        object.__setattr__(self, "fields", _as_fields(self.fields, len(points)))
+        object.__setattr__(self, "fields", as_fields(self.fields, len(points)))
 
     def __len__(self):
         return len(self.points)
@@ -72,7 +72,7 @@ class PointCloud:
 
 
 @dataclass(frozen=True)
-class _Source:
+class Source:
     """Where a cloud was read from; subclasses add what its format needs to be written back."""
 
     path: str  # absolute, so that writing onto the input is recognised from any folder
@@ -82,7 +82,7 @@ class _Source:
 # Argument checks
 
 
-def _check_finite(path, points):
+def check_finite(path, points):
     bad = ~np.isfinite(points).all(axis=1)
     if bad.any():
         raise PointCloudFileError(
@@ -90,7 +90,7 @@ def _check_finite(path, points):
             f"(the first is point {int(np.flatnonzero(bad)[0])})")
 
 
-def _as_array(path, values, name, shape):
+def as_array(path, values, name, shape):
     arr = np.asarray(values)
     if arr.shape != shape or arr.dtype.kind not in "fiu":
         raise PointCloudFileError(f"{path}: {name} must be a real array of shape {shape}; got "
@@ -98,7 +98,7 @@ def _as_array(path, values, name, shape):
     return arr.astype(np.float64)
 
 
-def _as_fields(fields, n):
+def as_fields(fields, n):
     """A new dict of (n,) numeric arrays keyed by non-empty strings."""
     out = {}
     for name, values in fields.items():
@@ -112,14 +112,14 @@ def _as_fields(fields, n):
     return out
 
 
-def _check_names(path, names, what):
+def check_names(path, names, what):
     """Refuse names that would break a PLY header line or a text column line."""
     bad = [name for name in names if any(c.isspace() for c in name)]
     if bad:
         raise PointCloudFileError(f"{path}: {what} cannot hold names with spaces: {bad}")
 
 
-def _fit(name, values, dtype, where):
+def fit_dtype(name, values, dtype, where):
     """``values`` as ``dtype``; integer and bool targets must hold them exactly."""
     dtype = np.dtype(dtype)
     if dtype.kind == "f":
@@ -135,16 +135,16 @@ def _fit(name, values, dtype, where):
 # Writing and optional dependencies
 
 
-def _exists_message(path, cloud):
+def exists_message(path, cloud):
     src = cloud.source
-    if isinstance(src, _Source) and os.path.exists(src.path) and os.path.samefile(path, src.path):
+    if isinstance(src, Source) and os.path.exists(src.path) and os.path.samefile(path, src.path):
         return (f"{path}: is the file this cloud was read from; refusing to overwrite the input "
                 f"(pass overwrite=True, --force on the command line, to replace it)")
     return (f"{path}: already exists; pass overwrite=True (--force on the command line) to "
             f"replace it")
 
 
-def _atomic_write(path, payload, overwrite, cloud):
+def atomic_write(path, payload, overwrite, cloud):
     """Run ``payload(file)`` on a temporary file next to ``path``, then rename it onto ``path``.
 
     The temporary file is in the same folder so that ``os.replace`` is an atomic rename on the
@@ -159,7 +159,7 @@ def _atomic_write(path, payload, overwrite, cloud):
             os.fsync(fh.fileno())
         # Checked again: another process may have created the file while this one wrote.
         if not overwrite and path.exists():
-            raise FileExistsError(_exists_message(path, cloud))
+            raise FileExistsError(exists_message(path, cloud))
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -169,9 +169,9 @@ def _atomic_write(path, payload, overwrite, cloud):
         raise
 
 
-def _need(module, package, what):
+def need(module, package, what):
     """Import an optional dependency, or say how to install it."""
     try:
         return importlib.import_module(module)
     except ImportError as exc:
-        raise ImportError(f"{what} needs {package}: {_INSTALL}") from exc
+        raise ImportError(f"{what} needs {package}: {INSTALL}") from exc

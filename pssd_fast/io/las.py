@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._common import _INSTALL, _NORMALS, PointCloudFileError, _fit, _need, _Source
+from ._common import INSTALL, NORMALS, PointCloudFileError, fit_dtype, need, Source
 
 # LAS point records are read in pieces so that a header claiming more points than the file
 # holds costs at most one piece of memory before the shortfall is noticed.
@@ -13,16 +13,16 @@ _LAS_CHUNK = 2**20
 
 
 @dataclass(frozen=True)
-class _LasSource(_Source):
+class _LasSource(Source):
     header: object  # laspy.LasHeader, VLRs and EVLRs included; deep-copied before each write
     records: np.ndarray  # the raw point records (structured array of the point format)
 
 
 def _need_laspy(path, what):
-    laspy = _need("laspy", "laspy[lazrs]", f"{what} .las/.laz files")
+    laspy = need("laspy", "laspy[lazrs]", f"{what} .las/.laz files")
     if path.suffix.lower() == ".laz" and not laspy.LazBackend.LazrsParallel.is_available():
         raise ImportError(f"{what} .laz files needs laspy[lazrs] (the lazrs backend): "
-                          f"{_INSTALL}")
+                          f"{INSTALL}")
     return laspy
 
 
@@ -99,8 +99,8 @@ def read(path):
     # Multi-valued extra bytes stay in the records only: fields are one value per point.
     values = {k: v for k, v in values.items() if v.ndim == 1}
     normals = None
-    if all(c in values for c in _NORMALS):
-        normals = np.column_stack([values.pop(c) for c in _NORMALS]).astype(np.float64)
+    if all(c in values for c in NORMALS):
+        normals = np.column_stack([values.pop(c) for c in NORMALS]).astype(np.float64)
     return points, normals, values, _LasSource(os.path.abspath(path), header, records)
 
 
@@ -177,7 +177,7 @@ def payload(path, points, normals, fields, source):
     las.X, las.Y, las.Z = quantised.T
     values = dict(fields)
     if normals is not None:
-        values.update(zip(_NORMALS, normals.T, strict=True))
+        values.update(zip(NORMALS, normals.T, strict=True))
     existing = set(header.point_format.dimension_names)
     clash = {"X", "Y", "Z"} & set(values)
     if clash:
@@ -197,7 +197,7 @@ def payload(path, points, normals, fields, source):
         if name in existing and np.array_equal(old, v):
             continue  # untouched: leave the record bytes exactly as read
         try:
-            las[name] = _fit(name, v, old.dtype, "its LAS dimension")
+            las[name] = fit_dtype(name, v, old.dtype, "its LAS dimension")
         except (ValueError, OverflowError) as exc:
             raise PointCloudFileError(f"{path}: {' '.join(str(exc).split())}") from None
     compress = path.suffix.lower() == ".laz"

@@ -6,11 +6,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._common import PointCloudFileError, _Source
+from ._common import PointCloudFileError, Source
 
 
 @dataclass(frozen=True)
-class _ArraySource(_Source):
+class _ArraySource(Source):
     dtype: np.dtype  # of the points array (npy: of the whole array), kept on write if float
     normals_dtype: np.dtype = None  # npz: of the normals array, likewise
     compressed: bool = False  # npz: zip-deflated members

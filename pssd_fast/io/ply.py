@@ -5,10 +5,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._common import _COORDS, _NORMALS, PointCloudFileError, _fit, _need, _Source
+from ._common import COORDS, NORMALS, PointCloudFileError, fit_dtype, need, Source
 
 # A PLY header is a few hundred bytes; a file without "end_header" in its first MiB is not PLY.
-_PLY_HEADER_LIMIT = 2**20
+PLY_HEADER_LIMIT = 2**20
 _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2,
               "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4,
               "float32": 4, "double": 8, "float64": 8}
@@ -19,7 +19,7 @@ _PLY_NARROW = {"b1": "u1", "i8": "i4", "u8": "u4"}
 
 
 @dataclass(frozen=True)
-class _PlySource(_Source):
+class _PlySource(Source):
     ply: object  # plyfile.PlyData with all elements in memory
 
 
@@ -37,7 +37,7 @@ def _ply_layout(path, fh, size):
     claiming a billion vertices must be refused here, from the bytes a row needs at least:
     its fixed size in binary files, two characters per value (digit and separator) in ASCII.
     """
-    head = fh.read(_PLY_HEADER_LIMIT)
+    head = fh.read(PLY_HEADER_LIMIT)
     if not head.startswith(b"ply"):
         raise PointCloudFileError(f"{path}: not a PLY file (it does not start with 'ply')")
     end = _PLY_END.search(head)
@@ -123,7 +123,7 @@ def read(path):
     ImportError
         If ``plyfile`` is not installed.
     """
-    plyfile = _need("plyfile", "plyfile", "Reading .ply files")
+    plyfile = need("plyfile", "plyfile", "Reading .ply files")
     with open(path, "rb") as fh:
         layout = _ply_layout(path, fh, os.fstat(fh.fileno()).st_size)
         fh.seek(0)
@@ -142,16 +142,16 @@ def read(path):
         raise PointCloudFileError(f"{path}: has no 'vertex' element")
     vertex = ply["vertex"]
     scalar = [p.name for p in vertex.properties if not isinstance(p, plyfile.PlyListProperty)]
-    missing = [c for c in _COORDS if c not in scalar]
+    missing = [c for c in COORDS if c not in scalar]
     if missing:
         raise PointCloudFileError(f"{path}: vertex element has no {', '.join(missing)} property")
     data = vertex.data
-    points = np.column_stack([data[c] for c in _COORDS]).astype(np.float64)
+    points = np.column_stack([data[c] for c in COORDS]).astype(np.float64)
     normals = None
-    if all(c in scalar for c in _NORMALS):
-        normals = np.column_stack([data[c] for c in _NORMALS]).astype(np.float64)
+    if all(c in scalar for c in NORMALS):
+        normals = np.column_stack([data[c] for c in NORMALS]).astype(np.float64)
     fields = {name: data[name].astype(data.dtype[name].newbyteorder("="))
-              for name in scalar if name not in _COORDS + _NORMALS}
+              for name in scalar if name not in COORDS + NORMALS}
     return points, normals, fields, _PlySource(os.path.abspath(path), ply)
 
 
@@ -161,7 +161,7 @@ def _ply_values(name, values):
     if code in _PLY_KINDS:
         return values
     if code in _PLY_NARROW:
-        return _fit(name, values, _PLY_NARROW[code], "a PLY property")
+        return fit_dtype(name, values, _PLY_NARROW[code], "a PLY property")
     raise ValueError(f"field {name!r} has dtype {values.dtype}, which PLY cannot store")
 
 
@@ -195,7 +195,7 @@ def payload(path, points, normals, fields, source):
     ImportError
         If ``plyfile`` is not installed.
     """
-    plyfile = _need("plyfile", "plyfile", "Writing .ply files")
+    plyfile = need("plyfile", "plyfile", "Writing .ply files")
     columns, lists = {}, {}  # name -> (n,) values; name -> list property of the source
     comments = []
     if source is not None:
@@ -207,17 +207,17 @@ def payload(path, points, normals, fields, source):
                 lists[prop.name] = prop
     coord_type = columns["x"].dtype if "x" in columns else np.dtype(np.float64)
     try:
-        for group, values in ((_COORDS, points), (_NORMALS, normals)):
+        for group, values in ((COORDS, points), (NORMALS, normals)):
             if values is not None:
                 for i, name in enumerate(group):
                     stored = columns[name].dtype if name in columns else coord_type
-                    columns[name] = _fit(name, values[:, i], stored, "the PLY coordinates")
+                    columns[name] = fit_dtype(name, values[:, i], stored, "the PLY coordinates")
         for name, values in fields.items():
             if name in lists:
                 raise ValueError(f"field {name!r} is a list property of the input PLY")
             if name in columns:
                 if not np.array_equal(columns[name], values):
-                    columns[name] = _fit(name, values, columns[name].dtype, "its PLY property")
+                    columns[name] = fit_dtype(name, values, columns[name].dtype, "its PLY property")
             else:
                 columns[name] = _ply_values(name, values)
     except ValueError as exc:

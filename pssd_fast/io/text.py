@@ -5,21 +5,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._common import _COORDS, _NORMALS, PointCloudFileError, _Source
+from ._common import COORDS, NORMALS, PointCloudFileError, Source
 
-_TEXT_CHUNK = 2**16  # rows formatted at once when writing text
+TEXT_CHUNK = 2**16  # rows formatted at once when writing text
 
 
 @dataclass(frozen=True)
-class _TextSource(_Source):
+class _TextSource(Source):
     comments: tuple  # leading comment lines, verbatim, without the column-name line
 
 
 def _default_names(ncols):
     """Column names a reader infers for a text file without a column-name comment."""
     if ncols == 6:
-        return [*_COORDS, *_NORMALS]
-    return [*_COORDS, *(f"col{i}" for i in range(3, ncols))]
+        return [*COORDS, *NORMALS]
+    return [*COORDS, *(f"col{i}" for i in range(3, ncols))]
 
 
 def _text_parse_error(path, text, start, first_line, ncols, exc):
@@ -109,15 +109,15 @@ def read(path):
     names = _default_names(ncols)
     if comments:
         named = comments[-1].split("#", 1)[-1].split()
-        if len(named) == ncols and named[:3] == list(_COORDS) and len(set(named)) == ncols:
+        if len(named) == ncols and named[:3] == list(COORDS) and len(set(named)) == ncols:
             names = named
             comments.pop()
     column = {name: data[:, i] for i, name in enumerate(names)}
     normals = None
-    if all(c in column for c in _NORMALS):
-        normals = np.column_stack([column[c] for c in _NORMALS])
+    if all(c in column for c in NORMALS):
+        normals = np.column_stack([column[c] for c in NORMALS])
     fields = {name: np.ascontiguousarray(col) for name, col in column.items()
-              if name not in _COORDS + _NORMALS}
+              if name not in COORDS + NORMALS}
     source = _TextSource(os.path.abspath(path), tuple(comments))
     return data[:, :3].copy(), normals, fields, source
 
@@ -154,9 +154,9 @@ def payload(path, points, normals, fields, source):
         Writes the file to the binary file object it is given, in chunks of rows.
     """
     pts = path.suffix.lower() == ".pts"
-    names, columns = list(_COORDS), [points[:, 0], points[:, 1], points[:, 2]]
+    names, columns = list(COORDS), [points[:, 0], points[:, 1], points[:, 2]]
     if normals is not None:
-        names += _NORMALS
+        names += NORMALS
         columns += [normals[:, 0], normals[:, 1], normals[:, 2]]
     names += fields
     columns += fields.values()
@@ -169,8 +169,8 @@ def payload(path, points, normals, fields, source):
 
     def write(fh):
         fh.write("".join(line + "\n" for line in head).encode("utf-8", "surrogateescape"))
-        for start in range(0, len(points), _TEXT_CHUNK):
-            rows = zip(*(_text_column(c[start:start + _TEXT_CHUNK]) for c in columns),
+        for start in range(0, len(points), TEXT_CHUNK):
+            rows = zip(*(_text_column(c[start:start + TEXT_CHUNK]) for c in columns),
                        strict=True)
             fh.write("".join(" ".join(row) + "\n" for row in rows).encode("ascii"))
     return write
