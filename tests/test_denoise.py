@@ -1,4 +1,8 @@
 """The public denoise() call: agreement with the reference, determinism, dtypes, errors."""
+import json
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -244,8 +248,60 @@ def test_bad_normals_are_named(noisy):
         pssd_fast.denoise(noisy, zero)
 
 
-def test_warmup_returns_seconds():
-    assert pssd_fast.warmup() >= 0.0
+_WARMUP_PROBE = """
+import importlib, json, pkgutil
+import numpy as np
+from numba.core.registry import CPUDispatcher
+import pssd_fast
+import pssd_fast.kernels
+
+kernels = {}
+for info in pkgutil.iter_modules(pssd_fast.kernels.__path__):
+    module = importlib.import_module("pssd_fast.kernels." + info.name)
+    for name, obj in vars(module).items():
+        # Only the parallel kernels: helpers may be inlined into them.
+        if (isinstance(obj, CPUDispatcher) and obj.py_func.__module__ == module.__name__
+                and obj.targetoptions.get("parallel")):
+            kernels[info.name + "." + name] = obj
+
+def compiled():
+    return {name: len(kernel.signatures) for name, kernel in kernels.items()}
+
+before = compiled()
+seconds = pssd_fast.warmup()
+after = compiled()
+# Ordinary calls afterwards: each preset and method with its own settings, float32, kept
+# normals, the public stages.
+points = np.random.default_rng(0).normal(size=(200, 3))
+for preset in ("default", "fast", "paper"):
+    pssd_fast.denoise(points, preset=preset)
+for method in ("mls", "bilateral"):
+    pssd_fast.denoise(points, method=method)
+pssd_fast.denoise(points.astype(np.float32), points, keep_normals=True, preset="fast")
+pssd_fast.mls_fit(points)
+pssd_fast.sampling_likelihood(points)
+pssd_fast.feature_intensity(points)
+pssd_fast.filter_normals(points)
+print(json.dumps({"before": before, "after": after, "later": compiled(), "seconds": seconds}))
+"""
+
+
+def test_warmup_compiles_every_kernel(tmp_path):
+    """In a fresh process (this one has compiled everything already), warmup() leaves every
+    parallel kernel of pssd_fast.kernels with a compiled (or cache-loaded) signature, and the
+    ordinary calls after it need no new one."""
+    run = subprocess.run([sys.executable, "-c", _WARMUP_PROBE], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    probe = json.loads(run.stdout.strip().splitlines()[-1])
+    before, after, later = probe["before"], probe["after"], probe["later"]
+    # The walk finds the kernels (not vacuous), and importing compiles none of them.
+    assert {"update.move_points", "mls.aware_fit", "graph.refresh_lists",
+            "bilateral.filter_points", "order.scatter_rows"} <= set(before)
+    assert not any(before.values())
+    assert [name for name, count in after.items() if count == 0] == []
+    assert {name: count for name, count in later.items() if count != after[name]} == {}
+    assert probe["seconds"] > 0.0
 
 
 @pytest.mark.parametrize("method", ["mls", "bilateral"])
