@@ -9,6 +9,7 @@ import pytest
 import pssd_fast
 from pssd_fast import stages
 from pssd_fast.denoise import METHOD_DEFAULTS
+from pssd_fast.graph import morton_order
 from pssd_fast.kernels import feature
 
 from . import reference
@@ -188,10 +189,65 @@ def test_a_noisy_plane_gets_flatter():
     np.testing.assert_allclose(np.abs(result.normals[:, 2]), 1, atol=0.05)
 
 
-def test_keep_normals(noisy):
-    given = np.tile([0.0, 0.0, 2.0], (len(noisy), 1))  # any length is fine
-    kept = pssd_fast.denoise(noisy, given, keep_normals=True, iterations=2)
+def _spy_normals(monkeypatch):
+    """Record, in the caller's order, the normals the normal filter (the first stage of both
+    pipelines to use them) receives in each iteration."""
+    seen = []
+    real = stages._filter
+
+    def spy(points, nrm, graph):
+        seen.append(nrm.copy())
+        return real(points, nrm, graph)
+
+    monkeypatch.setattr(stages, "_filter", spy)
+    return seen
+
+
+def _aware_iteration_with(points, normals, k, sigma_n=0.05):
+    """Reference feature-aware iteration that uses ``normals`` as they are (no PCA)."""
+    lists, _ = reference.knn_lists(points, k)
+    filtered = reference.filter_normals(points, normals, lists)
+    height, _, _ = reference.aware_fit(points, filtered, lists, sigma_n)
+    return points + height[:, None] * filtered
+
+
+@pytest.mark.parametrize("preset", ["default", "paper"])
+def test_keep_normals(monkeypatch, preset):
+    points = wavy(250, noise=0.01, seed=23)
+    order = morton_order(points)
+    tilt = np.array([np.sin(0.5), 0.0, np.cos(0.5)])
+    given = np.tile(2.0 * tilt, (len(points), 1))  # deliberately tilted; any length is fine
+    unit = np.tile(tilt, (len(points), 1))
+    common = {"k": 20, "iterations": 2, "preset": preset}
+
+    seen = _spy_normals(monkeypatch)
+    kept = pssd_fast.denoise(points, given, keep_normals=True, **common)
     assert kept.stats["params"]["keep_normals"] is True
+    assert len(seen) == 2
+    for received in seen:  # every iteration works with exactly the given normals
+        np.testing.assert_allclose(received[np.argsort(order)], unit, rtol=0, atol=1e-15)
+
+    seen.clear()
+    dropped = pssd_fast.denoise(points, given, **common)
+    assert len(seen) == 2
+    np.testing.assert_allclose(seen[0][np.argsort(order)], unit, rtol=0, atol=1e-15)
+    assert np.abs(seen[1][np.argsort(order)] - unit).max() > 0.3  # re-estimated by PCA
+    # The first iteration is the same either way; the second is not.
+    np.testing.assert_array_equal(
+        pssd_fast.denoise(points, given, keep_normals=True, **{**common, "iterations": 1}).points,
+        pssd_fast.denoise(points, given, **{**common, "iterations": 1}).points)
+    assert np.abs(kept.points - dropped.points).max() > 1e-3
+
+    # Independently: the reference chain with the given normals in both iterations.
+    if preset == "paper":
+        first = reference.robust_iteration(points, unit, 20)[0]
+        second = reference.robust_iteration(first, unit, 20)[0]
+    else:
+        second = _aware_iteration_with(_aware_iteration_with(points, unit, 20), unit, 20)
+    np.testing.assert_allclose(kept.points, second, atol=1e-8)
+
+
+def test_keep_normals_needs_normals(noisy):
     with pytest.raises(ValueError, match="keep_normals=True needs normals"):
         pssd_fast.denoise(noisy, keep_normals=True)
 
@@ -449,9 +505,53 @@ def test_two_close_sheets_are_not_bridged():
     assert abs(lower.mean()) < 0.002 and abs(upper.mean() - gap) < 0.002
 
 
-def test_held_points_are_counted(noisy):
-    record = pssd_fast.denoise(noisy).stats["iterations"][0]
-    assert record["held_points"] == 0
+#: The stage whose output is made non-finite for some points, per preset, and the position of
+#: the per-point value that gets NaN/Inf in its result: the feature-aware fit's height, the
+#: paper's MLS projection.
+_FIT_STAGE = {"default": ("_aware", 0), "paper": ("_mls", 0)}
+
+
+def _break_fit(monkeypatch, points, preset, held):
+    """Make the fit of the caller's points ``held`` non-finite (NaN for some, Inf for others) in
+    every iteration of ``denoise(points, preset=preset)``."""
+    name, slot = _FIT_STAGE[preset]
+    real = getattr(stages, name)
+    rows = np.isin(morton_order(points), held)  # denoise works in Morton order
+    bad = np.where(np.arange(len(held)) % 2 == 0, np.nan, np.inf)
+
+    def broken(*args):
+        out = list(real(*args))
+        value = out[slot].copy()
+        value[rows] = bad[:, None] if value.ndim == 2 else bad
+        out[slot] = value
+        return tuple(out)
+
+    monkeypatch.setattr(stages, name, broken)
+
+
+@pytest.mark.parametrize("preset", ["default", "paper"])
+def test_held_points_are_counted(noisy, monkeypatch, preset):
+    n = len(noisy)
+    clean = pssd_fast.denoise(noisy, preset=preset, k=20, iterations=2)
+    assert [r["held_points"] for r in clean.stats["iterations"]] == [0, 0]
+    clean_once = pssd_fast.denoise(noisy, preset=preset, k=20, iterations=1)
+
+    held = np.array([3, 17, 18, 120, 250, 499])
+    others = np.setdiff1d(np.arange(n), held)
+    _break_fit(monkeypatch, noisy, preset, held)
+    result = pssd_fast.denoise(noisy, preset=preset, k=20, iterations=2)
+    assert [r["held_points"] for r in result.stats["iterations"]] == [len(held)] * 2
+    # The held points stay exactly where they were; the others move, and stay finite.
+    np.testing.assert_array_equal(result.displacement[held], 0.0)
+    np.testing.assert_allclose(result.points[held], noisy[held], rtol=0, atol=1e-15)
+    assert (result.displacement[others] > 1e-6).all()
+    assert np.isfinite(result.points).all() and np.isfinite(result.normals).all()
+    assert np.isfinite([r["mean_step"] for r in result.stats["iterations"]]).all()
+    # Within one iteration every other point takes exactly its step of the clean run.
+    once = pssd_fast.denoise(noisy, preset=preset, k=20, iterations=1)
+    assert once.stats["iterations"][0]["held_points"] == len(held)
+    np.testing.assert_array_equal(once.points[others], clean_once.points[others])
+    np.testing.assert_array_equal(once.displacement[held], 0.0)
 
 
 def test_float32_with_large_offsets_is_computed_in_float64(noisy):
