@@ -1,4 +1,6 @@
 """Each kernel against its reference in tests/reference.py, on random and degenerate clouds."""
+import math
+
 import numpy as np
 import pytest
 
@@ -56,6 +58,13 @@ def test_pca_normals_flag_degenerate_lists():
     np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0)
 
 
+def _mean_kth_distance(points, k):
+    """Brute force: the mean over points of the distance to the farthest of their ``k`` nearest
+    points (the point itself included), from all pairwise distances."""
+    d = np.sqrt(((points[:, None, :] - points[None, :, :]) ** 2).sum(axis=2))
+    return float(np.sort(d, axis=1)[:, k - 1].mean())
+
+
 def _normals_for(name, points, lists):
     """Normals the MLS and feature stages are fed: exact ones where PCA has none."""
     if name == "collinear":
@@ -67,10 +76,11 @@ def test_mls_fit(cloud):
     name, points, k = cloud
     graph, lists = _setup(points, k)
     nrm = _normals_for(name, points, lists)
-    h = stages.default_h(graph)
+    h = _mean_kth_distance(points, k)  # the documented default
     fit = pssd_fast.mls_fit(points, nrm, graph=graph)
     proj, resid, degree, curvature = reference.mls_fit(points, nrm, lists, h)
-    assert fit.h == h
+    assert fit.h == pytest.approx(h, rel=1e-12)
+    assert pssd_fast.mls_fit(points, nrm, k=k).h == pytest.approx(h, rel=1e-12)
     np.testing.assert_array_equal(fit.degree, degree)
     # Curvature has units 1/length: compare relative to the largest magnitude.
     np.testing.assert_allclose(fit.curvature, curvature,
@@ -84,6 +94,23 @@ def test_mls_fit(cloud):
     if name == "plane":
         np.testing.assert_allclose(fit.residuals, 0, atol=1e-15)
         np.testing.assert_allclose(fit.projections[:, 2], 0, atol=1e-15)
+
+
+def test_mls_fit_uses_the_given_h():
+    points = wavy(300, noise=0.01, seed=24)
+    graph, lists = _setup(points, 20)
+    nrm = _pca_reference(points, lists)
+    default = pssd_fast.mls_fit(points, nrm, graph=graph)
+    for h in (0.4 * default.h, 3.0 * default.h):
+        fit = pssd_fast.mls_fit(points, nrm, h=h, graph=graph)
+        assert fit.h == h
+        proj, resid, _, _ = reference.mls_fit(points, nrm, lists, h)
+        np.testing.assert_allclose(fit.projections, proj, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(fit.residuals, resid, atol=1e-9, rtol=0)
+        # A different width gives visibly different projections (noise 0.01).
+        assert np.abs(fit.projections - default.projections).max() > 1e-3
+        lik = pssd_fast.sampling_likelihood(points, nrm, h=h, graph=graph)
+        np.testing.assert_allclose(lik, reference.likelihood(resid, "exp"), atol=1e-7, rtol=0)
 
 
 @pytest.mark.parametrize("sigma_n", [0.0, 0.05, 0.5])
@@ -149,15 +176,33 @@ def test_mls_curvature_of_spheres_and_planes():
     np.testing.assert_allclose(flat.curvature, 0, atol=1e-9)
 
 
+#: Eq. (2) by hand for residuals 0..4 (mean 2): exp(-d / 2), min(2 / d, 1), d / 2.
+_LIKELIHOOD_TABLE = {"exp": np.exp(-np.arange(5) / 2.0), "ratio": [1.0, 1.0, 1.0, 2 / 3, 0.5],
+                     "residual": [0.0, 0.5, 1.0, 1.5, 2.0]}
+
+
 @pytest.mark.parametrize("form", ["exp", "ratio", "residual"])
 def test_likelihood_forms(form):
     rng = np.random.default_rng(6)
     resid = np.concatenate([rng.exponential(size=50), [0.0]])
     out, dbar = stages._likelihood(resid, form)
-    assert dbar == resid.mean()
+    assert dbar == pytest.approx(math.fsum(resid) / len(resid), rel=1e-14)
     np.testing.assert_allclose(out, reference.likelihood(resid, form), rtol=1e-14)
+    # The defining properties: a function of d_i alone, monotone, 1 on the surface.
+    by_resid = out[np.argsort(resid, kind="stable")]
+    if form == "residual":
+        assert np.all(np.diff(by_resid) >= 0) and out[-1] == 0.0
+    else:
+        assert np.all(np.diff(by_resid) <= 0) and out[-1] == 1.0
+        assert np.all((out > 0) & (out <= 1))
+    # Exact values where d is 0, half, once and twice the mean.
+    table, table_dbar = stages._likelihood(np.arange(5.0), form)
+    assert table_dbar == 2.0
+    np.testing.assert_allclose(table, _LIKELIHOOD_TABLE[form], rtol=1e-15)
+    if form == "exp":
+        assert table[2] == pytest.approx(math.exp(-1.0), rel=1e-15)
     zero, _ = stages._likelihood(np.zeros(5), form)
-    np.testing.assert_array_equal(zero, reference.likelihood(np.zeros(5), form))
+    np.testing.assert_array_equal(zero, 0.0 if form == "residual" else 1.0)
 
 
 def test_sampling_likelihood_orders_points_by_residual():
