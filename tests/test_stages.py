@@ -341,13 +341,43 @@ def test_stage_arguments_are_checked(call, error, match):
 
 
 def test_stages_follow_the_input_dtype():
-    single = wavy().astype(np.float32)
-    assert pssd_fast.estimate_normals(single).dtype == np.float32
-    assert pssd_fast.sampling_likelihood(single).dtype == np.float32
-    assert pssd_fast.feature_intensity(single).dtype == np.float32
-    assert pssd_fast.filter_normals(single).dtype == np.float32
-    fit = pssd_fast.mls_fit(single)
-    assert fit.projections.dtype == fit.residuals.dtype == np.float32
+    """float32 points (away from the origin) give float32 results within one float32 rounding
+    of the float64 reference run on the same values, and equal to the float64 stage rounded."""
+    single = (wavy(200, noise=0.005, seed=25) * 10 + [1000.0, -2000.0, 50.0]).astype(np.float32)
+    wide = single.astype(np.float64)  # the values the stages see, exactly
+    k = 20
+    lists, _ = reference.knn_lists(wide, k)
+    nrm = _pca_reference(wide, lists)
+    well_defined = _well_defined_normals(wide, lists)
+    assert well_defined.all()
+    h = _mean_kth_distance(wide, k)
+    proj, resid, _, curvature = reference.mls_fit(wide, nrm, lists, h)
+    radius = 10 * np.mean([np.sort(np.linalg.norm(wide - p, axis=1))[1] for p in wide])
+    expected = {
+        "estimate_normals": (pssd_fast.estimate_normals, {}, nrm, 1e-9),
+        "mls_fit.projections": (lambda p, **kw: pssd_fast.mls_fit(p, **kw).projections,
+                                {"normals": nrm}, proj, 1e-9),
+        "mls_fit.residuals": (lambda p, **kw: pssd_fast.mls_fit(p, **kw).residuals,
+                              {"normals": nrm}, resid, 1e-9),
+        "mls_fit.curvature": (lambda p, **kw: pssd_fast.mls_fit(p, **kw).curvature,
+                              {"normals": nrm}, curvature, 1e-7),
+        "sampling_likelihood": (pssd_fast.sampling_likelihood, {"normals": nrm},
+                                reference.likelihood(resid, "exp"), 1e-9),
+        "feature_intensity": (pssd_fast.feature_intensity, {"normals": nrm},
+                              reference.feature_intensity(wide, nrm, lists, radius)[0], 1e-9),
+        "filter_normals": (pssd_fast.filter_normals, {"normals": nrm},
+                           reference.filter_normals(wide, nrm, lists), 1e-8),
+    }
+    for name, (call, kwargs, ref, atol) in expected.items():
+        got = call(single, k=k, **kwargs)
+        assert got.dtype == np.float32, name
+        np.testing.assert_array_equal(got, call(wide, k=k, **kwargs).astype(np.float32),
+                                      err_msg=name)
+        ulp = np.spacing(np.abs(ref).astype(np.float32)).astype(np.float64)
+        excess = np.abs(got.astype(np.float64) - ref) - ulp
+        assert excess.max() <= atol, (name, excess.max())
+    fit = pssd_fast.mls_fit(single, nrm, k=k)
+    assert fit.h == pytest.approx(h, rel=1e-12)
 
 
 @pytest.mark.parametrize("sigmas", [(None, None), (0.05, 0.01)])
