@@ -225,9 +225,12 @@ def _aware_iteration_with(points, normals, k, sigma_n=0.05):
 def test_keep_normals(monkeypatch, preset):
     points = wavy(250, noise=0.01, seed=23)
     order = morton_order(points)
-    tilt = np.array([np.sin(0.5), 0.0, np.cos(0.5)])
-    given = np.tile(2.0 * tilt, (len(points), 1))  # deliberately tilted; any length is fine
-    unit = np.tile(tilt, (len(points), 1))
+    # Deliberately tilted by 0.5 rad, in a direction that turns across the patch, and of
+    # varying length (only the direction matters).
+    turn = 3.0 * points[:, 0]
+    unit = np.column_stack([np.sin(0.5) * np.cos(turn), np.sin(0.5) * np.sin(turn),
+                            np.full(len(points), np.cos(0.5))])
+    given = unit * (0.5 + points[:, 1:2])
     common = {"k": 20, "iterations": 2, "preset": preset}
 
     seen = _spy_normals(monkeypatch)
