@@ -586,9 +586,7 @@ def _wavy_surface(xy):
 def test_float32_with_large_offsets_is_as_accurate_as_float64(preset):
     """Independent of how the library computes: a 1 km patch at UTM-like coordinates, stored
     in float32 (0.25 m resolution at 4e6, noise 5 m), is brought as close to the true surface
-    as the same patch denoised in float64 at the origin. Float32 arithmetic on these
-    coordinates could not even resolve the neighbourhood geometry (a squared distance of
-    ~1e13 m^2 carries ~1e6 m^2 of rounding, against ~1e3 m^2 between neighbours)."""
+    as the same patch denoised in float64 at the origin, up to the float32 storage rounding."""
     scale, offset = 1000.0, np.array([5e5, 4e6, 300.0])
     clean = wavy(600, noise=0.0, seed=21)
     noisy = clean + np.column_stack([np.zeros((600, 2)),
@@ -605,6 +603,8 @@ def test_float32_with_large_offsets_is_as_accurate_as_float64(preset):
     reference_error = surface_error(pssd_fast.denoise(noisy, preset=preset).points)
     noise_error = surface_error(noisy)
     assert reference_error < 0.6 * noise_error  # the comparison is about a real denoising
-    # The float32 storage itself moves points by up to 0.125 m (1.25e-4 here) sideways, which
-    # changes heights on a slope of at most 0.3 by under 4e-5 per rounding, twice.
-    assert surface_error(got) <= reference_error + 1e-4
+    # The float32 storage moves points by up to 0.125 m (1.25e-4 here), almost all sideways;
+    # on slopes of at most 0.3 that changes single heights by under 4e-5 per rounding and the
+    # mean error by far less (measured: 3e-7 default, 4e-6 paper). One iteration fewer would
+    # cost 2e-5 (default) and 3e-4 (paper).
+    assert surface_error(got) <= 1.01 * reference_error + 1e-5
