@@ -1,4 +1,6 @@
 """Each kernel against its reference in tests/reference.py, on random and degenerate clouds."""
+import math
+
 import numpy as np
 import pytest
 
@@ -56,6 +58,13 @@ def test_pca_normals_flag_degenerate_lists():
     np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0)
 
 
+def _mean_kth_distance(points, k):
+    """Brute force: the mean over points of the distance to the farthest of their ``k`` nearest
+    points (the point itself included), from all pairwise distances."""
+    d = np.sqrt(((points[:, None, :] - points[None, :, :]) ** 2).sum(axis=2))
+    return float(np.sort(d, axis=1)[:, k - 1].mean())
+
+
 def _normals_for(name, points, lists):
     """Normals the MLS and feature stages are fed: exact ones where PCA has none."""
     if name == "collinear":
@@ -67,10 +76,11 @@ def test_mls_fit(cloud):
     name, points, k = cloud
     graph, lists = _setup(points, k)
     nrm = _normals_for(name, points, lists)
-    h = core.default_h(graph)
+    h = _mean_kth_distance(points, k)  # the documented default
     fit = pssd_fast.mls_fit(points, nrm, graph=graph)
     proj, resid, degree, curvature = reference.mls_fit(points, nrm, lists, h)
-    assert fit.h == h
+    assert fit.h == pytest.approx(h, rel=1e-12)
+    assert pssd_fast.mls_fit(points, nrm, k=k).h == pytest.approx(h, rel=1e-12)
     np.testing.assert_array_equal(fit.degree, degree)
     # Curvature has units 1/length: compare relative to the largest magnitude.
     np.testing.assert_allclose(fit.curvature, curvature,
@@ -84,6 +94,23 @@ def test_mls_fit(cloud):
     if name == "plane":
         np.testing.assert_allclose(fit.residuals, 0, atol=1e-15)
         np.testing.assert_allclose(fit.projections[:, 2], 0, atol=1e-15)
+
+
+def test_mls_fit_uses_the_given_h():
+    points = wavy(300, noise=0.01, seed=24)
+    graph, lists = _setup(points, 20)
+    nrm = _pca_reference(points, lists)
+    default = pssd_fast.mls_fit(points, nrm, graph=graph)
+    for h in (0.4 * default.h, 3.0 * default.h):
+        fit = pssd_fast.mls_fit(points, nrm, h=h, graph=graph)
+        assert fit.h == h
+        proj, resid, _, _ = reference.mls_fit(points, nrm, lists, h)
+        np.testing.assert_allclose(fit.projections, proj, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(fit.residuals, resid, atol=1e-9, rtol=0)
+        # A different width gives visibly different projections (noise 0.01).
+        assert np.abs(fit.projections - default.projections).max() > 1e-3
+        lik = pssd_fast.sampling_likelihood(points, nrm, h=h, graph=graph)
+        np.testing.assert_allclose(lik, reference.likelihood(resid, "exp"), atol=1e-7, rtol=0)
 
 
 @pytest.mark.parametrize("sigma_n", [0.0, 0.05, 0.5])
@@ -149,15 +176,33 @@ def test_mls_curvature_of_spheres_and_planes():
     np.testing.assert_allclose(flat.curvature, 0, atol=1e-9)
 
 
+#: Eq. (2) by hand for residuals 0..4 (mean 2): exp(-d / 2), min(2 / d, 1), d / 2.
+_LIKELIHOOD_TABLE = {"exp": np.exp(-np.arange(5) / 2.0), "ratio": [1.0, 1.0, 1.0, 2 / 3, 0.5],
+                     "residual": [0.0, 0.5, 1.0, 1.5, 2.0]}
+
+
 @pytest.mark.parametrize("form", ["exp", "ratio", "residual"])
 def test_likelihood_forms(form):
     rng = np.random.default_rng(6)
     resid = np.concatenate([rng.exponential(size=50), [0.0]])
     out, dbar = core.sampling_likelihood(resid, form)
-    assert dbar == resid.mean()
+    assert dbar == pytest.approx(math.fsum(resid) / len(resid), rel=1e-14)
     np.testing.assert_allclose(out, reference.likelihood(resid, form), rtol=1e-14)
+    # The defining properties: a function of d_i alone, monotone, 1 on the surface.
+    by_resid = out[np.argsort(resid, kind="stable")]
+    if form == "residual":
+        assert np.all(np.diff(by_resid) >= 0) and out[-1] == 0.0
+    else:
+        assert np.all(np.diff(by_resid) <= 0) and out[-1] == 1.0
+        assert np.all((out > 0) & (out <= 1))
+    # Exact values where d is 0, half, once and twice the mean.
+    table, table_dbar = core.sampling_likelihood(np.arange(5.0), form)
+    assert table_dbar == 2.0
+    np.testing.assert_allclose(table, _LIKELIHOOD_TABLE[form], rtol=1e-15)
+    if form == "exp":
+        assert table[2] == pytest.approx(math.exp(-1.0), rel=1e-15)
     zero, _ = core.sampling_likelihood(np.zeros(5), form)
-    np.testing.assert_array_equal(zero, reference.likelihood(np.zeros(5), form))
+    np.testing.assert_array_equal(zero, 0.0 if form == "residual" else 1.0)
 
 
 def test_sampling_likelihood_orders_points_by_residual():
@@ -296,13 +341,43 @@ def test_stage_arguments_are_checked(call, error, match):
 
 
 def test_stages_follow_the_input_dtype():
-    single = wavy().astype(np.float32)
-    assert pssd_fast.estimate_normals(single).dtype == np.float32
-    assert pssd_fast.sampling_likelihood(single).dtype == np.float32
-    assert pssd_fast.feature_intensity(single).dtype == np.float32
-    assert pssd_fast.filter_normals(single).dtype == np.float32
-    fit = pssd_fast.mls_fit(single)
-    assert fit.projections.dtype == fit.residuals.dtype == np.float32
+    """float32 points (away from the origin) give float32 results within one float32 rounding
+    of the float64 reference run on the same values, and equal to the float64 stage rounded."""
+    single = (wavy(200, noise=0.005, seed=25) * 10 + [1000.0, -2000.0, 50.0]).astype(np.float32)
+    wide = single.astype(np.float64)  # the values the stages see, exactly
+    k = 20
+    lists, _ = reference.knn_lists(wide, k)
+    nrm = _pca_reference(wide, lists)
+    well_defined = _well_defined_normals(wide, lists)
+    assert well_defined.all()
+    h = _mean_kth_distance(wide, k)
+    proj, resid, _, curvature = reference.mls_fit(wide, nrm, lists, h)
+    radius = 10 * np.mean([np.sort(np.linalg.norm(wide - p, axis=1))[1] for p in wide])
+    expected = {
+        "estimate_normals": (pssd_fast.estimate_normals, {}, nrm, 1e-9),
+        "mls_fit.projections": (lambda p, **kw: pssd_fast.mls_fit(p, **kw).projections,
+                                {"normals": nrm}, proj, 1e-9),
+        "mls_fit.residuals": (lambda p, **kw: pssd_fast.mls_fit(p, **kw).residuals,
+                              {"normals": nrm}, resid, 1e-9),
+        "mls_fit.curvature": (lambda p, **kw: pssd_fast.mls_fit(p, **kw).curvature,
+                              {"normals": nrm}, curvature, 1e-7),
+        "sampling_likelihood": (pssd_fast.sampling_likelihood, {"normals": nrm},
+                                reference.likelihood(resid, "exp"), 1e-9),
+        "feature_intensity": (pssd_fast.feature_intensity, {"normals": nrm},
+                              reference.feature_intensity(wide, nrm, lists, radius)[0], 1e-9),
+        "filter_normals": (pssd_fast.filter_normals, {"normals": nrm},
+                           reference.filter_normals(wide, nrm, lists), 1e-8),
+    }
+    for name, (call, kwargs, ref, atol) in expected.items():
+        got = call(single, k=k, **kwargs)
+        assert got.dtype == np.float32, name
+        np.testing.assert_array_equal(got, call(wide, k=k, **kwargs).astype(np.float32),
+                                      err_msg=name)
+        ulp = np.spacing(np.abs(ref).astype(np.float32)).astype(np.float64)
+        excess = np.abs(got.astype(np.float64) - ref) - ulp
+        assert excess.max() <= atol, (name, excess.max())
+    fit = pssd_fast.mls_fit(single, nrm, k=k)
+    assert fit.h == pytest.approx(h, rel=1e-12)
 
 
 @pytest.mark.parametrize("sigmas", [(None, None), (0.05, 0.01)])
