@@ -21,7 +21,8 @@ MODELS = {"fandisk": ("fandisk.obj.gz", 97_580), "dragon": ("dragon.obj.gz", 100
 DEFAULT_MESH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 #: What the benchmarks say when the meshes are missing.
 MISSING = ("the paper's meshes were not found: set PSSD_DATA to the folder holding "
-           f"{', '.join(f for f, _ in MODELS.values())} (benchmarks default to {DEFAULT_MESH_DIR})")
+           f"{', '.join(f for f, _ in MODELS.values())} (when PSSD_DATA is unset, the "
+           f"benchmarks look in {DEFAULT_MESH_DIR})")
 #: Noise levels (Gaussian sigma, fraction of the diagonal); the first is the default.
 NOISE_LEVELS = (0.005, 0.0025, 0.01)
 #: Dihedral angle above which a mesh edge is sharp, and the distance (fraction of the diagonal)

@@ -26,7 +26,7 @@ def mesh_file(name):
     folder = mesh_dir()
     if folder is None or not (folder / name).is_file():
         pytest.skip(f"reference mesh {name} not found: set PSSD_DATA to the folder holding it "
-                    f"(tests default to {DEFAULT_MESH_DIR})")
+                    f"(when PSSD_DATA is unset, the tests look in {DEFAULT_MESH_DIR})")
     return folder / name
 
 
