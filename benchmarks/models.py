@@ -1,10 +1,12 @@
 """The paper's three models, prepared as in Table 1, with the truth needed to score a denoiser.
 
 Each model is scaled so that its bounding-box diagonal is 1, so distances in units of 1e-4 are
-the paper's units. Data come from ``pssd_fast.meshes.data_dir()`` (``$PSSD_DATA`` or
-``../shared/data/meshes``).
+the paper's units. The meshes come from ``$PSSD_DATA``, else from ``DEFAULT_MESH_DIR``
+(:func:`mesh_dir`).
 """
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -13,13 +15,22 @@ from pssd_fast import meshes
 #: Model name -> (file, points) as in the paper's Table 1.
 MODELS = {"fandisk": ("fandisk.obj.gz", 97_580), "dragon": ("dragon.obj.gz", 100_056),
           "igea": ("igea.obj.gz", 134_345)}
+#: Where the benchmarks look for the meshes when ``PSSD_DATA`` is unset: the folder
+#: ``shared/data/meshes`` beside the repository (``<repo>/../shared/data/meshes``). This default
+#: belongs to the benchmarks only; the package itself reads ``PSSD_DATA`` or an explicit path.
+DEFAULT_MESH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
+#: What the benchmarks say when the meshes are missing.
+MISSING = ("the paper's meshes were not found: set PSSD_DATA to the folder holding "
+           f"{', '.join(f for f, _ in MODELS.values())} (when PSSD_DATA is unset, the "
+           f"benchmarks look in {DEFAULT_MESH_DIR})")
 #: Noise levels (Gaussian sigma, fraction of the diagonal); the first is the default.
 NOISE_LEVELS = (0.005, 0.0025, 0.01)
 #: Dihedral angle above which a mesh edge is sharp, and the distance (fraction of the diagonal)
 #: within which a point counts as near a sharp edge.
 SHARP_ANGLE = 30.0
 EDGE_BAND = 0.01
-#: The dragon head: faces whose centroid has y >= 0.10 and z >= 0.15 (SOURCES.md).
+#: The dragon head: faces whose centroid has y >= 0.10 and z >= 0.15 (the crop that the
+#: SOURCES.md of the mesh folder describes).
 DRAGON_HEAD = (0.10, 0.15)
 
 
@@ -39,9 +50,16 @@ class Model:
         return self.clean + np.random.default_rng(seed).normal(0.0, sigma, self.clean.shape)
 
 
+def mesh_dir():
+    """The mesh folder: ``$PSSD_DATA`` when set, else ``DEFAULT_MESH_DIR``; None when that
+    folder does not exist."""
+    return meshes.data_dir(os.environ.get("PSSD_DATA") or DEFAULT_MESH_DIR)
+
+
 def available():
-    """Whether the mesh folder exists (tests and benchmarks skip the models otherwise)."""
-    folder = meshes.data_dir()
+    """Whether the mesh folder holds every model (tests and benchmarks skip the models
+    otherwise)."""
+    folder = mesh_dir()
     return folder is not None and all((folder / f).exists() for f, _ in MODELS.values())
 
 
@@ -58,9 +76,9 @@ def load(name, n_points=None, seed=0):
     """
     if name not in MODELS:
         raise ValueError(f"unknown model {name!r}; choose one of {', '.join(MODELS)}")
-    folder = meshes.data_dir()
+    folder = mesh_dir()
     if folder is None:
-        raise FileNotFoundError("mesh folder not found: set PSSD_DATA to shared/data/meshes")
+        raise FileNotFoundError(MISSING)
     filename, paper_points = MODELS[name]
     n_points = paper_points if n_points is None else n_points
     vertices, faces = meshes.read_obj(folder / filename)

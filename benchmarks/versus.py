@@ -212,7 +212,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     log = (lambda line: None) if args.quiet else print
     if not models.available() and any(s != "cad_part" for s in args.shapes):
-        parser.exit(1, "the paper's meshes were not found: set PSSD_DATA to shared/data/meshes\n")
+        parser.exit(1, models.MISSING + "\n")
 
     cache_path = args.out / PEER_CACHE.name
     cache = load_peer_cache(cache_path)

@@ -93,7 +93,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     method : {"robust", "bilateral", "mls"}, default "robust"
         ``"robust"``: the paper's method (``preset="paper"``) or the library's feature-aware
         refinement of it (the other presets, see Notes). The paper's two baselines (Section 5,
-        ALGORITHM.md): ``"bilateral"`` (BIL) moves each point along its normal by the bilateral
+        docs/ALGORITHM.md): ``"bilateral"`` (BIL) moves each point along its normal by the bilateral
         mean of its neighbours' heights; ``"mls"`` moves it to its MLS projection ``q_i``.
     iterations : int, optional
         Number of passes; each recomputes everything from the current positions. Default from
@@ -127,7 +127,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         ``True`` prints a line per stage and iteration on stderr; a callable is called as
         ``progress(iteration, iterations, stage, seconds)`` after each stage; default silent.
     **method_params
-        Parameters of the chosen method (ALGORITHM.md). ``"robust"``:
+        Parameters of the chosen method (docs/ALGORITHM.md). ``"robust"``:
 
         h : float, optional
             MLS Gaussian width (Section 2.1); default: mean distance to the k-th neighbour.
@@ -187,8 +187,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
 
     References
     ----------
-    .. [1] "Robust Denoising of Point-Sampled Surfaces", the paper this library implements, with
-       every ambiguity decided in ``docs/ALGORITHM.md``.
+    .. [1] "Robust Denoising of Point-Sampled Surfaces" (the paper). ``docs/ALGORITHM.md``
+       describes the method as implemented, with every ambiguity of the paper decided.
     """
     check_choice(method, "method", METHODS)
     check_choice(preset, "preset", tuple(PRESETS))

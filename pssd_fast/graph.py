@@ -151,7 +151,7 @@ def neighbors(points, k=25, *, n_jobs=None):
     points : array_like, shape (n, 3)
         Coordinates (any real dtype; computed in float64).
     k : int, default 25
-        List length, counting the point itself (ALGORITHM.md: ``N_k(i)`` includes ``p_i``).
+        List length, counting the point itself (docs/ALGORITHM.md: ``N_k(i)`` includes ``p_i``).
         At least 10 (the cubic fit's 10 coefficients) and at most ``n - 1``.
     n_jobs : int or None
         Threads for the repair kernel (see :func:`pssd_fast.denoise`).

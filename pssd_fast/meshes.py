@@ -1,8 +1,8 @@
 """Triangle meshes for tests and benchmarks: reading, sampling, sharp edges, edge distances.
 
 The reference models (Igea, Fandisk, the dragon) are not shipped with the package; they live in
-the data directory returned by :func:`data_dir`. Everything here is plain numpy, so it can be
-used without compiling any kernel.
+a directory the caller names, through the ``PSSD_DATA`` environment variable or the ``path`` of
+:func:`data_dir`. Everything here is plain numpy, so it can be used without compiling any kernel.
 """
 import gzip
 import itertools
@@ -34,27 +34,32 @@ _SLASH = re.compile(r"/\S*")
 _SCRATCH_BYTES = 2**20
 
 
-def data_dir():
-    """Directory holding the reference meshes, or None if it does not exist.
+def data_dir(path=None):
+    """Directory holding the reference meshes, or None if none is given or it does not exist.
+
+    Parameters
+    ----------
+    path : str or os.PathLike, optional
+        The directory. When omitted, the ``PSSD_DATA`` environment variable names it.
 
     Returns
     -------
     pathlib.Path or None
-        ``$PSSD_DATA`` if that environment variable is set, else ``<repo>/../shared/data/meshes``
-        where ``<repo>`` is the directory containing the ``pssd_fast`` package; None when the
-        chosen directory does not exist.
+        ``path`` if given, else ``$PSSD_DATA`` if that variable is set and not empty; None when
+        neither is given or the chosen directory does not exist.
 
     Notes
     -----
-    An explicitly set ``PSSD_DATA`` is never second-guessed: if it points nowhere the result is
-    None rather than the fallback, so a typo is not silently masked by another copy of the data.
+    The meshes are not part of the package, and the package never guesses where they are: there
+    is no default location. An explicit ``path`` or ``PSSD_DATA`` that points nowhere gives None
+    rather than another copy of the data, so a typo is not silently masked. Tools that keep the
+    meshes in a known place (the project's tests and benchmarks) pass that place as ``path``.
     """
-    env = os.environ.get("PSSD_DATA")
-    if env:
-        path = Path(env).expanduser()
-    else:
-        repo = Path(__file__).resolve().parent.parent
-        path = repo.parent / "shared" / "data" / "meshes"
+    if path is None:
+        path = os.environ.get("PSSD_DATA") or None
+    if path is None:
+        return None
+    path = Path(path).expanduser()
     return path if path.is_dir() else None
 
 

@@ -91,7 +91,7 @@ def estimate_normals(points, *, k=25, graph=None, orient=None, n_jobs=None):
 
     Notes
     -----
-    ALGORITHM.md step 0: the eigenvector of the smallest eigenvalue of the covariance of the
+    docs/ALGORITHM.md step 0: the eigenvector of the smallest eigenvalue of the covariance of the
     list about its centroid. Collinear or coincident lists have no plane; their normal is an
     arbitrary but deterministic unit vector.
     """
@@ -132,7 +132,7 @@ def mls_fit(points, normals=None, *, k=25, h=None, graph=None, n_jobs=None):
 
     Notes
     -----
-    Paper Section 2.1 and eq. (1); ALGORITHM.md step 1. The reference plane is the weighted
+    Paper Section 2.1 and eq. (1); docs/ALGORITHM.md step 1. The reference plane is the weighted
     centroid and smallest eigenvector of the weighted covariance (a one-step simplification of
     Alexa et al.'s non-linear search). Neighbourhoods that cannot support a cubic (singular or
     ill-conditioned 10x10 normal equations, e.g. collinear or duplicated points) fall back to
@@ -152,7 +152,7 @@ def sampling_likelihood(points, normals=None, *, k=25, h=None, likelihood="exp",
     points, normals, k, h, graph, n_jobs
         As in :func:`mls_fit`.
     likelihood : {"exp", "ratio", "residual"}, default "exp"
-        Form of eq. (2), which is missing from the paper's text (ALGORITHM.md step 1):
+        Form of eq. (2), which is missing from the paper's text (docs/ALGORITHM.md step 1):
         ``"exp"``: ``exp(-d_i / dbar)``; ``"ratio"``: ``min(dbar / d_i, 1)``; ``"residual"``:
         ``d_i / dbar`` (the opposite reading); ``dbar`` is the mean of ``d_i`` over the model.
 
@@ -195,7 +195,7 @@ def feature_intensity(points, normals=None, *, k=25, radius_factor=10.0, delta=0
 
     Notes
     -----
-    Paper Section 3; ALGORITHM.md step 2. ``N_R(i)`` grows breadth-first through 9-nearest-
+    Paper Section 3; docs/ALGORITHM.md step 2. ``N_R(i)`` grows breadth-first through 9-nearest-
     neighbour lists, keeping points within ``R`` of ``p_i``, so it does not jump across thin gaps
     (Fig. 3). Each member votes ``n'_j`` (Page et al.) into ``T_i = sum u_j n'_j n'_j^T``.
     """
@@ -225,7 +225,7 @@ def filter_normals(points, normals=None, *, k=25, graph=None, n_jobs=None):
 
     Notes
     -----
-    Paper Section 4.1; ALGORITHM.md step 3: spatial Gaussian of width ``r_i / 2`` times a
+    Paper Section 4.1; docs/ALGORITHM.md step 3: spatial Gaussian of width ``r_i / 2`` times a
     Gaussian of the normal deviation angle whose width is that angle's standard deviation over
     the list.
     """

@@ -1,8 +1,33 @@
-"""Shared small clouds: random surfaces and the degenerate cases every kernel must survive."""
+"""Shared small clouds: random surfaces and the degenerate cases every kernel must survive; and
+where the tests find the reference meshes."""
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from pssd_fast import meshes
 from pssd_fast.kernels import feature
+
+#: Where the tests look for the reference meshes when ``PSSD_DATA`` is unset: the folder
+#: ``shared/data/meshes`` beside the repository (``<repo>/../shared/data/meshes``). This default
+#: belongs to the tests only; the package itself reads ``PSSD_DATA`` or an explicit path.
+DEFAULT_MESH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
+
+
+def mesh_dir():
+    """The reference mesh folder for the tests: ``$PSSD_DATA`` when set, else
+    ``DEFAULT_MESH_DIR``; None when that folder does not exist."""
+    return meshes.data_dir(os.environ.get("PSSD_DATA") or DEFAULT_MESH_DIR)
+
+
+def mesh_file(name):
+    """Path of reference mesh file ``name``, skipping the test when it is not available."""
+    folder = mesh_dir()
+    if folder is None or not (folder / name).is_file():
+        pytest.skip(f"reference mesh {name} not found: set PSSD_DATA to the folder holding it "
+                    f"(when PSSD_DATA is unset, the tests look in {DEFAULT_MESH_DIR})")
+    return folder / name
 
 
 def wavy(n=400, noise=0.005, seed=0):

@@ -8,7 +8,7 @@ from collections import deque
 
 import numpy as np
 
-# Decisions shared with the kernels (ALGORITHM.md and docs/DECISIONS.md).
+# Decisions shared with the kernels (docs/ALGORITHM.md and docs/DECISIONS.md).
 DEGENERATE_RATIO = 1e-12  # second covariance eigenvalue / largest below this: no plane
 FIT_TOL = 1e-9  # smallest eigenvalue of the column-normalised Gram matrix below this: singular
 
@@ -83,7 +83,7 @@ def _well_posed(design, weights):
 
 
 def mls_point(points, normals, members, i, h):
-    """MLS projection q_i, residual d_i and fitted degree of point i (ALGORITHM.md step 1)."""
+    """MLS projection q_i, residual d_i and fitted degree of point i (docs/ALGORITHM.md step 1)."""
     rel = points[members] - points[i]
     theta = np.exp(-(rel ** 2).sum(axis=1) / h ** 2)
     centroid = (theta[:, None] * rel).sum(axis=0) / theta.sum()
@@ -167,7 +167,7 @@ def aware_iteration(points, normals, k, sigma_n=0.05):
 
 
 def likelihood(resid, form):
-    """Eq. (2) as reconstructed in ALGORITHM.md."""
+    """Eq. (2) as reconstructed in docs/ALGORITHM.md."""
     dbar = resid.mean()
     out = np.empty_like(resid)
     for i, d in enumerate(resid):
@@ -260,7 +260,7 @@ def filter_normals(points, normals, lists):
 
 
 def bilateral_points(points, normals, lists, sigma_c=None, sigma_s=None):
-    """The BIL baseline of ALGORITHM.md: move along n_i by the bilateral mean height."""
+    """The BIL baseline of docs/ALGORITHM.md: move along n_i by the bilateral mean height."""
     out = np.empty_like(points)
     for i, members in enumerate(lists):
         rel = points[members] - points[i]

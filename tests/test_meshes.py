@@ -1,5 +1,6 @@
 """Mesh I/O, surface sampling, sharp-edge detection and exact segment distances."""
 import gzip
+import re
 import warnings
 from pathlib import Path
 
@@ -9,15 +10,7 @@ from pykdtree.kdtree import KDTree
 
 from pssd_fast import meshes
 
-DATA = meshes.data_dir()
-
-
-def data_file(name):
-    """Path of a reference mesh file, skipping the test when it is not available."""
-    if DATA is None or not (DATA / name).is_file():
-        pytest.skip(f"reference mesh {name} not found: set PSSD_DATA to the directory holding "
-                    "it (default <repo>/../shared/data/meshes)")
-    return DATA / name
+from .conftest import DEFAULT_MESH_DIR, mesh_file
 
 
 def cube_mesh():
@@ -88,10 +81,10 @@ def test_read_obj_malformed_names_the_line(tmp_path, text, lineno):
 
 
 def test_read_obj_reference_meshes():
-    vertices, faces = meshes.read_obj(data_file("fandisk.obj.gz"))
+    vertices, faces = meshes.read_obj(mesh_file("fandisk.obj.gz"))
     assert vertices.shape == (6475, 3) and faces.shape == (12946, 3)
     assert np.linalg.norm(np.ptp(vertices, axis=0)) == pytest.approx(7.615589, abs=1e-6)
-    vertices, faces = meshes.read_obj(data_file("igea.obj.gz"))
+    vertices, faces = meshes.read_obj(mesh_file("igea.obj.gz"))
     assert vertices.shape == (134345, 3) and faces.shape == (268686, 3)
     assert faces.min() == 0 and faces.max() == 134344
 
@@ -129,12 +122,13 @@ def test_read_feat_malformed(tmp_path, text, match):
 
 
 def test_fandisk_feature_curves_are_its_sharp_edges():
-    vertices, faces = meshes.read_obj(data_file("fandisk.obj.gz"))
-    curves = meshes.read_feat(data_file("fandisk.feat.gz"))
+    vertices, faces = meshes.read_obj(mesh_file("fandisk.obj.gz"))
+    curves = meshes.read_feat(mesh_file("fandisk.feat.gz"))
     assert len(curves) == 35 and sum(len(c) for c in curves) == 757
     edges = meshes.sharp_edges(vertices, faces, 30.0)
     assert edges.shape == (722, 2)
-    # Snapped to the nearest vertex, the polylines are exactly the sharp edges (SOURCES.md).
+    # Snapped to the nearest vertex, the polylines are exactly the sharp edges (as the
+    # SOURCES.md of the mesh folder states).
     tree = KDTree(vertices)
     snapped = set()
     for curve in curves:
@@ -331,11 +325,52 @@ def test_normalize_to_unit_diagonal():
         meshes.normalize_to_unit_diagonal(np.zeros((0, 3)))
 
 
-def test_data_dir(monkeypatch, tmp_path):
+def test_data_dir_from_pssd_data(monkeypatch, tmp_path):
     monkeypatch.setenv("PSSD_DATA", str(tmp_path))
     assert meshes.data_dir() == tmp_path
+    # A setting that points nowhere is reported, not replaced by another folder.
     monkeypatch.setenv("PSSD_DATA", str(tmp_path / "missing"))
     assert meshes.data_dir() is None
-    monkeypatch.delenv("PSSD_DATA")
-    default = Path(meshes.__file__).resolve().parents[2] / "shared" / "data" / "meshes"
-    assert meshes.data_dir() == (default if default.is_dir() else None)
+    (tmp_path / "file").write_text("")
+    monkeypatch.setenv("PSSD_DATA", str(tmp_path / "file"))
+    assert meshes.data_dir() is None
+
+
+def test_data_dir_from_argument(monkeypatch, tmp_path):
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.setenv("PSSD_DATA", str(elsewhere))
+    assert meshes.data_dir(tmp_path) == tmp_path  # the argument wins over PSSD_DATA
+    assert meshes.data_dir(str(tmp_path)) == tmp_path
+    assert meshes.data_dir(tmp_path / "missing") is None
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert meshes.data_dir("~/elsewhere") == elsewhere
+
+
+def test_data_dir_has_no_fallback(monkeypatch, tmp_path):
+    """Without PSSD_DATA or an argument the package names no folder, not even the one the tests
+    default to, wherever it is run from."""
+    monkeypatch.delenv("PSSD_DATA", raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert meshes.data_dir() is None
+    monkeypatch.setenv("PSSD_DATA", "")
+    assert meshes.data_dir() is None
+    if DEFAULT_MESH_DIR.is_dir():
+        monkeypatch.chdir(DEFAULT_MESH_DIR.parents[2])
+        assert meshes.data_dir() is None
+
+
+def test_package_names_no_path_outside_itself():
+    """The installed package must not refer to files beside it (the tests' mesh folder, the
+    project's parent folder): no such path in any of its sources."""
+    import pssd_fast
+    from pssd_fast import kernels
+
+    sources = [p for module in (pssd_fast, kernels)
+               for p in Path(module.__file__).parent.glob("*.py")]
+    assert len(sources) > 10
+    pattern = re.compile(r"""\.\./|["']shared["']|shared/(data|docs|seed)""")
+    offending = [f"{p.name}:{n}: {line.strip()}" for p in sources
+                 for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+                 if pattern.search(line)]
+    assert offending == []

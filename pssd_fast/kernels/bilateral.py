@@ -1,4 +1,5 @@
-"""Bilateral filters: of normals (ALGORITHM.md step 3, eq. (4)) and of points (the BIL baseline)."""
+"""Bilateral filters: of normals (docs/ALGORITHM.md step 3, eq. (4)) and of points (the BIL
+baseline)."""
 import math
 
 import numpy as np

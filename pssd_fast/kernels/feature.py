@@ -1,4 +1,5 @@
-"""Region-grown neighbourhoods and the normal voting tensor (ALGORITHM.md, step 2; Section 3)."""
+"""Region-grown neighbourhoods and the normal voting tensor (docs/ALGORITHM.md, step 2; paper
+Section 3)."""
 import math
 
 import numba
@@ -77,12 +78,12 @@ def grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources, s
     bit ``b`` of ``reach[t]`` is set exactly when ``nodes[t]`` belongs to ``N_R(start + b)``.
 
     ``N_R(i)`` is the set of points reachable from ``i`` along the first ``n_vote`` entries of
-    each member's list without leaving the ball of radius ``R`` around ``p_i`` (ALGORITHM.md).
-    Instead of one breadth-first search per point, a work list propagates bit masks: a node
-    passes the bits it has reached to each listed neighbour whose ball mask (the sources within
-    ``R`` of it) contains them, and is queued again when it gains bits. Neighbouring points
-    share most of their regions, so each node is examined about once per block instead of once
-    per point.
+    each member's list without leaving the ball of radius ``R`` around ``p_i``
+    (docs/ALGORITHM.md step 2). Instead of one breadth-first search per point, a work list
+    propagates bit masks: a node passes the bits it has reached to each listed neighbour whose
+    ball mask (the sources within ``R`` of it) contains them, and is queued again when it gains
+    bits. Neighbouring points share most of their regions, so each node is examined about once
+    per block instead of once per point.
 
     Scratch: ``sources`` (3, ``BLOCK``) receives the block's coordinates; ``slot_of`` (one
     entry per point, -1 outside a call) maps points to node slots; ``nodes``, ``ball``,

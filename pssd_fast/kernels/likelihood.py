@@ -1,11 +1,12 @@
-"""Sampling likelihood from the MLS residuals (ALGORITHM.md, step 1, eq. (2) reconstructed)."""
+"""Sampling likelihood from the MLS residuals (docs/ALGORITHM.md, step 1, eq. (2)
+reconstructed)."""
 import math
 
 from numba import prange
 
 from .config import CHUNK, parallel_kernel
 
-# Codes of the ``likelihood`` forms, in the order of ALGORITHM.md.
+# Codes of the ``likelihood`` forms, in the order of docs/ALGORITHM.md.
 EXP, RATIO, RESIDUAL = 0, 1, 2
 
 

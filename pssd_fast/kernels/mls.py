@@ -1,4 +1,5 @@
-"""MLS reference plane, weighted cubic fit, projection and residual (ALGORITHM.md, step 1)."""
+"""MLS reference plane, weighted cubic fit, projection and residual (docs/ALGORITHM.md,
+step 1)."""
 import math
 
 import numpy as np
@@ -12,10 +13,10 @@ from .linalg import (
 
 # A Cholesky pivot fails when less than this fraction of its column's weighted energy is left
 # once the earlier basis functions are removed (the column is numerically dependent on them).
-# This threshold is the only regularisation: a diagonal ridge, as ALGORITHM.md first proposed,
+# This threshold is the only regularisation: a diagonal ridge, the first plan for this solve,
 # lifts the pivot of a rank-deficient system above it whenever the null vector has little weight
 # on the last column (seen with 9 distinct locations in a list of duplicates), so the singular
-# cubic was accepted. See docs/DECISIONS.md.
+# cubic was accepted. See docs/DECISIONS.md ("Numerics") and docs/ALGORITHM.md step 1.
 PIVOT_TOL = 1e-9
 
 # Fit degree codes written to ``degree``.

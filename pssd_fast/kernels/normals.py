@@ -1,4 +1,4 @@
-"""PCA normals over the kNN lists (ALGORITHM.md, step 0)."""
+"""PCA normals over the kNN lists (docs/ALGORITHM.md, step 0)."""
 import numpy as np
 from numba import prange
 

@@ -1,4 +1,4 @@
-"""Point update along the filtered normal (ALGORITHM.md, step 4; paper Section 4.2)."""
+"""Point update along the filtered normal (docs/ALGORITHM.md, step 4; paper Section 4.2)."""
 import math
 
 from numba import prange
