@@ -7,6 +7,7 @@ from pykdtree.kdtree import KDTree
 from ._threads import threads
 from ._validation import as_points, check_k
 from .kernels.graph import put_self_first, refresh_lists
+from .kernels.knn import grid_knn
 from .kernels.order import morton_codes
 
 _MORTON_BITS = 21  # per axis: 3 * 21 = 63 bits fit an unsigned 64-bit code
@@ -98,15 +99,21 @@ class ListScales(NamedTuple):
 QUERY_ENTRIES = 2**21
 
 
+#: From this list length on, lists come from the grid query (:mod:`pssd_fast.kernels.knn`)
+#: instead of pykdtree, whose cost grows about as ``k^2`` (docs/DECISIONS.md, "Long lists").
+GRID_K = 48
+
+
 def knn_graph(points, k, keep_distances=True):
     """kNN graph of already validated, C-contiguous float64 points, in their own order.
 
     Returns a :class:`NeighborGraph`, or with ``keep_distances=False`` a :class:`ListScales`.
     The query runs in chunks of ``QUERY_ENTRIES // k`` points, written straight into the final
-    index array, so the peak memory is the graph itself.
+    index array, so the peak memory is the graph itself. Lists of ``GRID_K`` or more entries
+    come from the grid query, shorter ones from pykdtree; both are exact.
     """
     n = points.shape[0]
-    tree = KDTree(points)
+    query = _grid_query(points, k) if k >= GRID_K else _tree_query(points, k)
     indices = np.empty((n, k), np.int32 if n < 2**31 else np.int64)
     if keep_distances:
         dists = np.empty((n, k))
@@ -116,10 +123,8 @@ def knn_graph(points, k, keep_distances=True):
     chunk = max(1, QUERY_ENTRIES // k)
     for start in range(0, n, chunk):
         stop = min(n, start + chunk)
-        chunk_dists, chunk_idx = tree.query(points[start:stop], k=k)
-        chunk_dists = np.ascontiguousarray(chunk_dists, dtype=np.float64).reshape(-1, k)
         rows = indices[start:stop]
-        rows[:] = chunk_idx.reshape(-1, k)
+        chunk_dists = query(start, stop, rows)
         put_self_first(rows, chunk_dists, start)
         if keep_distances:
             dists[start:stop] = chunk_dists
@@ -130,6 +135,66 @@ def knn_graph(points, k, keep_distances=True):
     if keep_distances:
         return NeighborGraph(indptr, indices.reshape(-1), dists.reshape(-1))
     return ListScales(indptr, indices.reshape(-1), radius, nearest)
+
+
+def _tree_query(points, k):
+    """``query(start, stop, rows)``: pykdtree's lists of those points into ``rows``; returns
+    their distances."""
+    tree = KDTree(points)
+
+    def query(start, stop, rows):
+        chunk_dists, chunk_idx = tree.query(points[start:stop], k=k)
+        rows[:] = chunk_idx.reshape(-1, k)
+        return np.ascontiguousarray(chunk_dists, dtype=np.float64).reshape(-1, k)
+
+    return query
+
+
+def _grid_query(points, k):
+    """Like :func:`_tree_query`, over a grid of cells about the k-th neighbour distance."""
+    n = points.shape[0]
+    low = points.min(axis=0)
+    extent = points.max(axis=0) - low
+    cell = _grid_cell(points, k, extent)
+    dims = (extent / cell).astype(np.int64) + 1
+    coords = np.minimum(((points - low) / cell).astype(np.int64), dims - 1)
+    keys = (coords[:, 0] * dims[1] + coords[:, 1]) * dims[2] + coords[:, 2]
+    members = np.argsort(keys, kind="stable").astype(np.int32 if n < 2**31 else np.int64)
+    sorted_keys = keys[members]
+    first = np.flatnonzero(np.diff(sorted_keys)) + 1
+    cell_keys = np.ascontiguousarray(sorted_keys[np.concatenate(([0], first))])
+    cell_start = np.concatenate(([0], first, [n])).astype(np.int64)
+    cell_points = points[members]
+
+    def query(start, stop, rows):
+        chunk_dists = np.empty(rows.shape)
+        grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, members, k, start,
+                 rows, chunk_dists)
+        return chunk_dists
+
+    return query
+
+
+def _grid_cell(points, k, extent):
+    """Cell edge: 1.1 times the 90th percentile of the k-th neighbour distance, estimated on an
+    evenly spread sample, so that nearly every query finds its list among the 27 cells around it.
+
+    The sample's distances are scaled by ``sqrt(sample / n)``, as on a surface (a
+    two-dimensional density). Any edge gives exact lists; a poor one only costs time. The grid
+    is kept under ``2**21`` cells per axis so that cell keys fit 63 bits.
+    """
+    n = points.shape[0]
+    step = max(1, n // 20000)
+    sample = points[::step]
+    m = sample.shape[0]
+    cell = 0.0
+    if m > k:
+        dists, _ = KDTree(sample).query(sample, k=k)
+        cell = 1.1 * float(np.quantile(dists[:, -1], 0.9)) * np.sqrt(m / n)
+    longest = float(extent.max())
+    if not cell > 0.0:
+        cell = longest if longest > 0.0 else 1.0
+    return max(cell, longest / (2**21 - 2))
 
 
 def refresh_graph(graph, points):

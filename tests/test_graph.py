@@ -33,6 +33,58 @@ def test_neighbors_match_brute_force(name):
         got_d, np.linalg.norm(points[got] - points[:, None, :], axis=2), rtol=1e-12, atol=1e-15)
 
 
+@pytest.mark.parametrize("name", sorted(CLOUDS))
+def test_grid_query_matches_brute_force(name, monkeypatch):
+    """The grid query (long lists) on every test cloud, degenerate ones included."""
+    monkeypatch.setattr(graph_module, "GRID_K", 2)
+    points = CLOUDS[name]()
+    n = len(points)
+    for k in sorted({min(3, n - 1), min(12, n - 1), n - 1}):
+        graph = knn_graph(points, k)
+        lists, dists = reference.knn_lists(points, k)
+        got = graph.indices.reshape(n, k)
+        got_d = graph.distances.reshape(n, k)
+        np.testing.assert_array_equal(got[:, 0], np.arange(n))
+        np.testing.assert_allclose(got_d, np.array(dists), rtol=1e-12, atol=1e-15)
+        for i in range(n):
+            exact = np.array(dists[i]) < np.array(dists[i])[-1]
+            assert set(np.array(lists[i])[exact]) <= set(got[i])
+            assert len(set(got[i])) == k
+        np.testing.assert_allclose(
+            got_d, np.linalg.norm(points[got] - points[:, None, :], axis=2), rtol=1e-12,
+            atol=1e-15)
+
+
+def test_grid_query_widens_its_search_where_the_grid_is_sparse(monkeypatch):
+    """A far outlier and a dense clump: cells far from the k-th neighbour distance."""
+    monkeypatch.setattr(graph_module, "GRID_K", 2)
+    rng = np.random.default_rng(8)
+    points = np.vstack([rng.normal(0, 0.01, (300, 3)), [[5.0, 5.0, 5.0]],
+                        rng.uniform(-1, 1, (30, 3))])
+    lists, dists = reference.knn_lists(points, 20)
+    graph = knn_graph(points, 20)
+    np.testing.assert_allclose(graph.distances.reshape(-1, 20), np.array(dists), rtol=1e-12)
+
+
+def test_grid_and_tree_queries_agree_and_ignore_the_thread_count(monkeypatch):
+    import numba
+    points = CLOUDS["wavy"](3000)
+    tree = knn_graph(points, 50)
+    monkeypatch.setattr(graph_module, "GRID_K", 50)
+    runs = []
+    for threads in (1, numba.config.NUMBA_NUM_THREADS):
+        previous = numba.get_num_threads()
+        numba.set_num_threads(threads)
+        try:
+            runs.append(knn_graph(points, 50))
+        finally:
+            numba.set_num_threads(previous)
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(runs[0].indices, tree.indices)  # no ties in this cloud
+    np.testing.assert_array_equal(runs[0].distances, tree.distances)
+
+
 @pytest.mark.parametrize("name", ["wavy", "duplicates"])
 def test_chunked_query_and_lean_graph_match_one_query(name, monkeypatch):
     points = CLOUDS[name]()
