@@ -4,6 +4,7 @@ Every failure prints one line, ``pssd: error: ...``, and exits with status 1 (2 
 command line); no traceback reaches the user.
 """
 import argparse
+import signal
 import sys
 import time
 from pathlib import Path
@@ -36,21 +37,40 @@ class CommandError(Exception):
     """A failure explained by its message alone."""
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised where the process is, like KeyboardInterrupt for Ctrl-C, so that every
+    cleanup (temporary files included) runs before the process exits."""
+
+
+def _terminate(signum, frame):
+    raise Terminated
+
+
 def main(argv=None):
-    """Entry point of the ``pssd`` console script; returns the exit status."""
+    """Entry point of the ``pssd`` console script; returns the exit status.
+
+    Ctrl-C returns 130 and SIGTERM 143 (128 + the signal number, as the shell reports a process
+    killed by it), each after one line on stderr and with no temporary file left behind.
+    """
     parser = _parser()
     args = parser.parse_args(argv)
     if not hasattr(args, "run"):
         parser.print_help()
         return 2
+    previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         return args.run(args) or 0
     except KeyboardInterrupt:
         print("pssd: interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("pssd: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except (CommandError, OSError, ValueError, TypeError, ImportError) as exc:
         print(f"pssd: error: {_one_line(exc)}", file=sys.stderr)
         return 1
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _one_line(exc):

@@ -196,6 +196,32 @@ def test_a_failing_write_leaves_nothing(tmp_path, cloud, monkeypatch, capsys):
     assert source.read_bytes() == before
 
 
+def test_sigterm_while_writing_leaves_nothing(tmp_path, cloud):
+    """SIGTERM is handled like Ctrl-C: one line, status 143, no temporary file left."""
+    import os
+    import signal
+    import time
+
+    source = tmp_path / "in.npy"
+    np.save(source, cloud.points)
+    # The child holds the write open (before its fsync) until it is terminated, so that the
+    # signal arrives while the temporary file exists, whatever the machine's speed.
+    child = ("import os, sys, time; os.fsync = lambda fd: time.sleep(600); "
+             "from pssd_fast import cli; sys.exit(cli.main(sys.argv[1:]))")
+    proc = subprocess.Popen([sys.executable, "-c", child, "denoise", str(source),
+                             str(tmp_path / "out.ply"), "--iterations", "1", "--quiet"],
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not list(tmp_path.glob(".out.ply.*.tmp")):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    err = proc.communicate(timeout=60)[1]
+    assert proc.returncode == 128 + signal.SIGTERM
+    assert err.strip().splitlines() == ["pssd: terminated"]
+    assert sorted(os.listdir(tmp_path)) == ["in.npy"]
+
+
 @pytest.mark.parametrize("flag, rebuild", [("--rebuild-graph", True),
                                            ("--no-rebuild-graph", False)])
 def test_graph_reuse_reaches_the_library(tmp_path, cloud, flag, rebuild):
