@@ -238,10 +238,11 @@ def _denoise(args):
         params[dest] = value
     if args.keep_normals:
         params["keep_normals"] = True
-    _check_output(args.output, args.force)
+    # Before the --force check: --force does not make replacing the input possible.
     if args.output.resolve() == args.input.resolve():
-        raise CommandError("OUT is the input file; write elsewhere (the input is never "
-                           "modified)")
+        raise CommandError(f"{args.output} is the input file; choose another output (the "
+                           "input is never modified)")
+    _check_output(args.output, args.force)
     cloud = io.read(args.input)
     result, seconds = _run_denoise(cloud.points, cloud.normals, args, params)
     fields = {"displacement": result.displacement.astype(np.float64)}

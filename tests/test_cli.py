@@ -154,6 +154,8 @@ def test_demo_writes_files_and_pictures(tmp_path):
     (["info", "malformed.xyz"], "malformed.xyz"),
     (["info", "truncated.las"], "truncated.las"),
     (["denoise", "in.xyz", "in.xyz/out.ply"], "is not a folder"),
+    (["denoise", "in.xyz", "./in.xyz"], "in.xyz is the input file; choose another output"),
+    (["denoise", "in.xyz", "in.xyz", "--force"], "is the input file; choose another output"),
     (["info", "."], "."),
 ])
 def test_errors_are_one_line(tmp_path, cloud, args, match):
