@@ -149,6 +149,7 @@ def test_demo_writes_files_and_pictures(tmp_path):
      "--radius-factor is not a parameter of method 'mls'"),
     (["denoise", "in.xyz", "out.unknown"], "unknown"),
     (["denoise", "in.xyz", "out.ply", "--k", "5"], "k must be at least 10"),
+    (["denoise", "five.xyz", "out.ply"], "the cloud has 5 points; denoising needs at least 11"),
     (["denoise", "in.xyz", "nowhere/out.ply"], "does not exist"),
     (["info", "truncated.ply"], "truncated.ply"),
     (["info", "malformed.xyz"], "malformed.xyz"),
@@ -160,6 +161,7 @@ def test_demo_writes_files_and_pictures(tmp_path):
 ])
 def test_errors_are_one_line(tmp_path, cloud, args, match):
     np.savetxt(tmp_path / "in.xyz", cloud.points)
+    np.savetxt(tmp_path / "five.xyz", cloud.points[:5])
     (tmp_path / "malformed.xyz").write_text("0 0 0\n1 1 one\n")
     las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
     las.x, las.y, las.z = cloud.points.T

@@ -289,6 +289,22 @@ def test_bad_parameters_are_named(noisy, kwargs, error, match):
         pssd_fast.denoise(noisy, **kwargs)
 
 
+@pytest.mark.parametrize("n, kwargs, match", [
+    (5, {}, "the cloud has 5 points; denoising needs at least 11$"),
+    (5, {"preset": "paper"}, "the cloud has 5 points; denoising needs at least 11$"),
+    (5, {"k": 10}, "the cloud has 5 points; denoising needs at least 11$"),
+    (20, {"preset": "paper"}, "the cloud has 20 points; preset 'paper' uses k = 25 neighbours "
+                              "and needs at least 26; pass a smaller k"),
+    (20, {"k": 25}, "need at least k"),
+])
+def test_too_small_a_cloud_is_named(n, kwargs, match):
+    """With no k given, the message is about the cloud's size, not a k the user never set."""
+    with pytest.raises(ValueError, match=match):
+        pssd_fast.denoise(np.random.default_rng(0).normal(size=(n, 3)), **kwargs)
+    assert pssd_fast.denoise(np.random.default_rng(0).normal(size=(26, 3)), iterations=1,
+                             **kwargs).points.shape == (26, 3)
+
+
 @pytest.mark.parametrize("points, error, match", [
     (np.zeros((50, 2)), ValueError, r"shape \(n, 3\)"),
     (np.zeros((3, 50)), ValueError, "transpose"),
