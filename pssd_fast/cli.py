@@ -162,14 +162,16 @@ def _add_common(parser):
     parser.add_argument("--rebuild-graph", action=argparse.BooleanOptionalAction, default=None,
                         help="find the neighbours anew in every iteration (preset: yes for "
                              "default and paper, no for fast)")
-    parser.add_argument("--n-jobs", type=int, default=None,
+    parser.add_argument("--n-jobs", "--threads", dest="n_jobs", type=int, default=None,
                         help="threads (default: all cores); the result does not depend on it")
 
 
 def _add_verbosity(parser):
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--quiet", action="store_true", help="print nothing but errors")
-    group.add_argument("--verbose", action="store_true", help="print per-stage times")
+    group.add_argument("--verbose", action="store_true",
+                       help="print k (and the estimated noise it was chosen from), the "
+                            "threads and per-stage times")
 
 
 class _Progress:
@@ -208,6 +210,13 @@ def _run_denoise(points, normals, args, method_params):
         progress.close()
     seconds = time.perf_counter() - started
     if args.verbose:
+        probe = result.stats["auto_k"]
+        chosen = "" if probe is None else (
+            f" chosen from the estimated noise {probe['noise']:.4g} (probe: "
+            f"{probe['probe_k']} neighbours, mean radius {probe['probe_radius']:.4g}, ratio "
+            f"{probe['ratio']:.3f})")
+        threads = result.stats["n_jobs"]
+        print(f"k = {result.stats['k']}{chosen}; {threads} thread{'s' * (threads != 1)}")
         for i, record in enumerate(result.stats["iterations"], 1):
             times = ", ".join(f"{s} {t:.3f}" for s, t in record["times"].items())
             print(f"iteration {i}: {times} (s)")

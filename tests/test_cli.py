@@ -54,7 +54,7 @@ def ply_with_extras(tmp_path, cloud):
 def test_help_is_complete():
     status, out, _ = pssd("denoise", "--help")
     assert status == 0
-    for option in ["--method", "--iterations", "--preset", "--k", "--lam", "--n-jobs",
+    for option in ["--method", "--iterations", "--preset", "--k", "--lam", "--n-jobs", "--threads",
                    "--keep-normals", "--rebuild-graph", "--no-rebuild-graph",
                    "--force", "--quiet", "--verbose"] + [
                        "--" + d.replace("_", "-") for d in cli.METHOD_OPTIONS]:
@@ -70,6 +70,11 @@ def test_denoise_ply_keeps_every_other_attribute(tmp_path, ply_with_extras):
     status, stdout, err = pssd("denoise", path, out, "--iterations", "1", "--verbose")
     assert status == 0, err
     assert "iteration 1: neighbors" in stdout
+    xyz = np.column_stack([vertex[a] for a in "xyz"]).astype(np.float64)
+    probe = pssd_fast.denoise(xyz, iterations=1).stats["auto_k"]
+    assert (f"k = {probe['k']} chosen from the estimated noise {probe['noise']:.4g} (probe: 96 "
+            f"neighbours, mean radius {probe['probe_radius']:.4g}, ratio {probe['ratio']:.3f})"
+            in stdout)
     data = plyfile.PlyData.read(str(out))
     written = data["vertex"].data
     for name in ("red", "green", "blue", "quality"):
@@ -224,6 +229,15 @@ def test_sigterm_while_writing_leaves_nothing(tmp_path, cloud):
     assert proc.returncode == 128 + signal.SIGTERM
     assert err.strip().splitlines() == ["pssd: terminated"]
     assert sorted(os.listdir(tmp_path)) == ["in.npy"]
+
+
+def test_threads_is_n_jobs(tmp_path, cloud):
+    source = tmp_path / "in.npy"
+    np.save(source, cloud.points)
+    status, out, err = pssd("denoise", source, tmp_path / "out.npy", "--preset", "paper",
+                            "--iterations", "1", "--threads", "1", "--verbose")
+    assert status == 0, err
+    assert "k = 25; 1 thread\n" in out
 
 
 @pytest.mark.parametrize("flag, rebuild", [("--rebuild-graph", True),
