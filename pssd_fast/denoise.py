@@ -105,8 +105,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         25 ("paper").
     lam : float, optional
         ``lambda`` in [0, 1] of Section 4.2: weight of the likelihood term against the feature
-        term in the step ``m_i``. Paper's pipeline only (default 0.5); the other presets refuse
-        it, since their move does not use it.
+        term in the step ``m_i``. Paper's pipeline only (default 0.5); the other presets and
+        the baselines refuse it, since their move does not use it.
     preset : {"default", "fast", "paper"}, default "default"
         ``"paper"``: the paper's formulation (k = 25, lambda = 0.5, 2 iterations; the Notes'
         first paragraph). ``"default"``: the feature-aware pipeline (Notes), ``k`` from the
@@ -296,8 +296,11 @@ def _to_caller_order(values, order):
 
 
 def _check_pipeline_params(method, preset, pipeline, explicit, lam):
-    """Refuse parameters that the chosen pipeline would silently ignore."""
+    """Refuse parameters that the chosen method or pipeline would silently ignore."""
     if method != "robust":
+        if lam is not None:
+            raise ValueError(f"lam only applies to the robust method; method {method!r} does "
+                             "not use it")
         return
     if pipeline == "aware":
         unused = sorted(explicit & set(PAPER_ONLY)) + (["lam"] if lam is not None else [])

@@ -273,6 +273,10 @@ def test_keep_normals_needs_normals(noisy):
     ({"k": 600}, ValueError, "need at least k"),
     ({"lam": 1.5, "preset": "paper"}, ValueError, r"lam must lie in \[0.0, 1.0\]"),
     ({"lam": 0.5}, ValueError, "lam only applies to the paper's pipeline; pass preset='paper'"),
+    ({"lam": 0.5, "method": "mls"}, ValueError, "lam only applies to the robust method; "
+                                                "method 'mls' does not use it"),
+    ({"lam": 0.5, "method": "bilateral", "preset": "paper"}, ValueError,
+     "method 'bilateral' does not use it"),
     ({"delta": 0.1, "h": 1.0}, ValueError, "delta, h only apply to the paper's pipeline"),
     ({"sigma_n": 0.1, "preset": "paper"}, ValueError, "sigma_n only applies to the feature-aware"),
     ({"sigma_n": 0.0}, ValueError, "sigma_n must be positive"),
