@@ -23,6 +23,8 @@ METHOD_OPTIONS = {
     "alpha": (("robust",), "feature threshold alpha of eq. (3) (0.3)"),
     "beta": (("robust",), "feature threshold beta of eq. (3) (0.3)"),
     "likelihood": (("robust",), "sampling likelihood form: exp, ratio or residual (exp)"),
+    "sigma_n": (("robust",), "normal-agreement width of the feature-aware fit (0.05); presets "
+                             "default and fast"),
     "sigma_c": (("bilateral",), "BIL spatial width (default: half the list radius)"),
     "sigma_s": (("bilateral",), "BIL height width (default: std of the heights)"),
 }

@@ -157,6 +157,8 @@ def test_demo_writes_files_and_pictures(tmp_path):
     (["denoise", "in.xyz", "out.ply", "--method", "bilateral", "--h", "0.1"],
      "--h is not a parameter of method 'bilateral'"),
     (["denoise", "in.xyz", "out.ply", "--h", "0.1"], "h only applies to the paper's pipeline"),
+    (["denoise", "in.xyz", "out.ply", "--preset", "paper", "--sigma-n", "0.1"],
+     "sigma_n only applies to the feature-aware presets 'default' and 'fast'"),
     (["denoise", "in.xyz", "out.unknown"], "unknown"),
     (["denoise", "in.xyz", "out.ply", "--k", "5"], "k must be at least 10"),
     (["denoise", "five.xyz", "out.ply"], "the cloud has 5 points; denoising needs at least 11"),
@@ -234,6 +236,15 @@ def test_sigterm_while_writing_leaves_nothing(tmp_path, cloud):
     assert proc.returncode == 128 + signal.SIGTERM
     assert err.strip().splitlines() == ["pssd: terminated"]
     assert sorted(os.listdir(tmp_path)) == ["in.npy"]
+
+
+def test_sigma_n_reaches_the_library(tmp_path, cloud):
+    source, out = tmp_path / "in.npy", tmp_path / "out.npz"
+    np.save(source, cloud.points)
+    assert cli.main(["denoise", str(source), str(out), "--iterations", "1", "--sigma-n", "0.3",
+                     "--quiet"]) == 0
+    expected = pssd_fast.denoise(cloud.points, iterations=1, sigma_n=0.3)
+    np.testing.assert_array_equal(np.load(out)["points"], expected.points)
 
 
 def test_threads_is_n_jobs(tmp_path, cloud):
