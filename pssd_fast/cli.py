@@ -129,7 +129,9 @@ def _parser():
 
     info = sub.add_parser("info", help="describe a point cloud file",
                           description="Print point count, bounds, average spacing and the "
-                                      "attributes FILE holds.")
+                                      "attributes FILE holds, with a PLY file's other "
+                                      "elements (faces...) and a LAS file's version, point "
+                                      "format, scale and offset.")
     info.add_argument("file", metavar="FILE", type=Path)
     info.set_defaults(run=_info)
 
@@ -364,8 +366,13 @@ def _info(args):
     cloud = io.read(args.file)
     points = cloud.points
     low, high = points.min(axis=0), points.max(axis=0)
+    diagonal = np.linalg.norm(high - low)
+    # Fixed point, to a millionth of the diagonal or so: georeferenced coordinates (4e6 m)
+    # keep their metres and millimetres, where significant digits would round them away.
+    decimals = int(np.clip(5 - np.floor(np.log10(diagonal)), 0, 15)) if diagonal > 0 else 6
     print(f"{args.file}: {cloud.format}, {len(points):,} points")
-    print(f"bounds: min {_vec(low)}, max {_vec(high)}, diagonal {np.linalg.norm(high - low):.6g}")
+    print(f"bounds: min {_vec(low, decimals)}, max {_vec(high, decimals)}, diagonal "
+          f"{diagonal:.{decimals}f}")
     if len(points) > 1:
         dist, _ = KDTree(points).query(points, k=2)
         print(f"average spacing (mean distance to the nearest other point): "
@@ -373,11 +380,13 @@ def _info(args):
     attributes = (["normals"] if cloud.normals is not None else []) + [
         f"{name} ({values.dtype})" for name, values in cloud.fields.items()]
     print("attributes: " + (", ".join(attributes) if attributes else "none"))
+    for line in io.describe(cloud):
+        print(line)
     return 0
 
 
-def _vec(v):
-    return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"
+def _vec(v, decimals):
+    return "(" + ", ".join(f"{x:.{decimals}f}" for x in v) + ")"
 
 
 def _render(args):

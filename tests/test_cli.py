@@ -107,6 +107,12 @@ def test_denoise_las_keeps_records_and_georeference(tmp_path, cloud):
     las.gps_time = rng.uniform(0, 1e5, len(utm))
     path = tmp_path / "scan.las"
     las.write(str(path))
+    status, out, err = pssd("info", path)
+    assert status == 0, err
+    low = np.column_stack([las.x, las.y, las.z]).min(axis=0)
+    assert f"bounds: min ({low[0]:.3f}, {low[1]:.3f}, {low[2]:.3f})," in out  # mm, not 4e+06
+    assert ("LAS 1.2, point format 3, scale (0.001, 0.001, 0.001), offset (500000, 4000000, "
+            "300)") in out
     out = tmp_path / "clean.las"
     status, _, err = pssd("denoise", path, out, "--iterations", "1", "--quiet")
     assert status == 0, err
@@ -129,6 +135,7 @@ def test_info_and_render(tmp_path, ply_with_extras):
     status, out, err = pssd("info", path)
     assert status == 0, err
     assert "3,000 points" in out and "red (uint8)" in out and "average spacing" in out
+    assert "other elements: face (2)" in out
     png = tmp_path / "feature.png"
     status, out, err = pssd("render", path, "-o", png, "--color", "feature")
     assert status == 0, err
