@@ -149,6 +149,7 @@ def test_demo_writes_files_and_pictures(tmp_path):
     status, out, err = pssd("demo", "--out", folder, "--points", "3000", "--iterations", "1")
     assert status == 0, err
     assert "| Robust (default) | 1 |" in out
+    assert "| Max. displacement (1e-4) | Ave. displacement (1e-4) |" in out and "error" not in out
     names = {p.name for p in folder.iterdir()}
     assert {"noisy.ply", "denoised.ply", "noisy.png", "curvature.png", "likelihood.png",
             "feature.png", "denoised_curvature.png", "denoised_displacement.png"} <= names
