@@ -64,9 +64,17 @@ def check_k(k, n_points, minimum=MIN_K):
     """Check the neighbour count against the cubic's needs and the cloud's size."""
     k = check_int(k, "k", minimum=minimum)
     if n_points < k + 1:
+        check_size(n_points, minimum)
         raise ValueError(f"need at least k + 1 = {k + 1} points for k = {k}; got {n_points} "
                          f"points (lower k or pass a larger cloud)")
     return k
+
+
+def check_size(n_points, minimum=MIN_K):
+    """Refuse a cloud too small for any allowed ``k`` (``minimum`` neighbours and the point)."""
+    if n_points < minimum + 1:
+        raise ValueError(f"the cloud has {n_points} points; denoising needs at least "
+                         f"{minimum + 1}")
 
 
 def check_int(value, name, minimum=None):

@@ -8,7 +8,7 @@ import numpy as np
 from . import core
 from ._threads import threads
 from ._validation import (
-    as_normals, as_points, check_choice, check_float, check_int, check_k,
+    as_normals, as_points, check_choice, check_float, check_int, check_k, check_size,
 )
 from .graph import knn_graph, morton_order, refresh_graph
 from .kernels.order import gather_rows, scatter_rows
@@ -105,8 +105,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         25 ("paper").
     lam : float, optional
         ``lambda`` in [0, 1] of Section 4.2: weight of the likelihood term against the feature
-        term in the step ``m_i``. Paper's pipeline only (default 0.5); the other presets refuse
-        it, since their move does not use it.
+        term in the step ``m_i``. Paper's pipeline only (default 0.5); the other presets and
+        the baselines refuse it, since their move does not use it.
     preset : {"default", "fast", "paper"}, default "default"
         ``"paper"``: the paper's formulation (k = 25, lambda = 0.5, 2 iterations; the Notes'
         first paragraph). ``"default"``: the feature-aware pipeline (Notes), ``k`` from the
@@ -164,8 +164,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         Non-numeric or complex points, non-integer ``k``, ``iterations`` or ``n_jobs``, or an
         unknown keyword in ``method_params``.
     ValueError
-        Wrong shapes, NaN or Inf, too few points for ``k``, parameters out of range, and
-        parameters the preset's pipeline does not use.
+        Wrong shapes, NaN or Inf, too few points for ``k`` (a cloud needs at least 11; with
+        ``k`` not given the message names the cloud's size and the preset's ``k``), parameters
+        out of range, and parameters the method or the preset's pipeline does not use.
 
     Notes
     -----
@@ -206,7 +207,14 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     iterations = setting["iterations"] if iterations is None else iterations
     iterations = check_int(iterations, "iterations", minimum=1)
     auto = k is None and setting["k"] is None
-    k = None if auto else check_k(setting["k"] if k is None else k, n)
+    if k is None:
+        # The caller chose no k: the message is about the cloud's size, not about k.
+        check_size(n)
+        k = setting["k"]
+        if not auto and n < k + 1:
+            raise ValueError(f"the cloud has {n} points; preset {preset!r} uses k = {k} "
+                             f"neighbours and needs at least {k + 1}; pass a smaller k")
+    k = None if auto else check_k(k, n)
     lam = setting["lam"] if lam is None else lam
     lam = None if lam is None else check_float(lam, "lam", low=0.0, high=1.0)
     given = None if normals is None else as_normals(normals, n)
@@ -288,8 +296,11 @@ def _to_caller_order(values, order):
 
 
 def _check_pipeline_params(method, preset, pipeline, explicit, lam):
-    """Refuse parameters that the chosen pipeline would silently ignore."""
+    """Refuse parameters that the chosen method or pipeline would silently ignore."""
     if method != "robust":
+        if lam is not None:
+            raise ValueError(f"lam only applies to the robust method; method {method!r} does "
+                             "not use it")
         return
     if pipeline == "aware":
         unused = sorted(explicit & set(PAPER_ONLY)) + (["lam"] if lam is not None else [])

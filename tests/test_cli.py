@@ -54,7 +54,7 @@ def ply_with_extras(tmp_path, cloud):
 def test_help_is_complete():
     status, out, _ = pssd("denoise", "--help")
     assert status == 0
-    for option in ["--method", "--iterations", "--preset", "--k", "--lam", "--n-jobs",
+    for option in ["--method", "--iterations", "--preset", "--k", "--lam", "--n-jobs", "--threads",
                    "--keep-normals", "--rebuild-graph", "--no-rebuild-graph",
                    "--force", "--quiet", "--verbose"] + [
                        "--" + d.replace("_", "-") for d in cli.METHOD_OPTIONS]:
@@ -70,6 +70,11 @@ def test_denoise_ply_keeps_every_other_attribute(tmp_path, ply_with_extras):
     status, stdout, err = pssd("denoise", path, out, "--iterations", "1", "--verbose")
     assert status == 0, err
     assert "iteration 1: neighbors" in stdout
+    xyz = np.column_stack([vertex[a] for a in "xyz"]).astype(np.float64)
+    probe = pssd_fast.denoise(xyz, iterations=1).stats["auto_k"]
+    assert (f"k = {probe['k']} chosen from the estimated noise {probe['noise']:.4g} (probe: 96 "
+            f"neighbours, mean radius {probe['probe_radius']:.4g}, ratio {probe['ratio']:.3f})"
+            in stdout)
     data = plyfile.PlyData.read(str(out))
     written = data["vertex"].data
     for name in ("red", "green", "blue", "quality"):
@@ -102,6 +107,12 @@ def test_denoise_las_keeps_records_and_georeference(tmp_path, cloud):
     las.gps_time = rng.uniform(0, 1e5, len(utm))
     path = tmp_path / "scan.las"
     las.write(str(path))
+    status, out, err = pssd("info", path)
+    assert status == 0, err
+    low = np.column_stack([las.x, las.y, las.z]).min(axis=0)
+    assert f"bounds: min ({low[0]:.3f}, {low[1]:.3f}, {low[2]:.3f})," in out  # mm, not 4e+06
+    assert ("LAS 1.2, point format 3, scale (0.001, 0.001, 0.001), offset (500000, 4000000, "
+            "300)") in out
     out = tmp_path / "clean.las"
     status, _, err = pssd("denoise", path, out, "--iterations", "1", "--quiet")
     assert status == 0, err
@@ -124,6 +135,7 @@ def test_info_and_render(tmp_path, ply_with_extras):
     status, out, err = pssd("info", path)
     assert status == 0, err
     assert "3,000 points" in out and "red (uint8)" in out and "average spacing" in out
+    assert "other elements: face (2)" in out
     png = tmp_path / "feature.png"
     status, out, err = pssd("render", path, "-o", png, "--color", "feature")
     assert status == 0, err
@@ -137,6 +149,7 @@ def test_demo_writes_files_and_pictures(tmp_path):
     status, out, err = pssd("demo", "--out", folder, "--points", "3000", "--iterations", "1")
     assert status == 0, err
     assert "| Robust (default) | 1 |" in out
+    assert "| Max. displacement (1e-4) | Ave. displacement (1e-4) |" in out and "error" not in out
     names = {p.name for p in folder.iterdir()}
     assert {"noisy.ply", "denoised.ply", "noisy.png", "curvature.png", "likelihood.png",
             "feature.png", "denoised_curvature.png", "denoised_displacement.png"} <= names
@@ -147,17 +160,28 @@ def test_demo_writes_files_and_pictures(tmp_path):
     (["denoise", "missing.ply", "out.ply"], "missing.ply"),
     (["denoise", "in.xyz", "out.ply", "--method", "mls", "--radius-factor", "3"],
      "--radius-factor is not a parameter of method 'mls'"),
+    (["denoise", "in.xyz", "out.ply", "--method", "mls", "--lam", "0.5"],
+     "lam only applies to the robust method; method 'mls' does not use it"),
+    (["denoise", "in.xyz", "out.ply", "--method", "bilateral", "--h", "0.1"],
+     "--h is not a parameter of method 'bilateral'"),
+    (["denoise", "in.xyz", "out.ply", "--h", "0.1"], "h only applies to the paper's pipeline"),
+    (["denoise", "in.xyz", "out.ply", "--preset", "paper", "--sigma-n", "0.1"],
+     "sigma_n only applies to the feature-aware presets 'default' and 'fast'"),
     (["denoise", "in.xyz", "out.unknown"], "unknown"),
     (["denoise", "in.xyz", "out.ply", "--k", "5"], "k must be at least 10"),
+    (["denoise", "five.xyz", "out.ply"], "the cloud has 5 points; denoising needs at least 11"),
     (["denoise", "in.xyz", "nowhere/out.ply"], "does not exist"),
     (["info", "truncated.ply"], "truncated.ply"),
     (["info", "malformed.xyz"], "malformed.xyz"),
     (["info", "truncated.las"], "truncated.las"),
     (["denoise", "in.xyz", "in.xyz/out.ply"], "is not a folder"),
+    (["denoise", "in.xyz", "./in.xyz"], "in.xyz is the input file; choose another output"),
+    (["denoise", "in.xyz", "in.xyz", "--force"], "is the input file; choose another output"),
     (["info", "."], "."),
 ])
 def test_errors_are_one_line(tmp_path, cloud, args, match):
     np.savetxt(tmp_path / "in.xyz", cloud.points)
+    np.savetxt(tmp_path / "five.xyz", cloud.points[:5])
     (tmp_path / "malformed.xyz").write_text("0 0 0\n1 1 one\n")
     las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
     las.x, las.y, las.z = cloud.points.T
@@ -194,6 +218,50 @@ def test_a_failing_write_leaves_nothing(tmp_path, cloud, monkeypatch, capsys):
     assert_one_line_error(status, err, "No space left on device")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.xyz"]
     assert source.read_bytes() == before
+
+
+def test_sigterm_while_writing_leaves_nothing(tmp_path, cloud):
+    """SIGTERM is handled like Ctrl-C: one line, status 143, no temporary file left."""
+    import os
+    import signal
+    import time
+
+    source = tmp_path / "in.npy"
+    np.save(source, cloud.points)
+    # The child holds the write open (before its fsync) until it is terminated, so that the
+    # signal arrives while the temporary file exists, whatever the machine's speed.
+    child = ("import os, sys, time; os.fsync = lambda fd: time.sleep(600); "
+             "from pssd_fast import cli; sys.exit(cli.main(sys.argv[1:]))")
+    proc = subprocess.Popen([sys.executable, "-c", child, "denoise", str(source),
+                             str(tmp_path / "out.ply"), "--iterations", "1", "--quiet"],
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not list(tmp_path.glob(".out.ply.*.tmp")):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    err = proc.communicate(timeout=60)[1]
+    assert proc.returncode == 128 + signal.SIGTERM
+    assert err.strip().splitlines() == ["pssd: terminated"]
+    assert sorted(os.listdir(tmp_path)) == ["in.npy"]
+
+
+def test_sigma_n_reaches_the_library(tmp_path, cloud):
+    source, out = tmp_path / "in.npy", tmp_path / "out.npz"
+    np.save(source, cloud.points)
+    assert cli.main(["denoise", str(source), str(out), "--iterations", "1", "--sigma-n", "0.3",
+                     "--quiet"]) == 0
+    expected = pssd_fast.denoise(cloud.points, iterations=1, sigma_n=0.3)
+    np.testing.assert_array_equal(np.load(out)["points"], expected.points)
+
+
+def test_threads_is_n_jobs(tmp_path, cloud):
+    source = tmp_path / "in.npy"
+    np.save(source, cloud.points)
+    status, out, err = pssd("denoise", source, tmp_path / "out.npy", "--preset", "paper",
+                            "--iterations", "1", "--threads", "1", "--verbose")
+    assert status == 0, err
+    assert "k = 25; 1 thread\n" in out
 
 
 @pytest.mark.parametrize("flag, rebuild", [("--rebuild-graph", True),

@@ -273,6 +273,10 @@ def test_keep_normals_needs_normals(noisy):
     ({"k": 600}, ValueError, "need at least k"),
     ({"lam": 1.5, "preset": "paper"}, ValueError, r"lam must lie in \[0.0, 1.0\]"),
     ({"lam": 0.5}, ValueError, "lam only applies to the paper's pipeline; pass preset='paper'"),
+    ({"lam": 0.5, "method": "mls"}, ValueError, "lam only applies to the robust method; "
+                                                "method 'mls' does not use it"),
+    ({"lam": 0.5, "method": "bilateral", "preset": "paper"}, ValueError,
+     "method 'bilateral' does not use it"),
     ({"delta": 0.1, "h": 1.0}, ValueError, "delta, h only apply to the paper's pipeline"),
     ({"sigma_n": 0.1, "preset": "paper"}, ValueError, "sigma_n only applies to the feature-aware"),
     ({"sigma_n": 0.0}, ValueError, "sigma_n must be positive"),
@@ -287,6 +291,22 @@ def test_keep_normals_needs_normals(noisy):
 def test_bad_parameters_are_named(noisy, kwargs, error, match):
     with pytest.raises(error, match=match):
         pssd_fast.denoise(noisy, **kwargs)
+
+
+@pytest.mark.parametrize("n, kwargs, match", [
+    (5, {}, "the cloud has 5 points; denoising needs at least 11$"),
+    (5, {"preset": "paper"}, "the cloud has 5 points; denoising needs at least 11$"),
+    (5, {"k": 10}, "the cloud has 5 points; denoising needs at least 11$"),
+    (20, {"preset": "paper"}, "the cloud has 20 points; preset 'paper' uses k = 25 neighbours "
+                              "and needs at least 26; pass a smaller k"),
+    (20, {"k": 25}, "need at least k"),
+])
+def test_too_small_a_cloud_is_named(n, kwargs, match):
+    """With no k given, the message is about the cloud's size, not a k the user never set."""
+    with pytest.raises(ValueError, match=match):
+        pssd_fast.denoise(np.random.default_rng(0).normal(size=(n, 3)), **kwargs)
+    assert pssd_fast.denoise(np.random.default_rng(0).normal(size=(26, 3)), iterations=1,
+                             **kwargs).points.shape == (26, 3)
 
 
 @pytest.mark.parametrize("points, error, match", [

@@ -662,3 +662,9 @@ def test_write_argument_errors(tmp_path, kwargs, match):
     with pytest.raises(PointCloudFileError, match=match):
         pio.write(tmp_path / "a.ply", PointCloud(np.zeros((4, 3))), **kwargs)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_describe_says_nothing_where_the_format_has_nothing_more(tmp_path):
+    np.save(tmp_path / "a.npy", np.zeros((4, 3)))
+    assert pio.describe(pio.read(tmp_path / "a.npy")) == []
+    assert pio.describe(PointCloud(np.zeros((4, 3)), format="ply")) == []

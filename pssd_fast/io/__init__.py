@@ -47,8 +47,8 @@ for _cls in (PointCloud, PointCloudFileError, PointCloudFileNotFoundError):
     _cls.__module__ = __name__
 del _cls
 
-__all__ = ["PointCloud", "PointCloudFileError", "PointCloudFileNotFoundError", "formats", "read",
-           "write"]
+__all__ = ["PointCloud", "PointCloudFileError", "PointCloudFileNotFoundError", "describe",
+           "formats", "read", "write"]
 
 # Extension -> PointCloud.format, and the module reading and writing each format.
 _FORMATS = {".las": "las", ".laz": "las", ".npy": "npy", ".npz": "npz", ".ply": "ply",
@@ -192,6 +192,27 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     payload = _MODULES[kind].payload(path, pts, nrm, merged, source)
     atomic_write(path, payload, overwrite, cloud)
     return path
+
+
+def describe(cloud):
+    """What a cloud's file holds beyond points, normals and fields, for people to read.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        A cloud from :func:`read`.
+
+    Returns
+    -------
+    list of str
+        One line per item: a PLY file's other elements with their counts (faces...); a LAS
+        file's version, point format, scale, offset and VLR counts. Empty for other formats
+        and for clouds built in memory.
+    """
+    module = _MODULES[cloud.format]
+    if cloud.source is None or not hasattr(module, "describe"):
+        return []
+    return module.describe(cloud.source)
 
 
 def _checked_path(path):

@@ -104,6 +104,18 @@ def read(path):
     return points, normals, values, _LasSource(os.path.abspath(path), header, records)
 
 
+def describe(source):
+    """Lines naming a LAS file's version, point format, scale, offset and VLR counts."""
+    header = source.header
+
+    def exact(values):
+        return "(" + ", ".join(np.format_float_positional(v, trim="-") for v in values) + ")"
+
+    return [f"LAS {header.version}, point format {header.point_format.id}, scale "
+            f"{exact(header.scales)}, offset {exact(header.offsets)}, {len(header.vlrs)} VLRs, "
+            f"{len(header.evlrs or [])} EVLRs"]
+
+
 def _quantise(path, coords, scales, offsets):
     """Integer LAS coordinates; unmodified coordinates give back their integers exactly.
 

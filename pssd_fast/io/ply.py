@@ -155,6 +155,12 @@ def read(path):
     return points, normals, fields, _PlySource(os.path.abspath(path), ply)
 
 
+def describe(source):
+    """Lines naming what a PLY file holds beyond its vertices: other elements and counts."""
+    other = [f"{e.name} ({e.count:,})" for e in source.ply.elements if e.name != "vertex"]
+    return [f"other elements: {', '.join(other) if other else 'none'}"]
+
+
 def _ply_values(name, values):
     """``values`` in a type PLY can store (64-bit and bool values narrowed if they fit)."""
     code = values.dtype.str[1:]
