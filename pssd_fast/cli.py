@@ -6,6 +6,7 @@ command line); no traceback reaches the user.
 import argparse
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -59,7 +60,9 @@ def main(argv=None):
     if not hasattr(args, "run"):
         parser.print_help()
         return 2
-    previous = signal.signal(signal.SIGTERM, _terminate)
+    # Signal handlers can only be set from the main thread; elsewhere SIGTERM keeps its own.
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     try:
         return args.run(args) or 0
     except KeyboardInterrupt:
@@ -72,7 +75,8 @@ def main(argv=None):
         print(f"pssd: error: {_one_line(exc)}", file=sys.stderr)
         return 1
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def _one_line(exc):

@@ -101,7 +101,7 @@ QUERY_ENTRIES = 2**21
 
 #: From this list length on, lists come from the grid query (:mod:`pssd_fast.kernels.knn`)
 #: instead of pykdtree, whose cost grows about as ``k^2`` (docs/DECISIONS.md, "Long lists").
-GRID_K = 48
+GRID_K = 128
 
 
 def knn_graph(points, k, keep_distances=True):

@@ -306,3 +306,16 @@ def test_quick_start_demo_reports_the_preset(capsys, preset, iterations):
     out = capsys.readouterr().out
     assert f"preset '{preset}': {iterations} iterations" in out
     assert "within 1% of a sharp edge, mean" in out
+
+
+def test_main_runs_outside_the_main_thread(tmp_path, capsys):
+    """Tools may call the CLI from a worker thread, where no signal handler can be set."""
+    import threading
+    path = tmp_path / "cloud.npy"
+    np.save(path, np.random.default_rng(0).random((50, 3)))
+    status = []
+    worker = threading.Thread(target=lambda: status.append(cli.main(["info", str(path)])))
+    worker.start()
+    worker.join()
+    assert status == [0]
+    assert "50" in capsys.readouterr().out
