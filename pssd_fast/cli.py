@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .progress import TimeLeft, describe
 
 #: Per-method options of ``pssd denoise``: option dest -> (methods that take it, help).
 METHOD_OPTIONS = {
@@ -189,18 +190,20 @@ class _Progress:
         self.total = total
         self.done = 0
         self.enabled = enabled and sys.stderr.isatty()
+        self.clock = TimeLeft()
 
     def __call__(self, iteration, iterations, stage, seconds):
         self.done += 1
+        times = describe(*self.clock(iteration, iterations, seconds))
         if self.enabled:
-            filled = int(30 * self.done / (self.total * iterations))
+            filled = int(30 * min(1.0, self.done / (self.total * iterations)))
             sys.stderr.write(f"\r[{'#' * filled}{'.' * (30 - filled)}] iteration "
-                             f"{iteration}/{iterations} {stage:<10s}")
+                             f"{iteration}/{iterations} {stage:<10s} {times:<32s}")
             sys.stderr.flush()
 
     def close(self):
         if self.enabled:
-            sys.stderr.write("\r" + " " * 70 + "\r")
+            sys.stderr.write("\r" + " " * 100 + "\r")
             sys.stderr.flush()
 
 

@@ -10,7 +10,7 @@ from ._threads import threads
 from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_k, check_size,
 )
-from .graph import knn_graph, morton_order, refresh_graph
+from .graph import knn_graph, morton_order, refresh_graph, truncate_graph
 from .kernels.order import gather_rows, scatter_rows
 from .pipelines import STEPS, aware
 from .progress import Clock, reporter
@@ -64,8 +64,9 @@ class DenoiseResult:
         ``mean_residual``), fallback counts (``fit_degree`` counts of cubic, quadratic and
         plane fits; ``degenerate_normals``; ``held_points``, points left in place because their
         step was not finite), region sizes and the mean step; plus the run's settings
-        (``"pipeline"``: "paper" or "aware"; ``"auto_k"``: the noise probe behind a ``k``
-        chosen from the data, else None) and ``"total_seconds"``. JSON-serialisable.
+        (``"k"``; ``"pipeline"``: "paper" or "aware"; ``"auto_k"``: the noise probe behind a
+        ``k`` chosen from the data, else None; ``"noise"``: the noise it estimated, else None)
+        and ``"total_seconds"``. JSON-serialisable.
     """
 
     points: np.ndarray
@@ -231,14 +232,17 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     given = None if given is None else given[order]
     step = STEPS[pipeline if method == "robust" else method]
     records = []
-    scale = None
+    scale = probe = None
     with threads(n_jobs) as n_threads:
         if auto:
-            k, scale = aware.choose_k(current, given)
+            k, scale, probe = aware.choose_k(current, given)
         out_normals = graph = None
         for iteration in range(iterations):
             clock = Clock(report, iteration, iterations)
-            if graph is None or rebuild_graph:
+            if probe is not None and iteration == 0 and k <= scale["probe_k"]:
+                # The probe's lists, cut to k, are this iteration's: no second query.
+                graph = clock.run("neighbors", truncate_graph, probe, current, k)
+            elif graph is None or rebuild_graph:
                 graph = clock.run("neighbors", knn_graph, current, k, False)
             else:
                 graph = clock.run("neighbors", refresh_graph, graph, current)
@@ -255,6 +259,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             current = moved
             if not params["keep_normals"]:
                 given = None
+            probe = None
 
     shift = _to_caller_order(current, order)
     out = shift + centre
@@ -266,6 +271,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         "preset": preset,
         "pipeline": pipeline,
         "auto_k": scale,
+        "noise": None if scale is None else scale["noise"],
         "rebuild_graph": bool(rebuild_graph),
         "n_iterations": iterations,
         "params": dict(params),

@@ -627,3 +627,50 @@ def test_float32_with_large_offsets_is_as_accurate_as_float64(preset):
     # mean error by far less (measured: 3e-7 default, 4e-6 paper). One iteration fewer would
     # cost 2e-5 (default) and 3e-4 (paper).
     assert surface_error(got) <= 1.01 * reference_error + 1e-5
+
+
+def test_the_probe_graph_serves_the_first_iteration(monkeypatch):
+    """k chosen at most the probe's k: one kNN query (the probe's) for one iteration, and the
+    same result as querying k neighbours anew."""
+    denoise_module = sys.modules["pssd_fast.denoise"]
+    points = wavy(3000, noise=0.002, seed=5)
+    calls = []
+    real = denoise_module.knn_graph
+
+    def counted(*args):
+        calls.append(args[1])
+        return real(*args)
+
+    monkeypatch.setattr(denoise_module, "knn_graph", counted)
+    monkeypatch.setattr("pssd_fast.pipelines.aware.knn_graph", counted)
+    auto = pssd_fast.denoise(points, iterations=1)
+    k = auto.stats["k"]
+    assert k <= auto.stats["auto_k"]["probe_k"] and calls == [auto.stats["auto_k"]["probe_k"]]
+    assert auto.stats["noise"] == auto.stats["auto_k"]["noise"] > 0
+    calls.clear()
+    fresh = pssd_fast.denoise(points, iterations=1, k=k)
+    assert calls == [k] and fresh.stats["noise"] is None
+    np.testing.assert_allclose(auto.points, fresh.points, rtol=0, atol=1e-12)
+
+
+def test_progress_lines_tell_the_elapsed_and_the_time_left(capsys):
+    pssd_fast.denoise(wavy(400, seed=2), iterations=3, k=20, progress=True)
+    lines = capsys.readouterr().err.splitlines()
+    assert all("elapsed" in line for line in lines)
+    first = [line for line in lines if "iteration 1/3" in line]
+    later = [line for line in lines if "iteration 3/3" in line]
+    assert first and not any("left" in line for line in first)
+    assert later and all("s left" in line for line in later)
+
+
+def test_time_left_is_the_mean_iteration_times_the_iterations_to_go(monkeypatch):
+    from pssd_fast import progress
+    now = [100.0]
+    monkeypatch.setattr(progress.time, "perf_counter", lambda: now[0])
+    clock = progress.TimeLeft()
+    assert clock(1, 4, 2.0) == (2.0, None)       # first stage took 2 s
+    now[0] = 110.0
+    assert clock(1, 4, 8.0) == (12.0, None)      # iteration 1 ends at 110: 12 s long
+    now[0] = 113.0
+    elapsed, left = clock(2, 4, 3.0)             # 3 s into iteration 2
+    assert elapsed == 15.0 and left == 12.0 * 3 - 3.0

@@ -63,6 +63,8 @@ def choose_k(points, given):
     k : int
     probe : dict
         What the probe measured (``noise``, ``probe_radius``, their ``ratio``), for ``stats``.
+    graph : ListScales
+        The probe's lists, which serve the first iteration when ``k`` is at most ``probe_k``.
     """
     started = time.perf_counter()
     n = points.shape[0]
@@ -80,5 +82,6 @@ def choose_k(points, given):
     anchors = np.log(np.array(AUTO_K["anchors"], dtype=float))
     k = int(round(np.exp(np.interp(np.log(max(ratio, 1e-12)), anchors[:, 0], anchors[:, 1]))))
     k = max(min(k, n - 1), min(10, n - 1))
-    return check_k(k, n), {"k": k, "probe_k": probe, "noise": sigma, "probe_radius": radius,
-                           "ratio": ratio, "seconds": time.perf_counter() - started}
+    scales = {"k": k, "probe_k": probe, "noise": sigma, "probe_radius": radius, "ratio": ratio,
+              "seconds": time.perf_counter() - started}
+    return check_k(k, n), scales, graph
