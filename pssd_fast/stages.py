@@ -12,7 +12,7 @@ import numpy as np
 from . import core
 from ._threads import threads
 from ._validation import as_normals, as_points, check_choice, check_float, check_k
-from .graph import caller_order_graph, check_graph
+from .graph import NeighborGraph, check_graph, knn_graph, morton_order
 
 class MLSFit(NamedTuple):
     """Result of :func:`mls_fit`.
@@ -39,31 +39,67 @@ class MLSFit(NamedTuple):
     h: float
 
 
-def _graph(points, k, graph):
-    """The caller's graph, validated, or a new one."""
-    if graph is not None:
-        return check_graph(graph, points.shape[0])
-    return caller_order_graph(points, check_k(k, points.shape[0]))
+class _Sorted(NamedTuple):
+    """Validated inputs of a public stage, rows in Morton order (better locality in every
+    kernel: the region growing runs 7x faster on sorted than on shuffled input)."""
+
+    order: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    graph: NeighborGraph
+    dtype: np.dtype
+
+    def unsort(self, values):
+        """``values`` (one row per sorted point) back in the caller's order and float dtype."""
+        out = np.empty_like(values)
+        out[self.order] = values
+        return out.astype(self.dtype, copy=False) if out.dtype.kind == "f" else out
 
 
-def _prepare(points, normals_, k, graph, n_jobs):
-    """Validate inputs; build the graph and estimate normals where not given."""
+def _sorted_graph(graph, order):
+    """A caller-order graph with its rows (and the indices in them) in the order ``order``."""
+    n = order.shape[0]
+    rank = np.empty(n, graph.indices.dtype)
+    rank[order] = np.arange(n, dtype=graph.indices.dtype)
+    lengths = np.diff(graph.indptr)[order]
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(lengths, out=indptr[1:])
+    within = np.arange(indptr[-1], dtype=np.int64) - np.repeat(indptr[:-1], lengths)
+    entries = np.repeat(graph.indptr[:-1][order], lengths) + within
+    return NeighborGraph(indptr, rank[graph.indices[entries]], graph.distances[entries])
+
+
+def _prepare(points, normals_, k, graph, n_jobs, orient=None):
+    """Validate inputs, sort them along a Morton curve, build the graph (or sort the caller's)
+    and estimate normals where not given (oriented along ``orient``, default outward)."""
     pts, dtype = as_points(points)
-    nrm = None if normals_ is None else as_normals(normals_, pts.shape[0])
+    n = pts.shape[0]
+    hints = None if orient is None else as_points(orient, "orient")[0]
+    if hints is not None and hints.shape[0] != n:
+        raise ValueError(f"orient must have one row per point: got {hints.shape[0]} rows for "
+                         f"{n} points")
+    nrm = None if normals_ is None else as_normals(normals_, n)
+    graph = None if graph is None else check_graph(graph, n)
+    k = None if graph is not None else check_k(k, n)
     with threads(n_jobs):
-        graph = _graph(pts, k, graph)
+        order = morton_order(pts)
+        pts = pts[order]
+        graph = knn_graph(pts, k) if graph is None else _sorted_graph(graph, order)
         if nrm is None:
-            nrm, _ = core.pca_normals(pts, graph, core.outward_hints(pts))
-    return pts, dtype, nrm, graph
+            hints = core.outward_hints(pts) if hints is None else hints[order]
+            nrm, _ = core.pca_normals(pts, graph, hints)
+        else:
+            nrm = nrm[order]
+    return _Sorted(order, pts, nrm, graph, dtype)
 
 
 def _fit(points, normals_, k, h, graph, n_jobs):
-    """The MLS stage for the public functions: a float64 :class:`MLSFit` and the output dtype."""
+    """The MLS stage for the public functions, in Morton order: a float64 :class:`MLSFit`."""
     h = None if h is None else check_float(h, "h", positive=True)
-    pts, dtype, nrm, graph = _prepare(points, normals_, k, graph, n_jobs)
-    h = core.default_h(graph, h)
+    run = _prepare(points, normals_, k, graph, n_jobs)
+    h = core.default_h(run.graph, h)
     with threads(n_jobs):
-        return MLSFit(*core.mls_fit(pts, nrm, graph, h), h), dtype
+        return run, MLSFit(*core.mls_fit(run.points, run.normals, run.graph, h), h)
 
 
 def estimate_normals(points, *, k=25, graph=None, orient=None, n_jobs=None):
@@ -95,15 +131,8 @@ def estimate_normals(points, *, k=25, graph=None, orient=None, n_jobs=None):
     list about its centroid. Collinear or coincident lists have no plane; their normal is an
     arbitrary but deterministic unit vector.
     """
-    pts, dtype = as_points(points)
-    n = pts.shape[0]
-    hints = core.outward_hints(pts) if orient is None else as_points(orient, "orient")[0]
-    if hints.shape[0] != n:
-        raise ValueError(f"orient must have one row per point: got {hints.shape[0]} rows for "
-                         f"{n} points")
-    with threads(n_jobs):
-        out, _ = core.pca_normals(pts, _graph(pts, k, graph), hints)
-    return out.astype(dtype, copy=False)
+    run = _prepare(points, None, k, graph, n_jobs, orient)
+    return run.unsort(run.normals)
 
 
 def mls_fit(points, normals=None, *, k=25, h=None, graph=None, n_jobs=None):
@@ -138,9 +167,8 @@ def mls_fit(points, normals=None, *, k=25, h=None, graph=None, n_jobs=None):
     ill-conditioned 10x10 normal equations, e.g. collinear or duplicated points) fall back to
     the quadratic, then to the plane ``g = 0``.
     """
-    fit, dtype = _fit(points, normals, k, h, graph, n_jobs)
-    return MLSFit(*(a.astype(dtype, copy=False) for a in fit[:2]), fit.degree,
-                  fit.curvature.astype(dtype, copy=False), fit.h)
+    run, fit = _fit(points, normals, k, h, graph, n_jobs)
+    return MLSFit(*(run.unsort(a) for a in fit[:4]), fit.h)
 
 
 def sampling_likelihood(points, normals=None, *, k=25, h=None, likelihood="exp", graph=None,
@@ -162,9 +190,9 @@ def sampling_likelihood(points, normals=None, *, k=25, h=None, likelihood="exp",
         ``l_i``; for ``"exp"`` and ``"ratio"`` in (0, 1], 1 on a clean surface.
     """
     check_choice(likelihood, "likelihood", tuple(core.LIKELIHOOD_FORMS))
-    fit, dtype = _fit(points, normals, k, h, graph, n_jobs)
+    run, fit = _fit(points, normals, k, h, graph, n_jobs)
     out, _ = core.sampling_likelihood(fit.residuals, likelihood)
-    return out.astype(dtype, copy=False)
+    return run.unsort(out)
 
 
 def feature_intensity(points, normals=None, *, k=25, radius_factor=10.0, delta=0.2, alpha=0.3,
@@ -203,11 +231,12 @@ def feature_intensity(points, normals=None, *, k=25, radius_factor=10.0, delta=0
     delta = check_float(delta, "delta", positive=True)
     alpha = check_float(alpha, "alpha", positive=True)
     beta = check_float(beta, "beta", positive=True)
-    pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
+    run = _prepare(points, normals, k, graph, n_jobs)
     with threads(n_jobs):
-        out, _ = core.feature_intensity(pts, nrm, graph, radius_factor * core.mean_spacing(graph),
-                                        delta, alpha, beta)
-    return out.astype(dtype, copy=False)
+        out, _ = core.feature_intensity(run.points, run.normals, run.graph,
+                                        radius_factor * core.mean_spacing(run.graph), delta,
+                                        alpha, beta)
+    return run.unsort(out)
 
 
 def filter_normals(points, normals=None, *, k=25, graph=None, n_jobs=None):
@@ -229,7 +258,7 @@ def filter_normals(points, normals=None, *, k=25, graph=None, n_jobs=None):
     Gaussian of the normal deviation angle whose width is that angle's standard deviation over
     the list.
     """
-    pts, dtype, nrm, graph = _prepare(points, normals, k, graph, n_jobs)
+    run = _prepare(points, normals, k, graph, n_jobs)
     with threads(n_jobs):
-        out = core.filter_normals(pts, nrm, graph)
-    return out.astype(dtype, copy=False)
+        out = core.filter_normals(run.points, run.normals, run.graph)
+    return run.unsort(out)

@@ -4,13 +4,14 @@ import time
 import numpy as np
 
 from .denoise import METHODS, denoise
+from .graph import GRID_K, knn_graph
 
 
 def warmup():
     """Compile every kernel on a tiny cloud, so later calls run at full speed.
 
     The first call in a fresh environment compiles the kernels (tens of seconds) and stores
-    them in numba's cache beside the package; later processes load them from there.
+    them in the kernel cache (see the README, "How it works"); later processes load them.
 
     Returns
     -------
@@ -27,4 +28,7 @@ def warmup():
     # Two passes on one graph: the second re-sorts the first's lists (refresh_lists).
     denoise(points, k=10, iterations=2, preset="fast")
     denoise(points.astype(np.float32), points, k=10, iterations=1)
+    # Lists as long as the default's at scan sizes come from the grid query.
+    sphere = rng.normal(size=(GRID_K + 1, 3))
+    knn_graph(sphere / np.linalg.norm(sphere, axis=1)[:, None], GRID_K, False)
     return time.perf_counter() - started

@@ -82,7 +82,7 @@ def test_grid_and_tree_queries_agree_and_ignore_the_thread_count(monkeypatch):
     for a, b in zip(*runs):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(runs[0].indices, tree.indices)  # no ties in this cloud
-    np.testing.assert_array_equal(runs[0].distances, tree.distances)
+    np.testing.assert_allclose(runs[0].distances, tree.distances, rtol=1e-15, atol=0)
 
 
 @pytest.mark.parametrize("name", ["wavy", "duplicates"])
