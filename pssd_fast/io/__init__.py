@@ -65,7 +65,7 @@ for _cls in (PointCloud, PointCloudFileError, PointCloudFileNotFoundError, Point
 del _cls
 
 __all__ = ["STDIO", "PointCloud", "PointCloudFileError", "PointCloudFileNotFoundError",
-           "PointCloudWarning", "formats", "read", "write"]
+           "PointCloudWarning", "formats", "read", "storable", "write"]
 
 #: The path that means standard input (:func:`read`) or standard output (:func:`write`).
 STDIO = "-"
@@ -100,6 +100,33 @@ def formats():
     """
     gz = [ext + ".gz" for ext, kind in _FORMATS.items() if kind in _GZIP_KINDS]
     return tuple(sorted([*_FORMATS, *gz]))
+
+
+def storable(path, names, *, format=None):
+    """The names among ``names`` whose per-point fields :func:`write` can store in ``path``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An output file name (or ``"-"`` with ``format``); only its extension matters.
+    names : iterable of str
+        Field names.
+    format : str, optional
+        As for :func:`write`.
+
+    Returns
+    -------
+    list of str
+        ``names`` in their order, less those the format cannot hold (all of them for
+        ``.npy``, all but ``red green blue w`` for ``.obj``).
+
+    Raises
+    ------
+    PointCloudFileError
+        On an unknown extension or format.
+    """
+    holds = _HOLDS.get(_target(path, format, "<stdout>").ext)
+    return [name for name in names if holds is None or name in holds]
 
 
 def _split_ext(name, ext, what):
@@ -297,15 +324,15 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     if kind in ("ply", "xyz"):
         check_names(name, merged, f"a {target.ext} file")
     source = cloud.source if cloud.format == kind else None
-    holds = _HOLDS.get(target.ext)
-    dropped = [] if holds is None else [f for f in merged if f not in holds]
+    kept = storable(name, merged, format=target.ext)
+    dropped = [f for f in merged if f not in kept]
     if dropped:
         warnings.warn(f"{name}: {target.ext} cannot hold fields {dropped}; they are not "
                       f"written (use .npz, .ply, .las or text to keep them)", PointCloudWarning,
                       stacklevel=2)
     payload = _MODULES[kind].payload(name, target.ext, pts, nrm, merged, source)
     if target.gz:
-        payload = _gzipped(payload, name)
+        payload = _gzipped(payload)
     if target.path is None:
         buffer = io.BytesIO()
         payload(buffer)
@@ -316,10 +343,9 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     return name
 
 
-def _gzipped(payload, name):
-    """``payload`` writing through gzip; no time stamp, so equal data give equal files."""
+def _gzipped(payload):
+    """``payload`` writing through gzip; no name or time stamp, so equal data give equal files."""
     def write(fh):
-        with gzip.GzipFile(filename=name.name if isinstance(name, Path) else "", mode="wb",
-                           fileobj=fh, mtime=0) as gz:
+        with gzip.GzipFile(filename="", mode="wb", fileobj=fh, mtime=0) as gz:
             payload(gz)
     return write
