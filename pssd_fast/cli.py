@@ -8,6 +8,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,8 @@ COLORS = ("likelihood", "feature", "curvature", "displacement", "height")
 DEMO_FILES = ("noisy", "denoised", "curvature", "likelihood", "feature", "denoised_curvature",
               "denoised_displacement")
 STAGE_COUNT = {"robust": 7, "mls": 3, "bilateral": 3}
+#: What ``pssd denoise --fields`` may add; all of them by default (where the method has them).
+RESULT_FIELDS = ("likelihood", "feature_intensity", "displacement", "normals")
 
 
 class CommandError(Exception):
@@ -65,7 +68,9 @@ def main(argv=None):
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     try:
-        return args.run(args) or 0
+        with warnings.catch_warnings():
+            warnings.showwarning = _note
+            return args.run(args) or 0
     except KeyboardInterrupt:
         print("pssd: interrupted", file=sys.stderr)
         return 130
@@ -78,6 +83,11 @@ def main(argv=None):
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _note(message, category, filename, lineno, file=None, line=None):
+    """Warnings reach the user as one line on stderr, without the source line."""
+    print(f"pssd: note: {_one_line(message)}", file=sys.stderr)
 
 
 def _one_line(exc):
@@ -95,13 +105,26 @@ def _parser():
     sub = parser.add_subparsers(title="commands", metavar="COMMAND")
 
     den = sub.add_parser(
-        "denoise", help="denoise a point cloud file",
-        description="Denoise IN and write OUT (format from OUT's extension: .ply, .xyz, .pts, "
-                    ".txt, .npy, .npz, .las, .laz). Every attribute of the input is written back "
-                    "unchanged; likelihood, feature_intensity and displacement are added as "
-                    "new per-point properties where the format can hold them.")
-    den.add_argument("input", metavar="IN", type=Path, help="input point cloud")
-    den.add_argument("output", metavar="OUT", type=Path, help="output file")
+        "denoise", help="denoise point cloud files",
+        usage="pssd denoise [options] IN OUT\n       pssd denoise [options] IN [IN ...] -o FOLDER",
+        description="Denoise IN and write OUT, or each IN into FOLDER under its own name. "
+                    "Formats follow the extensions: .ply, .xyz, .pts, .txt, .csv, .obj (text, "
+                    "PLY and OBJ also gzipped, e.g. .ply.gz), .npy, .npz, .las, .laz; '-' is "
+                    "standard input or output, in the format --format names. Every attribute "
+                    "of the input is written back unchanged; likelihood, feature_intensity, "
+                    "displacement (float32) and normals are added where the format can hold "
+                    "them (see --fields).")
+    den.add_argument("paths", metavar="PATH", nargs="+",
+                     help="IN OUT, or with -o the inputs; '-' reads stdin or writes stdout")
+    den.add_argument("-o", "--output-dir", type=Path, default=None, metavar="FOLDER",
+                     help="write each input into FOLDER (created if missing) under its name")
+    den.add_argument("--format", default=None, metavar="FMT",
+                     help="format of '-' (stdin/stdout) as an extension: xyz, csv, ply, "
+                          "ply.gz, las...")
+    den.add_argument("--fields", default=None, metavar="LIST",
+                     help=f"comma-separated fields to add: {', '.join(RESULT_FIELDS)}, or "
+                          f"none (default: all the method computes, where the output format "
+                          f"can hold them; an input's own normals are always updated)")
     den.add_argument("--method", choices=("robust", "bilateral", "mls"), default="robust",
                      help="robust (the paper's method), bilateral (BIL) or mls (default robust)")
     _add_common(den)
@@ -207,7 +230,7 @@ class _Progress:
             sys.stderr.flush()
 
 
-def _run_denoise(points, normals, args, method_params):
+def _run_denoise(points, normals, args, method_params, say=None):
     from .denoise import denoise
 
     progress = _Progress(STAGE_COUNT[args.method], not args.quiet)
@@ -227,10 +250,11 @@ def _run_denoise(points, normals, args, method_params):
             f"{probe['probe_k']} neighbours, mean radius {probe['probe_radius']:.4g}, ratio "
             f"{probe['ratio']:.3f})")
         threads = result.stats["n_jobs"]
-        print(f"k = {result.stats['k']}{chosen}; {threads} thread{'s' * (threads != 1)}")
+        print(f"k = {result.stats['k']}{chosen}; {threads} thread{'s' * (threads != 1)}",
+              file=say or sys.stdout)
         for i, record in enumerate(result.stats["iterations"], 1):
             times = ", ".join(f"{s} {t:.3f}" for s, t in record["times"].items())
-            print(f"iteration {i}: {times} (s)")
+            print(f"iteration {i}: {times} (s)", file=say or sys.stdout)
     return result, seconds
 
 
@@ -244,9 +268,79 @@ def _check_output(path, force):
         raise CommandError(f"output folder {path.parent} {state}")
 
 
-def _denoise(args):
+def _is_stdio(path):
+    return str(path) == "-"
+
+
+def _jobs(args):
+    """The (input, output) pairs of ``pssd denoise``, checked before any work."""
     from . import io
 
+    if args.output_dir is None:
+        if len(args.paths) != 2:
+            raise CommandError(f"expected IN OUT, or IN [IN ...] -o FOLDER; got "
+                               f"{len(args.paths)} path(s) without -o")
+        jobs = [tuple(p if _is_stdio(p) else Path(p) for p in args.paths)]
+    else:
+        if any(_is_stdio(p) for p in args.paths):
+            raise CommandError("'-' (stdin) cannot be one of several inputs of -o FOLDER")
+        if args.output_dir.exists() and not args.output_dir.is_dir():
+            raise CommandError(f"{args.output_dir} exists and is not a folder")
+        jobs = [(Path(p), args.output_dir / Path(p).name) for p in args.paths]
+        names = [out.name for _, out in jobs]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise CommandError(f"several inputs would be written to {args.output_dir} as "
+                               f"{', '.join(twice)}")
+    uses_stdio = any(_is_stdio(p) for job in jobs for p in job)
+    if uses_stdio and args.format is None:
+        raise CommandError("'-' needs --format to name its format (e.g. --format xyz)")
+    for inp, out in jobs:
+        fmt = args.format if _is_stdio(out) else None
+        io.storable(out, [], format=fmt)  # an unknown format fails now, not after the work
+        if _is_stdio(out):
+            continue
+        # Before the --force check: --force does not make replacing the input possible.
+        if not _is_stdio(inp) and out.resolve() == inp.resolve():
+            raise CommandError(f"{out} is the input file; choose another output (the input is "
+                               "never modified)")
+        if args.output_dir is None:  # else checked once the folder exists
+            _check_output(out, args.force)
+    return jobs
+
+
+def _added_fields(args, result, out, had_normals):
+    """The fields ``--fields`` asks for (float32) and whether to write the new normals."""
+    from . import io
+
+    have = {"likelihood": result.likelihood, "feature_intensity": result.feature_intensity,
+            "displacement": result.displacement, "normals": result.normals}
+    fmt = args.format if _is_stdio(out) else None
+    if args.fields is None:
+        scalars = [n for n in RESULT_FIELDS if n != "normals" and have[n] is not None]
+        names = [*io.storable(out, scalars, format=fmt), "normals"]
+    else:
+        names = [n.strip() for n in args.fields.split(",") if n.strip()]
+        if names == ["none"]:
+            names = []
+        unknown = [n for n in names if n not in RESULT_FIELDS]
+        if unknown:
+            raise CommandError(f"--fields: unknown field(s) {', '.join(unknown)}; choose from "
+                               f"{', '.join(RESULT_FIELDS)} or none")
+        missing = [n for n in names if have[n] is None]
+        if missing:
+            raise CommandError(f"--fields: method {args.method!r} computes no "
+                               f"{', '.join(missing)}")
+        scalars = [n for n in names if n != "normals"]
+        refused = sorted(set(scalars) - set(io.storable(out, scalars, format=fmt)))
+        if refused:
+            raise CommandError(f"--fields: {out} cannot hold {', '.join(refused)} (use .npz, "
+                               f".ply, .las or text)")
+    fields = {n: np.asarray(have[n], dtype=np.float32) for n in names if n != "normals"}
+    return fields, "normals" in names or had_normals
+
+
+def _denoise(args):
     params = {}
     for dest, (methods, _) in METHOD_OPTIONS.items():
         value = getattr(args, dest)
@@ -258,26 +352,42 @@ def _denoise(args):
         params[dest] = value
     if args.keep_normals:
         params["keep_normals"] = True
-    # Before the --force check: --force does not make replacing the input possible.
-    if args.output.resolve() == args.input.resolve():
-        raise CommandError(f"{args.output} is the input file; choose another output (the "
-                           "input is never modified)")
-    _check_output(args.output, args.force)
-    cloud = io.read(args.input)
-    result, seconds = _run_denoise(cloud.points, cloud.normals, args, params)
-    fields = {"displacement": result.displacement.astype(np.float64)}
-    if result.likelihood is not None:
-        fields["likelihood"] = result.likelihood.astype(np.float64)
-        fields["feature_intensity"] = result.feature_intensity.astype(np.float64)
-    io.write(args.output, cloud, points=result.points.astype(np.float64),
-             normals=result.normals.astype(np.float64), fields=fields, overwrite=args.force)
+    jobs = _jobs(args)
+    # Data on stdout: every message goes to stderr.
+    say = sys.stderr if any(_is_stdio(out) for _, out in jobs) else sys.stdout
+    if args.output_dir is not None:
+        args.output_dir.mkdir(parents=True, exist_ok=True)
+        for _, out in jobs:
+            _check_output(out, args.force)
+    failed = 0
+    for inp, out in jobs:
+        try:
+            _denoise_file(args, params, inp, out, say)
+        except (CommandError, OSError, ValueError, TypeError) as exc:
+            if len(jobs) == 1:
+                raise
+            message = _one_line(exc)
+            prefix = "" if str(inp) in message else f"{inp}: "
+            print(f"pssd: error: {prefix}{message}", file=sys.stderr)
+            failed += 1
+    return 1 if failed else 0
+
+
+def _denoise_file(args, params, inp, out, say):
+    from . import io
+
+    fmt = args.format
+    cloud = io.read(inp, format=fmt if _is_stdio(inp) else None)
+    result, seconds = _run_denoise(cloud.points, cloud.normals, args, params, say)
+    fields, with_normals = _added_fields(args, result, out, cloud.normals is not None)
+    normals = result.normals.astype(np.float64) if with_normals else None
+    io.write(out, cloud, points=result.points.astype(np.float64), normals=normals,
+             fields=fields, overwrite=args.force, format=fmt if _is_stdio(out) else None)
     if not args.quiet:
         disp = result.displacement
-        print(f"{args.input} -> {args.output}: {len(disp):,} points, method {args.method}, "
+        print(f"{inp} -> {out}: {len(disp):,} points, method {args.method}, "
               f"{result.stats['n_iterations']} iterations, {seconds:.2f} s; displacement max "
-              f"{disp.max():.4g}"
-              f", mean {disp.mean():.4g}")
-    return 0
+              f"{disp.max():.4g}, mean {disp.mean():.4g}", file=say)
 
 
 def _demo(args):

@@ -1,4 +1,5 @@
 """The ``pssd`` command end to end, in a subprocess, errors included."""
+import gzip
 import subprocess
 import sys
 
@@ -319,3 +320,146 @@ def test_main_runs_outside_the_main_thread(tmp_path, capsys):
     worker.join()
     assert status == [0]
     assert "50" in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------------------------------------
+# Issue 14: formats, stdin/stdout, batches and the added fields
+
+
+@pytest.fixture(scope="module")
+def small():
+    return datasets.cad_part(n_points=800, noise=0.003, seed=2).points
+
+
+def csv_lines(points, header="//X,Y,Z,R,G,B"):
+    rgb = np.arange(3 * len(points)).reshape(-1, 3) % 256
+    rows = [",".join([*map(repr, map(float, p)), *map(str, c)]) for p, c in zip(points, rgb)]
+    return [header, *rows], rgb
+
+
+class Stdio:
+    """Stands for sys.stdin / sys.stdout in-process: the data goes through ``buffer``."""
+
+    def __init__(self, data=b""):
+        import io
+
+        self.buffer = io.BytesIO(data)
+
+    def write(self, text):  # text written to stdout by mistake would land here
+        self.buffer.write(text.encode())
+
+
+def test_stdin_to_stdout_in_a_subprocess(small):
+    data = "\n".join(" ".join(map(repr, map(float, p))) for p in small) + "\n"
+    done = subprocess.run([sys.executable, "-m", "pssd_fast.cli", "denoise", "-", "-",
+                           "--format", "xyz", "--iterations", "1"], input=data.encode(),
+                          capture_output=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.decode().splitlines()
+    assert lines[0] == "# x y z nx ny nz likelihood feature_intensity displacement"
+    assert len(lines) == len(small) + 1
+    assert "- -> -: 800 points" in done.stderr.decode()
+
+
+def test_stdin_csv_to_stdout_ply_in_process(small, monkeypatch, capsys):
+    lines, rgb = csv_lines(small)
+    monkeypatch.setattr(sys, "stdin", Stdio("\n".join(lines).encode()))
+    out = Stdio()
+    monkeypatch.setattr(sys, "stdout", out)
+    status = cli.main(["denoise", "-", "-", "--format", "csv", "--iterations", "1",
+                       "--verbose"])
+    err = capsys.readouterr().err
+    assert status == 0, err
+    assert "iteration 1:" in err and "- -> -" in err  # messages on stderr, data on stdout
+    lines = out.buffer.getvalue().decode().splitlines()
+    assert lines[0] == "x,y,z,nx,ny,nz,red,green,blue,likelihood,feature_intensity,displacement"
+    assert [row.split(",")[6:9] for row in lines[1:3]] == [list(map(str, c)) for c in rgb[:2]]
+
+
+def test_dash_needs_a_format(tmp_path, capsys):
+    status = cli.main(["denoise", "-", str(tmp_path / "out.ply")])
+    assert_one_line_error(status, capsys.readouterr().err, "'-' needs --format")
+
+
+def test_batch_into_a_folder(tmp_path, small):
+    lines, rgb = csv_lines(small)
+    (tmp_path / "a.csv").write_text("\n".join(lines) + "\n")
+    np.savetxt(tmp_path / "b.xyz", small)
+    out = tmp_path / "out" / "deeper"
+    status, stdout, err = pssd("denoise", tmp_path / "a.csv", tmp_path / "b.xyz", "-o", out,
+                               "--iterations", "1", "--fields", "displacement")
+    assert status == 0, err
+    assert sorted(p.name for p in out.iterdir()) == ["a.csv", "b.xyz"]
+    assert stdout.count(" -> ") == 2
+    a = (out / "a.csv").read_text().splitlines()
+    assert a[0] == "x,y,z,red,green,blue,displacement"  # the input had no normals
+    assert a[1].split(",")[3:6] == list(map(str, rgb[0]))  # integers stay integers
+    # The same names again need --force; two inputs of one name are refused before any work.
+    assert_one_line_error(*pssd("denoise", tmp_path / "b.xyz", "-o", out)[::2], "--force")
+    (tmp_path / "sub").mkdir()
+    np.savetxt(tmp_path / "sub" / "b.xyz", small)
+    assert_one_line_error(*pssd("denoise", tmp_path / "b.xyz", tmp_path / "sub" / "b.xyz", "-o",
+                                tmp_path / "other")[::2], "as b.xyz")
+    assert not (tmp_path / "other").exists()
+    assert_one_line_error(*pssd("denoise", tmp_path / "b.xyz", tmp_path / "a.csv",
+                                tmp_path / "c.ply")[::2], "IN [IN ...] -o FOLDER")
+
+
+def test_fields_choose_what_is_added(tmp_path, small, capsys):
+    np.savetxt(tmp_path / "in.xyz", small)
+    base = ["denoise", str(tmp_path / "in.xyz"), "--iterations", "1", "--quiet"]
+    assert cli.main([*base[:2], str(tmp_path / "none.las"), *base[2:], "--fields", "none"]) == 0
+    assert cli.main([*base[:2], str(tmp_path / "some.las"), *base[2:], "--fields",
+                     "displacement,normals"]) == 0
+    assert cli.main([*base[:2], str(tmp_path / "all.las"), *base[2:]]) == 0
+    dims = {name: list(laspy.read(tmp_path / f"{name}.las").point_format.extra_dimension_names)
+            for name in ("none", "some", "all")}
+    assert dims == {"none": [], "some": ["displacement", "nx", "ny", "nz"],
+                    "all": ["likelihood", "feature_intensity", "displacement", "nx", "ny", "nz"]}
+    las = laspy.read(tmp_path / "all.las")
+    assert {las[d].dtype for d in dims["all"]} == {np.dtype(np.float32)}
+    # .npy holds points only: the default adds nothing, and says nothing.
+    assert cli.main([*base[:2], str(tmp_path / "out.npy"), *base[2:]]) == 0
+    assert np.load(tmp_path / "out.npy").shape == (len(small), 3)
+    assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("name, extra, match", [
+    ("out.ply", ["--fields", "likelihood,color"], "unknown field(s) color"),
+    ("out.ply", ["--fields", "likelihood", "--method", "mls"],
+     "method 'mls' computes no likelihood"),
+    ("out.npy", ["--fields", "likelihood"], "out.npy cannot hold likelihood"),
+])
+def test_fields_errors(tmp_path, small, capsys, name, extra, match):
+    np.savetxt(tmp_path / "in.xyz", small)
+    status = cli.main(["denoise", str(tmp_path / "in.xyz"), str(tmp_path / name),
+                       "--iterations", "1", "--quiet", *extra])
+    assert_one_line_error(status, capsys.readouterr().err, match)
+    assert not (tmp_path / name).exists()
+
+
+def test_dropped_attributes_are_a_one_line_note(tmp_path, ply_with_extras, capsys):
+    path, _ = ply_with_extras
+    status = cli.main(["denoise", str(path), str(tmp_path / "out.npy"), "--iterations", "1",
+                       "--quiet"])
+    err = capsys.readouterr().err
+    assert status == 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("pssd: note: ") and \
+        "cannot hold fields ['red', 'green', 'blue', 'quality']" in lines[0], err
+    assert "warn" not in err.lower()
+
+
+def test_obj_and_gzip_end_to_end(tmp_path, small, capsys):
+    faces = "\n".join(f"f {i + 1} {i + 2} {i + 3}" for i in range(3))
+    body = "\n".join("v " + " ".join(map(repr, map(float, p))) for p in small)
+    with gzip.open(tmp_path / "scan.obj.gz", "wt") as fh:
+        fh.write(f"o scan\n{body}\n{faces}\n")
+    assert cli.main(["denoise", str(tmp_path / "scan.obj.gz"), str(tmp_path / "clean.obj.gz"),
+                     "--iterations", "1", "--quiet"]) == 0
+    with gzip.open(tmp_path / "clean.obj.gz", "rt") as fh:
+        lines = fh.read().splitlines()
+    assert lines[0] == "o scan" and lines[-3:] == faces.splitlines()
+    assert sum(line.startswith("v ") for line in lines) == len(small)
+    assert sum(line.startswith("vn ") for line in lines) == len(small)
+    assert capsys.readouterr().err == ""

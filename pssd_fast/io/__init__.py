@@ -1,25 +1,32 @@
 """Reading and writing point-cloud files without losing what the scanner put in them.
 
-:func:`read` turns a ``.ply``, ``.xyz``/``.pts``/``.txt``, ``.npy``, ``.npz`` or ``.las``/``.laz``
-file into a :class:`PointCloud`: float64 points, normals when the file has them, and every other
+:func:`read` turns a ``.ply``, ``.xyz``/``.pts``/``.txt``/``.csv``, ``.obj``, ``.npy``, ``.npz`` or
+``.las``/``.laz`` file (text, PLY and OBJ also gzipped: ``scan.ply.gz``), or standard input
+(``"-"`` with ``format=``), into a :class:`PointCloud`: float64 points, normals when the file has them, and every other
 per-point attribute (colours, intensity, classification, scalar fields...) in ``fields`` with its
 original dtype. :func:`write` writes a cloud back with new points, normals and added per-point
 fields (``likelihood``, ``feature_intensity``...), keeping everything else of the input as it was
 when the output has the input's format: other PLY properties and elements (faces), comments,
 ASCII/binary and byte order; LAS point format, version, scale, offset, every point record, VLRs
-and EVLRs; leading comment lines of text files; other arrays of an ``.npz``.
+and EVLRs; leading comment lines of text files; other arrays of an ``.npz``; faces, groups,
+materials and every other line of an OBJ file.
 
 What cannot be carried across formats (the output format follows the output's extension):
 
 * PLY elements other than ``vertex`` (faces, edges...), PLY comments and ``obj_info``, list
   properties of vertices, and LAS headers, VLRs, EVLRs and multi-valued extra bytes exist only
   in their own format; writing to another format drops them.
-* ``.npy`` holds points and normals only: fields are dropped with a warning (use ``.npz``).
-* Text files store every column as a decimal number: fields come back as float64 (each value
-  is written in the shortest form that reads back equal in its own dtype). Only comment lines
-  before the data are kept. ``.pts`` output always starts with the point count line; it gets a
-  ``# x y z ...`` column line only when the column names differ from what a reader infers by
-  default (``x y z``, ``x y z nx ny nz``, or ``col3``...).
+* ``.npy`` holds points only, an (n, 3) array (normals as columns 4-6 only when the input was
+  an (n, 6) ``.npy``); OBJ holds ``red green blue`` (or ``w``) on its ``v`` lines and normals
+  as ``vn`` lines. Fields these cannot hold are dropped with a :class:`PointCloudWarning`
+  (use ``.npz`` to keep them as named arrays).
+* Text files store every column as a decimal number: a column written without decimal point or
+  exponent comes back as integers (colours as uint8), others as float64; each value is written
+  in the shortest form that reads back equal in its own dtype. Only comment lines before the
+  data are kept. ``.csv`` output is comma-separated with a bare ``x,y,z,...`` header line;
+  ``.pts`` output always starts with the point count line, then ``x y z intensity red green
+  blue`` (those the cloud has) before other columns, and gets a ``# x y z ...`` column line
+  only when the column names differ from what a reader infers by default.
 * LAS has no normals or free-form attributes: a new LAS file (from a non-LAS cloud) is LAS 1.4,
   point format 6, with per-axis scale the smallest power of ten that fits the extent in int32
   (so coordinates change by at most half of it) and offset the centre of the bounding box;
@@ -33,27 +40,51 @@ What cannot be carried across formats (the output format follows the output's ex
 Plain numpy handles NPY, NPZ and text; PLY needs ``plyfile`` and LAS/LAZ ``laspy[lazrs]``
 (``pip install 'pssd_fast[io]'``).
 """
+import dataclasses
+import gzip
+import io
 import os
+import sys
 import warnings
+import zlib
 from pathlib import Path
 
-from . import las, npy, ply, text
+from . import las, npy, obj, ply, text
 from ._common import (COORDS, NORMALS, PointCloud, PointCloudFileError,
                       PointCloudFileNotFoundError, as_array, as_fields, atomic_write,
                       check_finite, check_names, exists_message)
 
+
+class PointCloudWarning(UserWarning):
+    """Something of the cloud that the output format cannot hold and that is not written."""
+
+
 # Report the public classes where users import them from, not from the private module.
-for _cls in (PointCloud, PointCloudFileError, PointCloudFileNotFoundError):
+for _cls in (PointCloud, PointCloudFileError, PointCloudFileNotFoundError, PointCloudWarning):
     _cls.__module__ = __name__
 del _cls
 
-__all__ = ["PointCloud", "PointCloudFileError", "PointCloudFileNotFoundError", "describe",
-           "formats", "read", "write"]
+__all__ = ["STDIO", "PointCloud", "PointCloudFileError", "PointCloudFileNotFoundError",
+           "PointCloudWarning", "describe", "formats", "read", "storable", "write"]
 
+#: The path that means standard input (:func:`read`) or standard output (:func:`write`).
+STDIO = "-"
 # Extension -> PointCloud.format, and the module reading and writing each format.
-_FORMATS = {".las": "las", ".laz": "las", ".npy": "npy", ".npz": "npz", ".ply": "ply",
-            ".pts": "xyz", ".txt": "xyz", ".xyz": "xyz"}
-_MODULES = {"las": las, "npy": npy, "npz": npy, "ply": ply, "xyz": text}
+_FORMATS = {".csv": "xyz", ".las": "las", ".laz": "las", ".npy": "npy", ".npz": "npz",
+            ".obj": "obj", ".ply": "ply", ".pts": "xyz", ".txt": "xyz", ".xyz": "xyz"}
+_MODULES = {"las": las, "npy": npy, "npz": npy, "obj": obj, "ply": ply, "xyz": text}
+# Formats that may be gzipped (the others are binary, and LAZ and NPZ compress themselves).
+_GZIP_KINDS = ("obj", "ply", "xyz")
+# Fields each extension can hold, where not all.
+_HOLDS = {".npy": (), ".obj": obj.FIELDS}
+
+
+@dataclasses.dataclass(frozen=True)
+class _Target:
+    name: object  # the Path, or "<stdin>"/"<stdout>": what messages name
+    ext: str  # the format's extension, lower case, without .gz
+    gz: bool
+    path: Path = None  # None for stdin/stdout
 
 
 def formats():
@@ -62,67 +93,162 @@ def formats():
     Returns
     -------
     tuple of str
-        Lower-case extensions with their dot, sorted: ``(".las", ".laz", ".npy", ".npz",
-        ".ply", ".pts", ".txt", ".xyz")``. Matching is case-insensitive.
+        Lower-case extensions with their dot, sorted: ``.csv .las .laz .npy .npz .obj .ply
+        .pts .txt .xyz``, and the gzipped ``.csv.gz .obj.gz .ply.gz .pts.gz .txt.gz .xyz.gz``.
+        Matching is case-insensitive. The same names without the dot (``"xyz"``,
+        ``"ply.gz"``) are the values of ``format=``.
     """
-    return tuple(_FORMATS)
+    gz = [ext + ".gz" for ext, kind in _FORMATS.items() if kind in _GZIP_KINDS]
+    return tuple(sorted([*_FORMATS, *gz]))
 
 
-def read(path):
-    """Read a point-cloud file.
+def storable(path, names, *, format=None):
+    """The names among ``names`` whose per-point fields :func:`write` can store in ``path``.
 
     Parameters
     ----------
     path : str or os.PathLike
-        A ``.ply`` (ASCII or binary), ``.xyz``/``.pts``/``.txt`` (whitespace columns), ``.npy``,
-        ``.npz`` or ``.las``/``.laz`` file; the extension picks the reader (case-insensitive).
+        An output file name (or ``"-"`` with ``format``); only its extension matters.
+    names : iterable of str
+        Field names.
+    format : str, optional
+        As for :func:`write`.
+
+    Returns
+    -------
+    list of str
+        ``names`` in their order, less those the format cannot hold (all of them for
+        ``.npy``, all but ``red green blue w`` for ``.obj``).
+
+    Raises
+    ------
+    PointCloudFileError
+        On an unknown extension or format.
+    """
+    holds = _HOLDS.get(_target(path, format, "<stdout>").ext)
+    return [name for name in names if holds is None or name in holds]
+
+
+def _split_ext(name, ext, what):
+    """(format extension, gzipped) of a lower-case extension such as ``.ply`` or ``.ply.gz``."""
+    gz = ext.endswith(".gz") and ext != ".gz"
+    base = ext.removesuffix(".gz") if gz else ext
+    if base not in _FORMATS:
+        raise PointCloudFileError(f"{name}: {what}; supported: {', '.join(formats())}")
+    if gz and _FORMATS[base] not in _GZIP_KINDS:
+        raise PointCloudFileError(f"{name}: {base} files cannot be gzipped (only text, PLY and "
+                                  f"OBJ files: {', '.join(e for e in formats() if e.endswith('.gz'))})")
+    return base, gz
+
+
+def _target(path, format, stream):
+    """Where to read or write: a file, or stdin/stdout (``stream``) for ``"-"``."""
+    stdio = isinstance(path, (str, os.PathLike)) and os.fspath(path) == STDIO
+    name = stream if stdio else Path(os.fspath(path))
+    if format is not None:
+        ext = "." + str(format).lower().lstrip(".")
+        return _Target(name, *_split_ext(name, ext, f"unknown format {format!r}"),
+                       None if stdio else name)
+    if stdio:
+        raise PointCloudFileError(f"{name}: reading or writing '-' needs a format (format='xyz', "
+                                  f"--format xyz on the command line)")
+    lower = name.name.lower()
+    ext = name.suffix.lower()
+    if ext == ".gz":
+        ext = Path(lower[:-3]).suffix + ".gz"
+    shown = "".join(name.suffixes[-2:]) if ext.endswith(".gz") else name.suffix
+    what = f"unknown extension {shown!r}" if shown else "no extension"
+    return _Target(name, *_split_ext(name, ext, what), name)
+
+
+def _gunzip(name, raw):
+    try:
+        return gzip.decompress(raw)
+    except (gzip.BadGzipFile, EOFError, zlib.error) as exc:
+        raise PointCloudFileError(f"{name}: not a complete gzip file ({exc})") from None
+
+
+def read(path, *, format=None):
+    """Read a point-cloud file, or standard input.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``.ply`` (ASCII or binary), ``.xyz``/``.pts``/``.txt``/``.csv`` (text columns),
+        ``.obj``, ``.npy``, ``.npz`` or ``.las``/``.laz`` file; text, PLY and OBJ may be
+        gzipped (``scan.ply.gz``). The extension picks the reader (case-insensitive). ``"-"``
+        reads standard input, whose format ``format`` must name.
+    format : str, optional
+        The format, as an extension with or without its dot (``"xyz"``, ``"ply.gz"``), used
+        instead of the name's extension; needed for ``"-"``.
 
     Returns
     -------
     PointCloud
-        Points as float64; normals from PLY ``nx ny nz``, the columns 4-6 of a six-column text
-        file or ``.npy`` array, the ``normals`` key of an ``.npz`` or ``nx``/``ny``/``nz`` LAS
-        extra bytes; every other per-point attribute in ``fields`` with its dtype.
+        Points as float64; normals from PLY ``nx ny nz``, text ``nx ny nz`` columns (columns
+        4-6 of a six-column text file without names), OBJ ``vn`` lines (one per vertex), the
+        columns 4-6 of an ``.npy`` array, the ``normals`` key of an ``.npz`` or
+        ``nx``/``ny``/``nz`` LAS extra bytes; every other per-point attribute in ``fields``
+        with its dtype.
 
     Raises
     ------
     PointCloudFileNotFoundError
         If the file does not exist (it is also a ``FileNotFoundError``).
     PointCloudFileError
-        On an unknown extension, a directory, malformed or truncated content, a header that
-        claims more points than the file can hold (checked before anything is allocated),
-        NaN or Inf coordinates, or no points at all. The message is one line naming the file.
+        On an unknown extension or format, a directory, malformed or truncated content
+        (gzip included), a header that claims more points than the file can hold (checked
+        before anything is allocated), NaN or Inf coordinates, or no points at all. The
+        message is one line naming the file.
     ImportError
         If ``plyfile`` (PLY) or ``laspy[lazrs]`` (LAS/LAZ) is not installed.
 
     Notes
     -----
-    Text files: ``#`` starts a comment; a first line holding a single integer is a point count
-    (as in PTS files) and must match the number of rows. Three columns are points, six are
-    points and normals, other counts are points followed by fields ``col3``, ``col4``... unless
-    the last comment line before the data names every column (``# x y z nx ny nz likelihood``,
-    as :func:`write` puts it), in which case those names are used.
+    Text files: columns are separated by commas, semicolons, tabs or spaces (detected); ``#``
+    starts a comment, and so does ``//`` before the data; a first line holding a single
+    integer is a point count (as in PTS files) and must match the number of rows. The last
+    line before the data names the columns when it is a header (``x,y,z,r,g,b``, ``//X Y Z``,
+    ``# x y z nx ny nz likelihood``, as :func:`write` puts it); names are case-insensitive and
+    common spellings map to ``x y z nx ny nz red green blue intensity`` (``R``, ``Nx``,
+    ``scalar_Intensity``...). Without names, three columns are points, six are points and
+    normals, ``.pts`` files of 4 or 7 columns are ``x y z intensity [red green blue]``, other
+    counts are points followed by fields ``col3``, ``col4``...
     """
-    path = _checked_path(path)
-    if not path.exists():
-        raise PointCloudFileNotFoundError(f"{path}: no such file")
-    if path.is_dir():
-        raise PointCloudFileError(f"{path}: is a directory, not a point-cloud file")
-    kind = _FORMATS[path.suffix.lower()]
-    points, normals, fields, source = _MODULES[kind].read(path)
+    target = _target(path, format, "<stdin>")
+    name = target.name
+    if target.path is None:
+        data = sys.stdin.buffer.read()
+        fh = io.BytesIO(_gunzip(name, data) if target.gz else data)
+    else:
+        if not name.exists():
+            raise PointCloudFileNotFoundError(f"{name}: no such file")
+        if name.is_dir():
+            raise PointCloudFileError(f"{name}: is a directory, not a point-cloud file")
+        fh = open(name, "rb")
+        if target.gz:
+            with fh:
+                fh = io.BytesIO(_gunzip(name, fh.read()))
+    kind = _FORMATS[target.ext]
+    with fh:
+        points, normals, fields, source = _MODULES[kind].read(name, fh, target.ext)
     if len(points) == 0:
-        raise PointCloudFileError(f"{path}: holds no points")
-    check_finite(path, points)
+        raise PointCloudFileError(f"{name}: holds no points")
+    check_finite(name, points)
+    if target.path is not None:
+        source = dataclasses.replace(source, path=os.path.abspath(target.path))
     return PointCloud(points, normals, fields, kind, source)
 
 
-def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=False):
+def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=False, format=None):
     """Write a point cloud, atomically, in the format of the output's extension.
 
     Parameters
     ----------
     path : str or os.PathLike
-        The output file; its extension (see :func:`formats`) picks the format.
+        The output file; its extension (see :func:`formats`) picks the format, and a ``.gz``
+        after it (text, PLY, OBJ) gzips it. ``"-"`` writes to standard output in the format
+        ``format`` names.
     cloud : PointCloud
         The cloud to write, usually from :func:`read`.
     points : (n, 3) array_like, optional
@@ -131,26 +257,36 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
         Normals replacing ``cloud.normals``.
     fields : dict of str to (n,) array_like, optional
         Per-point values added as new properties (PLY), columns (text), arrays (NPZ) or extra
-        bytes (LAS), each with its own dtype (e.g. float64). A name the cloud already has
-        replaces that attribute's values, which must then fit its stored type exactly unless
-        it is a float type. Names may not contain whitespace nor be ``x y z nx ny nz``.
+        bytes (LAS), each with its own dtype (pass float32 arrays for compact files). A name
+        the cloud already has replaces that attribute's values, which must then fit its
+        stored type exactly unless it is a float type. Names may not contain whitespace nor be
+        ``x y z nx ny nz``.
     overwrite : bool, default False
         Replace an existing file, the input file of ``cloud`` included.
+    format : str, optional
+        The format, as an extension with or without its dot (``"xyz"``, ``"ply.gz"``), used
+        instead of the name's extension; needed for ``"-"``.
 
     Returns
     -------
-    pathlib.Path
-        The file written.
+    pathlib.Path or str
+        The file written, or ``"-"`` for standard output.
 
     Raises
     ------
     FileExistsError
         If ``path`` exists and ``overwrite`` is False.
     PointCloudFileError
-        On an unknown extension, a directory as ``path``, NaN or Inf coordinates, arrays of
-        the wrong shape or values that do not fit the output (a subclass of ``ValueError``).
+        On an unknown extension or format, a directory as ``path``, NaN or Inf coordinates,
+        arrays of the wrong shape or values that do not fit the output (a subclass of
+        ``ValueError``).
     ImportError
         If ``plyfile`` (PLY) or ``laspy[lazrs]`` (LAS/LAZ) is not installed.
+
+    Warns
+    -----
+    PointCloudWarning
+        When ``.npy`` or ``.obj`` output cannot hold some of the fields (they are not written).
 
     Notes
     -----
@@ -158,40 +294,53 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     written back unchanged except the coordinates, normals and fields given (see the module
     documentation for what other formats cannot hold). The data goes to a temporary file in
     the output's folder that is renamed onto ``path`` only once complete; on any error it is
-    removed and ``path`` is left as it was. The input file is never opened for writing.
+    removed and ``path`` is left as it was. Standard output gets the data in one piece once it
+    is complete. The input file is never opened for writing.
     """
-    path = _checked_path(path)
-    if not path.parent.is_dir():
-        raise PointCloudFileNotFoundError(f"{path}: folder {path.parent} does not exist")
-    if path.is_dir():
-        raise PointCloudFileError(f"{path}: is a directory, not a file name")
-    if not overwrite and path.exists():
-        raise FileExistsError(exists_message(path, cloud))
+    target = _target(path, format, "<stdout>")
+    name = target.name
+    if target.path is not None:
+        if not name.parent.is_dir():
+            raise PointCloudFileNotFoundError(f"{name}: folder {name.parent} does not exist")
+        if name.is_dir():
+            raise PointCloudFileError(f"{name}: is a directory, not a file name")
+        if not overwrite and name.exists():
+            raise FileExistsError(exists_message(name, cloud))
     n = len(cloud)
-    pts = cloud.points if points is None else as_array(path, points, "points", (n, 3))
-    check_finite(path, pts)
-    nrm = cloud.normals if normals is None else as_array(path, normals, "normals", (n, 3))
+    pts = cloud.points if points is None else as_array(name, points, "points", (n, 3))
+    check_finite(name, pts)
+    nrm = cloud.normals if normals is None else as_array(name, normals, "normals", (n, 3))
     try:
         new = as_fields(fields or {}, n)
     except ValueError as exc:
-        raise PointCloudFileError(f"{path}: {exc}") from None
-    check_names(path, new, "field names")
+        raise PointCloudFileError(f"{name}: {exc}") from None
+    check_names(name, new, "field names")
     reserved = sorted(set(new) & set(COORDS + NORMALS))
     if reserved:
-        raise PointCloudFileError(f"{path}: field names {reserved} are reserved for the "
+        raise PointCloudFileError(f"{name}: field names {reserved} are reserved for the "
                                   f"coordinates and normals (pass points= or normals=)")
     merged = {**cloud.fields, **new}
-    ext = path.suffix.lower()
-    kind = _FORMATS[ext]
+    kind = _FORMATS[target.ext]
     if kind in ("ply", "xyz"):
-        check_names(path, merged, f"a {ext} file")
+        check_names(name, merged, f"a {target.ext} file")
     source = cloud.source if cloud.format == kind else None
-    if kind == "npy" and merged:
-        warnings.warn(f"{path}: .npy holds only points and normals; fields {list(merged)} are "
-                      f"not written (use .npz, .ply or .las to keep them)", stacklevel=2)
-    payload = _MODULES[kind].payload(path, pts, nrm, merged, source)
-    atomic_write(path, payload, overwrite, cloud)
-    return path
+    kept = storable(name, merged, format=target.ext)
+    dropped = [f for f in merged if f not in kept]
+    if dropped:
+        warnings.warn(f"{name}: {target.ext} cannot hold fields {dropped}; they are not "
+                      f"written (use .npz, .ply, .las or text to keep them)", PointCloudWarning,
+                      stacklevel=2)
+    payload = _MODULES[kind].payload(name, target.ext, pts, nrm, merged, source)
+    if target.gz:
+        payload = _gzipped(payload)
+    if target.path is None:
+        buffer = io.BytesIO()
+        payload(buffer)
+        sys.stdout.buffer.write(buffer.getvalue())
+        sys.stdout.buffer.flush()
+        return STDIO
+    atomic_write(name, payload, overwrite, cloud)
+    return name
 
 
 def describe(cloud):
@@ -215,11 +364,9 @@ def describe(cloud):
     return module.describe(cloud.source)
 
 
-def _checked_path(path):
-    """``path`` as a Path with a supported extension."""
-    path = Path(os.fspath(path))
-    ext = path.suffix.lower()
-    if ext not in _FORMATS:
-        what = f"unknown extension {path.suffix!r}" if ext else "no extension"
-        raise PointCloudFileError(f"{path}: {what}; supported: {', '.join(formats())}")
-    return path
+def _gzipped(payload):
+    """``payload`` writing through gzip; no name or time stamp, so equal data give equal files."""
+    def write(fh):
+        with gzip.GzipFile(filename="", mode="wb", fileobj=fh, mtime=0) as gz:
+            payload(gz)
+    return write

@@ -75,7 +75,9 @@ class PointCloud:
 class Source:
     """Where a cloud was read from; subclasses add what its format needs to be written back."""
 
-    path: str  # absolute, so that writing onto the input is recognised from any folder
+    # Absolute, so that writing onto the input is recognised from any folder; None for stdin.
+    # Set by the dispatcher after the format module has read the data.
+    path: str = field(default=None, kw_only=True)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -131,13 +133,28 @@ def fit_dtype(name, values, dtype, where):
     return cast
 
 
+def decimal_strings(values):
+    """Decimal strings of ``values``: numpy prints the shortest string that reads back equal in
+    the values' own dtype (integers without a decimal point, bool as 0 and 1)."""
+    if values.dtype.kind == "b":
+        values = values.astype(np.uint8)
+    return values.astype(str).tolist()
+
+
+def stream_size(fh):
+    """Bytes from the start to the end of a seekable binary file object (left at the start)."""
+    size = fh.seek(0, os.SEEK_END)
+    fh.seek(0)
+    return size
+
+
 # ---------------------------------------------------------------------------------------------
 # Writing and optional dependencies
 
 
 def exists_message(path, cloud):
     src = cloud.source
-    if isinstance(src, Source) and os.path.exists(src.path) and os.path.samefile(path, src.path):
+    if isinstance(src, Source) and src.path is not None and os.path.exists(src.path) and os.path.samefile(path, src.path):
         return (f"{path}: is the file this cloud was read from; refusing to overwrite the input "
                 f"(pass overwrite=True, --force on the command line, to replace it)")
     return (f"{path}: already exists; pass overwrite=True (--force on the command line) to "

@@ -1,11 +1,10 @@
 """LAS and LAZ files through ``laspy[lazrs]``: header, VLRs, EVLRs and point records kept."""
 import copy
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from ._common import INSTALL, NORMALS, PointCloudFileError, fit_dtype, need, Source
+from ._common import INSTALL, NORMALS, PointCloudFileError, Source, fit_dtype, need, stream_size
 
 # LAS point records are read in pieces so that a header claiming more points than the file
 # holds costs at most one piece of memory before the shortfall is noticed.
@@ -18,21 +17,25 @@ class _LasSource(Source):
     records: np.ndarray  # the raw point records (structured array of the point format)
 
 
-def _need_laspy(path, what):
+def _need_laspy(ext, what):
     laspy = need("laspy", "laspy[lazrs]", f"{what} .las/.laz files")
-    if path.suffix.lower() == ".laz" and not laspy.LazBackend.LazrsParallel.is_available():
+    if ext == ".laz" and not laspy.LazBackend.LazrsParallel.is_available():
         raise ImportError(f"{what} .laz files needs laspy[lazrs] (the lazrs backend): "
                           f"{INSTALL}")
     return laspy
 
 
-def read(path):
+def read(path, fh, ext):
     """Read a LAS or LAZ file.
 
     Parameters
     ----------
-    path : pathlib.Path
-        An existing ``.las`` or ``.laz`` file.
+    path : pathlib.Path or str
+        The file's name, for messages.
+    fh : binary file object
+        The data, seekable, at its start.
+    ext : str
+        ``".las"`` or ``".laz"``.
 
     Returns
     -------
@@ -54,7 +57,7 @@ def read(path):
     ImportError
         If ``laspy`` is not installed, or a ``.laz`` file lacks its lazrs backend.
     """
-    laspy = _need_laspy(path, "Reading")
+    laspy = _need_laspy(ext, "Reading")
     # laspy's own errors, lazrs' (RuntimeError) and struct/EOF errors of a short header.
     failures = (laspy.LaspyException, RuntimeError, ValueError, EOFError)
 
@@ -62,29 +65,28 @@ def read(path):
         return PointCloudFileError(f"{path}: cannot read LAS/LAZ data (truncated or corrupt "
                                    f"file): {' '.join(str(exc).split())}")
 
-    with open(path, "rb") as fh:
-        size = os.fstat(fh.fileno()).st_size
-        try:
-            reader = laspy.LasReader(fh, closefd=False)
-        except failures as exc:
-            raise corrupt(exc) from None
-        header = reader.header
-        n = header.point_count
-        need = header.offset_to_point_data + n * header.point_format.size
-        if not header.are_points_compressed and need > size:
-            raise PointCloudFileError(
-                f"{path}: header claims {n:,} points ({need:,} bytes with the header) but the "
-                f"file has {size:,} bytes (truncated file or wrong header)")
-        chunks, got = [], 0
-        try:
-            while got < n:
-                chunk = reader.read_points(min(_LAS_CHUNK, n - got)).array
-                if len(chunk) == 0:
-                    break
-                chunks.append(chunk)
-                got += len(chunk)
-        except failures as exc:
-            raise corrupt(exc) from None
+    size = stream_size(fh)
+    try:
+        reader = laspy.LasReader(fh, closefd=False)
+    except failures as exc:
+        raise corrupt(exc) from None
+    header = reader.header
+    n = header.point_count
+    need = header.offset_to_point_data + n * header.point_format.size
+    if not header.are_points_compressed and need > size:
+        raise PointCloudFileError(
+            f"{path}: header claims {n:,} points ({need:,} bytes with the header) but the "
+            f"file has {size:,} bytes (truncated file or wrong header)")
+    chunks, got = [], 0
+    try:
+        while got < n:
+            chunk = reader.read_points(min(_LAS_CHUNK, n - got)).array
+            if len(chunk) == 0:
+                break
+            chunks.append(chunk)
+            got += len(chunk)
+    except failures as exc:
+        raise corrupt(exc) from None
     if got < n:
         raise PointCloudFileError(f"{path}: header claims {n:,} points but only {got:,} could "
                                   f"be read (truncated)")
@@ -101,7 +103,7 @@ def read(path):
     normals = None
     if all(c in values for c in NORMALS):
         normals = np.column_stack([values.pop(c) for c in NORMALS]).astype(np.float64)
-    return points, normals, values, _LasSource(os.path.abspath(path), header, records)
+    return points, normals, values, _LasSource(header, records)
 
 
 def describe(source):
@@ -144,19 +146,29 @@ def _new_las(laspy, points):
                                                                           header=header))
 
 
-def payload(path, points, normals, fields, source):
-    """Prepare a LAS file (LAZ, compressed by lazrs, for a ``.laz`` path).
+def _extra_type(name, values):
+    """Type of a new extra dimension: its own (bool as uint8); new normals as float32, whose
+    precision (6e-8) a unit vector does not need doubled at 12 more bytes per point."""
+    if name in NORMALS:
+        return np.float32
+    return np.uint8 if values.dtype.kind == "b" else values.dtype
+
+
+def payload(path, ext, points, normals, fields, source):
+    """Prepare a LAS file (LAZ, compressed by lazrs, for ``.laz``).
 
     Parameters
     ----------
-    path : pathlib.Path
-        The output file; its extension says whether to compress.
+    path : pathlib.Path or str
+        The output's name, for messages.
+    ext : str
+        ``".las"`` or ``".laz"`` (compressed).
     points : (n, 3) numpy.ndarray
         Coordinates, quantised with the source's scale and offset (for a new file: LAS 1.4,
         point format 6, offset the bounding-box centre, per-axis scale the smallest power of
         ten that keeps the extent inside int32).
     normals : (n, 3) numpy.ndarray or None
-        Normals, written to the ``nx``/``ny``/``nz`` dimensions (float extra bytes if new).
+        Normals, written to the ``nx``/``ny``/``nz`` dimensions (float32 extra bytes if new).
     fields : dict of str to (n,) numpy.ndarray
         Dimensions; one the point format or source has must fit its type exactly unless it
         is a float type, others become extra bytes of their own dtype (bool as uint8).
@@ -177,7 +189,7 @@ def payload(path, points, normals, fields, source):
     ImportError
         If ``laspy`` is not installed, or ``.laz`` output lacks its lazrs backend.
     """
-    laspy = _need_laspy(path, "Writing")
+    laspy = _need_laspy(ext, "Writing")
     if source is None:
         las = _new_las(laspy, points)
     else:
@@ -195,8 +207,7 @@ def payload(path, points, normals, fields, source):
     if clash:
         raise PointCloudFileError(f"{path}: field names {sorted(clash)} are the LAS integer "
                                   f"coordinates")
-    new = [laspy.ExtraBytesParams(name, np.uint8 if v.dtype.kind == "b" else v.dtype,
-                                  description="pssd_fast")
+    new = [laspy.ExtraBytesParams(name, _extra_type(name, v), description="pssd_fast")
            for name, v in values.items() if name not in existing]
     long = [p.name for p in new if len(p.name.encode()) > 32]
     if long:
@@ -212,6 +223,6 @@ def payload(path, points, normals, fields, source):
             las[name] = fit_dtype(name, v, old.dtype, "its LAS dimension")
         except (ValueError, OverflowError) as exc:
             raise PointCloudFileError(f"{path}: {' '.join(str(exc).split())}") from None
-    compress = path.suffix.lower() == ".laz"
+    compress = ext == ".laz"
     backend = laspy.LazBackend.LazrsParallel if compress else None
     return lambda fh: las.write(fh, do_compress=compress, laz_backend=backend)

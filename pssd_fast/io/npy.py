@@ -1,17 +1,17 @@
 """NumPy ``.npy`` arrays and ``.npz`` archives, with plain numpy (no pickled objects)."""
 import math
-import os
 import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._common import PointCloudFileError, Source
+from ._common import PointCloudFileError, Source, stream_size
 
 
 @dataclass(frozen=True)
 class _ArraySource(Source):
     dtype: np.dtype  # of the points array (npy: of the whole array), kept on write if float
+    columns: int = 3  # npy: 3 (points) or 6 (points and normals)
     normals_dtype: np.dtype = None  # npz: of the normals array, likewise
     compressed: bool = False  # npz: zip-deflated members
     extras: dict = field(default_factory=dict)  # npz: arrays that are not per-point fields
@@ -40,14 +40,19 @@ def _npy_header(path, fh, size, what):
     return shape, dtype
 
 
-def read(path):
+def read(path, fh, ext):
     """Read an ``.npy`` array or an ``.npz`` archive, as the extension says.
 
     Parameters
     ----------
-    path : pathlib.Path
-        An existing ``.npy`` file holding a numeric (n, 3) or (n, 6) array, or ``.npz`` file
-        holding a numeric (n, 3) ``points`` array and optionally (n, 3) ``normals``.
+    path : pathlib.Path or str
+        The file's name, for messages.
+    fh : binary file object
+        The data, seekable, at its start: a numeric (n, 3) or (n, 6) ``.npy`` array, or an
+        ``.npz`` archive holding a numeric (n, 3) ``points`` array and optionally (n, 3)
+        ``normals``.
+    ext : str
+        ``".npy"`` or ``".npz"``.
 
     Returns
     -------
@@ -67,26 +72,25 @@ def read(path):
         On a malformed, truncated or pickled array, a header claiming more bytes than the file
         holds (checked before anything is allocated), or arrays of the wrong shape or type.
     """
-    return _read_npz(path) if path.suffix.lower() == ".npz" else _read_npy(path)
+    return _read_npz(path, fh) if ext == ".npz" else _read_npy(path, fh)
 
 
-def _read_npy(path):
-    with open(path, "rb") as fh:
-        shape, dtype = _npy_header(path, fh, os.fstat(fh.fileno()).st_size, "the array")
-        if len(shape) != 2 or shape[1] not in (3, 6) or dtype.kind not in "fiu":
-            raise PointCloudFileError(f"{path}: expected an (n, 3) or (n, 6) numeric array; "
-                                      f"got shape {shape}, dtype {dtype}")
-        fh.seek(0)
-        arr = np.lib.format.read_array(fh, allow_pickle=False)
+def _read_npy(path, fh):
+    shape, dtype = _npy_header(path, fh, stream_size(fh), "the array")
+    if len(shape) != 2 or shape[1] not in (3, 6) or dtype.kind not in "fiu":
+        raise PointCloudFileError(f"{path}: expected an (n, 3) or (n, 6) numeric array; "
+                                  f"got shape {shape}, dtype {dtype}")
+    fh.seek(0)
+    arr = np.lib.format.read_array(fh, allow_pickle=False)
     normals = arr[:, 3:].astype(np.float64) if shape[1] == 6 else None
-    source = _ArraySource(os.path.abspath(path), arr.dtype)
+    source = _ArraySource(arr.dtype, shape[1])
     return arr[:, :3].astype(np.float64), normals, {}, source
 
 
-def _read_npz(path):
+def _read_npz(path, fh):
     arrays = {}
     try:
-        with zipfile.ZipFile(path) as zf:
+        with zipfile.ZipFile(fh) as zf:
             infos = zf.infolist()
             for info in infos:
                 key = info.filename.removesuffix(".npy")
@@ -114,8 +118,8 @@ def _read_npz(path):
     fields = {k: a for k, a in arrays.items() if a.shape == (n,) and a.dtype.kind in "biuf"}
     extras = {k: a for k, a in arrays.items() if k not in fields}
     compressed = any(i.compress_type != zipfile.ZIP_STORED for i in infos)
-    source = _ArraySource(os.path.abspath(path), points.dtype,
-                          None if normals is None else normals.dtype, compressed, extras)
+    source = _ArraySource(points.dtype, 3, None if normals is None else normals.dtype,
+                          compressed, extras)
     normals = None if normals is None else normals.astype(np.float64)
     return points.astype(np.float64), normals, fields, source
 
@@ -125,18 +129,22 @@ def _float_dtype(dtype):
     return dtype if dtype is not None and dtype.kind == "f" else np.dtype(np.float64)
 
 
-def payload(path, points, normals, fields, source):
+def payload(path, ext, points, normals, fields, source):
     """Prepare an ``.npy`` array or an ``.npz`` archive, as the extension says.
 
     Parameters
     ----------
-    path : pathlib.Path
-        The output file, named in error messages.
+    path : pathlib.Path or str
+        The output's name, for messages.
+    ext : str
+        ``".npy"`` or ``".npz"``.
     points : (n, 3) numpy.ndarray
-        Coordinates: the ``.npy`` array (with the normals as columns 4-6) or the ``points`` of
-        the ``.npz``, in the source's float type (float64 otherwise).
+        Coordinates: the ``.npy`` array or the ``points`` of the ``.npz``, in the source's float
+        type (float64 otherwise).
     normals : (n, 3) numpy.ndarray or None
-        Normals, likewise in the source's float type; the ``normals`` of an ``.npz``.
+        Normals, likewise in the source's float type: the ``normals`` of an ``.npz``, columns
+        4-6 of an ``.npy`` only when the source was an (n, 6) ``.npy`` (an ``.npy`` holds
+        points only otherwise, so that it stays the (n, 3) array tools expect).
     fields : dict of str to (n,) numpy.ndarray
         Arrays of the ``.npz`` in their own dtype; not written to ``.npy``.
     source : object or None
@@ -154,8 +162,9 @@ def payload(path, points, normals, fields, source):
         If a field of an ``.npz`` is named ``points`` or ``normals``.
     """
     dtype = _float_dtype(source.dtype if source is not None else None)
-    if path.suffix.lower() != ".npz":
-        arr = points if normals is None else np.hstack([points, normals])
+    if ext != ".npz":
+        six = normals is not None and source is not None and source.columns == 6
+        arr = np.hstack([points, normals]) if six else points
         return lambda fh: np.save(fh, arr.astype(dtype))
     arrays = dict(source.extras) if source is not None else {}
     clash = {"points", "normals"} & set(fields)

@@ -1,11 +1,10 @@
 """PLY files, ASCII or binary, through ``plyfile``: every element, property and comment kept."""
-import os
 import re
 from dataclasses import dataclass
 
 import numpy as np
 
-from ._common import COORDS, NORMALS, PointCloudFileError, fit_dtype, need, Source
+from ._common import COORDS, NORMALS, PointCloudFileError, Source, fit_dtype, need, stream_size
 
 # A PLY header is a few hundred bytes; a file without "end_header" in its first MiB is not PLY.
 PLY_HEADER_LIMIT = 2**20
@@ -96,13 +95,17 @@ def _ply_parse_error(path, exc, layout, plyfile):
     return PointCloudFileError(f"{path}: {exc.message} on {where}{prop}")
 
 
-def read(path):
+def read(path, fh, ext):
     """Read a PLY file, ASCII or binary.
 
     Parameters
     ----------
-    path : pathlib.Path
-        An existing ``.ply`` file.
+    path : pathlib.Path or str
+        The file's name, for messages.
+    fh : binary file object
+        The data, seekable, at its start.
+    ext : str
+        ``".ply"``.
 
     Returns
     -------
@@ -124,16 +127,15 @@ def read(path):
         If ``plyfile`` is not installed.
     """
     plyfile = need("plyfile", "plyfile", "Reading .ply files")
-    with open(path, "rb") as fh:
-        layout = _ply_layout(path, fh, os.fstat(fh.fileno()).st_size)
-        fh.seek(0)
-        try:
-            ply = plyfile.PlyData.read(fh)
-        except plyfile.PlyParseError as exc:
-            raise _ply_parse_error(path, exc, layout, plyfile) from None
-        except UnicodeDecodeError:
-            raise PointCloudFileError(f"{path}: non-ASCII bytes in the PLY header or in its "
-                                      f"ASCII data") from None
+    layout = _ply_layout(path, fh, stream_size(fh))
+    fh.seek(0)
+    try:
+        ply = plyfile.PlyData.read(fh)
+    except plyfile.PlyParseError as exc:
+        raise _ply_parse_error(path, exc, layout, plyfile) from None
+    except UnicodeDecodeError:
+        raise PointCloudFileError(f"{path}: non-ASCII bytes in the PLY header or in its "
+                                  f"ASCII data") from None
     for element in ply.elements:
         # plyfile memory-maps binary elements copy-on-write; untouched pages of such a map
         # follow later changes of the file, so the cloud takes its own copy.
@@ -152,7 +154,7 @@ def read(path):
         normals = np.column_stack([data[c] for c in NORMALS]).astype(np.float64)
     fields = {name: data[name].astype(data.dtype[name].newbyteorder("="))
               for name in scalar if name not in COORDS + NORMALS}
-    return points, normals, fields, _PlySource(os.path.abspath(path), ply)
+    return points, normals, fields, _PlySource(ply)
 
 
 def describe(source):
@@ -171,13 +173,15 @@ def _ply_values(name, values):
     raise ValueError(f"field {name!r} has dtype {values.dtype}, which PLY cannot store")
 
 
-def payload(path, points, normals, fields, source):
+def payload(path, ext, points, normals, fields, source):
     """Prepare a PLY file, keeping everything of ``source`` but the values given.
 
     Parameters
     ----------
-    path : pathlib.Path
-        The output file, named in error messages.
+    path : pathlib.Path or str
+        The output's name, for messages.
+    ext : str
+        ``".ply"``.
     points : (n, 3) numpy.ndarray
         Coordinates, written in the type of the source's ``x`` (float64 for a new file).
     normals : (n, 3) numpy.ndarray or None

@@ -1,13 +1,20 @@
-"""Whitespace-separated text columns (``.xyz``, ``.pts``, ``.txt``), with plain numpy."""
+"""Text columns (``.xyz``, ``.pts``, ``.txt``, ``.csv``), with plain numpy.
+
+Columns are separated by commas, semicolons, tabs or spaces (detected from the first data
+line); lines before the data may be comments (``#`` or ``//``), a PTS point-count line and a
+column-name line (``//X,Y,Z,R,G,B``, ``x y z``, ``# x y z nx ny nz``).
+"""
 import io
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from ._common import COORDS, NORMALS, PointCloudFileError, Source
+from ._columns import canonical, integer_type
+from ._common import COORDS, NORMALS, PointCloudFileError, Source, decimal_strings
 
 TEXT_CHUNK = 2**16  # rows formatted at once when writing text
+_PTS_FIRST = ("intensity", "red", "green", "blue")  # the Leica PTS columns after x y z
+_COMMENT = ("#", "//")
 
 
 @dataclass(frozen=True)
@@ -15,83 +22,175 @@ class _TextSource(Source):
     comments: tuple  # leading comment lines, verbatim, without the column-name line
 
 
-def _default_names(ncols):
-    """Column names a reader infers for a text file without a column-name comment."""
+def _default_names(ncols, ext):
+    """Column names a reader infers for a text file without a column-name line."""
+    if ext == ".pts" and ncols in (4, 7):
+        return [*COORDS, *_PTS_FIRST[:ncols - 3]]
     if ncols == 6:
         return [*COORDS, *NORMALS]
     return [*COORDS, *(f"col{i}" for i in range(3, ncols))]
 
 
-def _text_parse_error(path, text, start, first_line, ncols, exc):
+def _separator(line):
+    """The column separator of a data line: ``;``, ``,`` or None (tabs and spaces)."""
+    return next((sep for sep in ";," if sep in line), None)
+
+
+def _split(line, sep):
+    return [t.strip() for t in line.split(sep)] if sep else line.split()
+
+
+def _is_number(token):
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _column_names(path, line, lineno, sep, ncols, bare):
+    """Canonical names from a column-name line, or None when a comment line is not one.
+
+    A bare line (no ``#`` or ``//``) before the data can only be a column-name line, so it is
+    refused when it does not fit; a comment line that does not fit is just a comment.
+    """
+    text = line.strip()
+    for mark in _COMMENT:
+        text = text.removeprefix(mark)
+    tokens = _split(text, sep if sep and sep in text else None)
+    names = [canonical(t) for t in tokens]
+    problem = None
+    if len(names) != ncols:
+        problem = f"names {len(names)} columns but the data has {ncols}"
+    elif any(_is_number(t) for t in tokens):
+        problem = "mixes names and numbers"
+    elif not set(COORDS) <= set(names):
+        problem = "names no x, y and z columns"
+    elif len(set(names)) != ncols:
+        twice = sorted({n for n in names if names.count(n) > 1})
+        problem = f"names columns {twice} more than once"
+    if problem is None:
+        return names
+    if bare:
+        raise PointCloudFileError(f"{path}: header line {lineno} {problem}: {line.strip()!r}")
+    return None
+
+
+def _text_parse_error(path, text, start, first_line, ncols, sep, exc):
     """Find the first line numpy refused (slow, only after a failure) and describe it."""
     for offset, line in enumerate(text[start:].split("\n")):
-        tokens = line.split("#", 1)[0].split()
-        if not tokens:
+        content = line.split("#", 1)[0]
+        if not content.strip():
             continue
+        tokens = _split(content, sep)
         if len(tokens) != ncols:
             return PointCloudFileError(f"{path}: line {first_line + offset} has {len(tokens)} "
                                        f"columns; the first data line has {ncols}")
         for token in tokens:
-            try:
-                float(token)
-            except ValueError:
+            if not _is_number(token):
                 return PointCloudFileError(f"{path}: bad number {token!r} on line "
                                            f"{first_line + offset}")
     return PointCloudFileError(f"{path}: {' '.join(str(exc).split())}")
 
 
-def read(path):
-    """Read a text file of whitespace-separated columns.
+def _integer_columns(data, body, sep, names):
+    """Indices and int64 values of the field columns written as integers.
+
+    Columns whose values are all whole numbers are parsed again as int64, which refuses
+    ``6.0``: a float column that happens to hold whole numbers stays float.
+    """
+    candidates = [i for i, name in enumerate(names) if name not in COORDS + NORMALS
+                  and np.all(np.abs(data[:, i]) <= 2.0**53)
+                  and np.array_equal(data[:, i], np.round(data[:, i]))]
+
+    def parse(cols):
+        return np.loadtxt(io.StringIO(body), dtype=np.int64, delimiter=sep, comments="#",
+                          usecols=cols, ndmin=2)
+
+    if not candidates:
+        return {}
+    try:
+        return dict(zip(candidates, parse(candidates).T, strict=True))
+    except ValueError:
+        found = {}
+        for i in candidates:
+            try:
+                found[i] = parse([i])[:, 0]
+            except ValueError:
+                pass
+        return found
+
+
+def read(path, fh, ext):
+    """Read a text file of separated columns.
 
     Parameters
     ----------
-    path : pathlib.Path
-        An existing ``.xyz``, ``.pts`` or ``.txt`` file.
+    path : pathlib.Path or str
+        The file's name, for messages.
+    fh : binary file object
+        The data, UTF-8 text (undecodable bytes in comments are kept as they are).
+    ext : str
+        ``".xyz"``, ``".pts"``, ``".txt"`` or ``".csv"``: ``.pts`` files without a column-name
+        line read 4 columns as ``x y z intensity`` and 7 as ``x y z intensity red green blue``.
 
     Returns
     -------
     points : (n, 3) numpy.ndarray
-        The first three columns, as float64 (empty if the file has no data lines).
+        The ``x y z`` columns (the first three without names), as float64 (empty if the file
+        has no data lines).
     normals : (n, 3) numpy.ndarray or None
         The ``nx ny nz`` columns (columns 4-6 of a six-column file without names), or None.
     fields : dict of str to (n,) numpy.ndarray
-        Every other column, as float64, named by the column-name comment or ``col3``...
+        Every other column, named by the column-name line or ``col3``...: integers (no decimal
+        point or exponent anywhere in the column) as int32 (int64 if needed; colours uint8, or
+        uint16 beyond 255), others as float64.
     source : object or None
         The leading comment lines, for :func:`payload` to write back; None without data.
 
     Raises
     ------
     PointCloudFileError
-        On fewer than three columns, rows of unequal length, a bad number, or a point-count
-        line that does not match the rows (or that claims more than the file can hold).
+        On fewer than three columns, rows of unequal length, a bad number, a header line that
+        does not name every column once (x, y and z included), or a point-count line that does
+        not match the rows (or that claims more than the file can hold).
 
     Notes
     -----
-    ``#`` starts a comment. A first line holding a single integer is a point count (as in PTS
-    files). The last comment line before the data names the columns when it lists as many
-    distinct names as there are columns, starting with ``x y z``.
+    The separator is the first of ``;`` and ``,`` found on the first data line, else tabs and
+    spaces. ``#`` starts a comment anywhere; a line starting with ``//`` before the data is a
+    comment too. A first line holding a single integer is a point count (as in PTS files). The
+    last line before the data names the columns when it is a bare line (``x,y,z,r,g,b``,
+    which must then name every column) or a comment listing as many distinct names as there
+    are columns, x, y and z among them. Names are case-insensitive and common spellings are
+    mapped: ``r g b`` to ``red green blue``, ``i`` to ``intensity``, ``normal_x`` to ``nx``,
+    ``scalar_Intensity`` to ``intensity``...
     """
     # Undecodable bytes are kept as surrogates so that comments are written back verbatim.
-    with open(path, encoding="utf-8", errors="surrogateescape") as fh:
-        text = fh.read()
-    comments, count, pos, lineno = [], None, 0, 1
+    text = fh.read().decode("utf-8", errors="surrogateescape")
+    leading, count, pos, lineno = [], None, 0, 1  # leading: (lineno, line, bare)
     while pos < len(text):
         end = text.find("\n", pos)
         end = len(text) if end < 0 else end
-        line = text[pos:end]
-        tokens = line.split("#", 1)[0].split()
-        if tokens:
-            if count is not None or len(tokens) != 1 or not tokens[0].isdigit():
+        line = text[pos:end].rstrip("\r")
+        content = line.split("#", 1)[0]
+        if line.strip().startswith(_COMMENT):
+            leading.append((lineno, line, False))
+        elif content.strip():
+            tokens = _split(content, _separator(content))
+            if not _is_number(tokens[0]):
+                leading.append((lineno, line, True))
+            elif count is None and len(tokens) == 1 and tokens[0].isdigit():
+                count = int(tokens[0])  # a PTS point-count line, before any data
+            else:
                 break
-            count = int(tokens[0])  # a PTS point-count line, before any data
-        elif line.strip():
-            comments.append(line)
         pos, lineno = end + 1, lineno + 1
     if pos >= len(text):
         if count:
             raise PointCloudFileError(f"{path}: first line says {count:,} points but the file "
                                       f"holds none")
         return np.empty((0, 3)), None, {}, None
+    sep = _separator(content)
     ncols = len(tokens)
     if ncols < 3:
         raise PointCloudFileError(f"{path}: line {lineno} has {ncols} columns; x y z need 3")
@@ -99,51 +198,53 @@ def read(path):
     if count is not None and count * 2 * ncols > len(text) - pos + 1:
         raise PointCloudFileError(f"{path}: first line says {count:,} points, more than the "
                                   f"{len(text) - pos:,} characters after it can hold")
+    body = text[pos:]
     try:
-        data = np.loadtxt(io.StringIO(text[pos:]), dtype=np.float64, comments="#", ndmin=2)
+        data = np.loadtxt(io.StringIO(body), dtype=np.float64, delimiter=sep, comments="#",
+                          ndmin=2)
     except ValueError as exc:
-        raise _text_parse_error(path, text, pos, lineno, ncols, exc) from None
+        raise _text_parse_error(path, text, pos, lineno, ncols, sep, exc) from None
     if count is not None and count != len(data):
         raise PointCloudFileError(f"{path}: first line says {count:,} points but the file holds "
                                   f"{len(data):,}")
-    names = _default_names(ncols)
-    if comments:
-        named = comments[-1].split("#", 1)[-1].split()
-        if len(named) == ncols and named[:3] == list(COORDS) and len(set(named)) == ncols:
-            names = named
-            comments.pop()
-    column = {name: data[:, i] for i, name in enumerate(names)}
+    names = None
+    if leading:
+        names = _column_names(path, leading[-1][1], leading[-1][0], sep, ncols, leading[-1][2])
+        if names is not None:
+            leading.pop()
+    names = names or _default_names(ncols, ext)
+    ints = _integer_columns(data, body, sep, names)
+    column = {}
+    for i, name in enumerate(names):
+        column[name] = (ints[i].astype(integer_type(name, ints[i])) if i in ints
+                        else np.ascontiguousarray(data[:, i]))
+    points = np.column_stack([column.pop(c) for c in COORDS])
     normals = None
     if all(c in column for c in NORMALS):
-        normals = np.column_stack([column[c] for c in NORMALS])
-    fields = {name: np.ascontiguousarray(col) for name, col in column.items()
-              if name not in COORDS + NORMALS}
-    source = _TextSource(os.path.abspath(path), tuple(comments))
-    return data[:, :3].copy(), normals, fields, source
+        normals = np.column_stack([column.pop(c) for c in NORMALS])
+    source = _TextSource(tuple(line for _, line, _ in leading))
+    return points, normals, column, source
 
 
-def _text_column(values):
-    """Decimal strings of ``values``: numpy prints the shortest string that reads back equal."""
-    if values.dtype.kind == "b":
-        values = values.astype(np.uint8)
-    return values.astype(str).tolist()
-
-
-def payload(path, points, normals, fields, source):
-    """Prepare a text file: a column-name comment line, then one row per point.
+def payload(path, ext, points, normals, fields, source):
+    """Prepare a text file: a column-name line, then one row per point.
 
     Parameters
     ----------
-    path : pathlib.Path
-        The output file; a ``.pts`` one gets the point count line before the rows, and the
-        column-name line only when the names differ from what a reader infers by default.
+    path : pathlib.Path or str
+        The output's name, for messages.
+    ext : str
+        ``".csv"``: comma-separated with a bare ``x,y,z,...`` name line. ``".pts"``: the point
+        count line, then ``x y z`` followed by ``intensity red green blue`` (those the cloud
+        has), then the other columns; a ``# x y z ...`` name line only when the names differ
+        from what a reader infers by default. Others: space-separated after ``# x y z ...``.
     points : (n, 3) numpy.ndarray
         Coordinates, the first three columns.
     normals : (n, 3) numpy.ndarray or None
         Normals, the ``nx ny nz`` columns after them.
     fields : dict of str to (n,) numpy.ndarray
         Further columns, each value in the shortest decimal form that reads back equal in
-        its own dtype (bool as 0 and 1).
+        its own dtype (integers without a decimal point, bool as 0 and 1).
     source : object or None
         What :func:`read` returned for a text input, whose leading comment lines are written
         first, or None.
@@ -153,16 +254,19 @@ def payload(path, points, normals, fields, source):
     callable
         Writes the file to the binary file object it is given, in chunks of rows.
     """
-    pts = path.suffix.lower() == ".pts"
-    names, columns = list(COORDS), [points[:, 0], points[:, 1], points[:, 2]]
+    pts, sep = ext == ".pts", "," if ext == ".csv" else " "
+    named = {name: values for name, values in fields.items()}
+    columns = {c: points[:, i] for i, c in enumerate(COORDS)}
+    if pts:  # the Leica layout first, for readers that take the first seven columns
+        columns.update((name, named.pop(name)) for name in _PTS_FIRST if name in named)
     if normals is not None:
-        names += NORMALS
-        columns += [normals[:, 0], normals[:, 1], normals[:, 2]]
-    names += fields
-    columns += fields.values()
+        columns.update((c, normals[:, i]) for i, c in enumerate(NORMALS))
+    columns.update(named)
+    names = list(columns)
     head = list(source.comments) if source is not None else []
-    # PTS readers expect the count first; they get a column line only when they need one.
-    if not pts or names != _default_names(len(names)):
+    if ext == ".csv":
+        head.append(",".join(names))
+    elif not pts or names != _default_names(len(names), ext):
         head.append("# " + " ".join(names))
     if pts:
         head.append(str(len(points)))
@@ -170,7 +274,7 @@ def payload(path, points, normals, fields, source):
     def write(fh):
         fh.write("".join(line + "\n" for line in head).encode("utf-8", "surrogateescape"))
         for start in range(0, len(points), TEXT_CHUNK):
-            rows = zip(*(_text_column(c[start:start + TEXT_CHUNK]) for c in columns),
-                       strict=True)
-            fh.write("".join(" ".join(row) + "\n" for row in rows).encode("ascii"))
+            rows = zip(*(decimal_strings(c[start:start + TEXT_CHUNK])
+                         for c in columns.values()), strict=True)
+            fh.write("".join(sep.join(row) + "\n" for row in rows).encode("ascii"))
     return write
