@@ -101,6 +101,7 @@ def _parser():
                       help="noise sigma, fraction of the bounding-box diagonal (0.0025)")
     demo.add_argument("--seed", type=int, default=0, help="seed of the generated input (0)")
     _add_common(demo)
+    _add_size(demo)
     demo.add_argument("--force", action="store_true", help="overwrite files in the folder")
     _add_verbosity(demo)
     demo.set_defaults(run=_demo, method="robust")
@@ -135,6 +136,7 @@ def _parser():
                              "extent for a flat cloud (under a third of the largest), else y "
                              "(auto)")
     _add_common(render)
+    _add_size(render)
     render.add_argument("--force", action="store_true", help="overwrite the picture if it "
                                                              "exists")
     render.add_argument("--quiet", action="store_true", help="print nothing but errors")
@@ -157,6 +159,11 @@ def _add_common(parser):
                              "default and paper, no for fast)")
     parser.add_argument("--n-jobs", type=int, default=None,
                         help="threads (default: all cores); the result does not depend on it")
+
+
+def _add_size(parser):
+    parser.add_argument("--size", type=int, nargs=2, default=(1000, 800),
+                        metavar=("WIDTH", "HEIGHT"), help="picture size in pixels (1000 800)")
 
 
 def _add_verbosity(parser):
@@ -283,7 +290,7 @@ def _demo(args):
             pictures = render.figure_set(
                 args.out, cloud.points, result.points, likelihood=result.likelihood,
                 feature=result.feature_intensity, displacement=result.displacement,
-                normals_denoised=result.normals, up="z")
+                normals_denoised=result.normals, up="z", size=tuple(args.size))
         except ImportError as exc:
             print(f"pssd: no pictures: {_one_line(exc)}", file=sys.stderr)
     if args.quiet:
@@ -384,7 +391,7 @@ def _render(args):
     normals = estimate_normals(points, n_jobs=args.n_jobs) if cloud.normals is None \
         else cloud.normals
     render.render(points, values, args.output, field=args.color, view=tuple(args.view), up=up,
-                  normals=normals, title=args.file.name)
+                  normals=normals, title=args.file.name, size=tuple(args.size))
     if not args.quiet:
         print(f"wrote {args.output} (up axis {up})")
     return 0

@@ -49,7 +49,7 @@ class Style(NamedTuple):
 #: shows the noise of a raw scan (median |H| d is 28 on the CAD part at 0.25% noise, 8 on
 #: Igea's vertices) and how much denoising removes (4 on the denoised part) while sharp edges
 #: (150 and more) saturate. Displacement over the diagonal: 0 to 1%, four times the demo's
-#: noise. Height: the coordinate along the up axis, from the cloud's lowest to its highest.
+#: noise. Height: the coordinate along the up axis, 1st to 99th percentile of the cloud.
 STYLES = {
     "feature": Style("YlOrRd", 0.0, 1.0, "feature intensity"),
     "likelihood": Style("viridis", 0.0, 1.0, "sampling likelihood"),
