@@ -12,8 +12,8 @@ up), a positive azimuth turns the camera counter-clockwise about ``z`` seen from
 (``(0, 90)`` looks along ``-x``), and a positive elevation raises it above the ``xy`` plane.
 Another up axis is first turned to ``z`` by a rotation: ``"y"`` by +90 degrees about ``x``
 (``y`` to ``z``, ``z`` to ``-y``: a model facing ``+z``, as y-up models do, faces the default
-view), ``"x"`` by the cyclic exchange that makes ``x`` the new ``z`` (and ``y`` the new ``x``). :func:`choose_up` picks one
-from the data.
+view), ``"x"`` by the cyclic exchange that makes ``x`` the new ``z`` (and ``y`` the new
+``x``). :func:`choose_up` picks one from the data.
 
 Each field has one colour map and one fixed range (:data:`STYLES`), shared by ``pssd render``,
 ``pssd demo`` and :func:`figure_set`, so pictures meant to be compared use one scale.
