@@ -151,6 +151,7 @@ def _parser():
                       help="noise sigma, fraction of the bounding-box diagonal (0.0025)")
     demo.add_argument("--seed", type=int, default=0, help="seed of the generated input (0)")
     _add_common(demo)
+    _add_size(demo)
     demo.add_argument("--force", action="store_true", help="overwrite files in the folder")
     _add_verbosity(demo)
     demo.set_defaults(run=_demo, method="robust")
@@ -164,20 +165,34 @@ def _parser():
     info.set_defaults(run=_info)
 
     render = sub.add_parser(
-        "render", help="draw a point cloud as a PNG",
-        description="Draw FILE coloured by a per-point field. likelihood, feature and curvature "
-                    "are taken from FILE when it holds them (as pssd denoise writes them), else "
-                    "computed; displacement must be in FILE; height is the vertical "
-                    "coordinate of the view.")
+        "render", help="draw a point cloud as a picture",
+        description="Draw FILE coloured by a per-point field, each field with one fixed colour "
+                    "scale. likelihood and feature are taken from FILE when it holds them (as "
+                    "pssd denoise writes them), else computed by the same denoise run, so they "
+                    "equal what pssd denoise with the same options would store; curvature is "
+                    "the mean curvature of FILE's points (k=25 MLS fits) times the "
+                    "bounding-box diagonal; displacement (over the diagonal) must be in FILE; "
+                    "height is the coordinate along the up axis. Files without normals are "
+                    "shaded with estimated ones.")
     render.add_argument("file", metavar="FILE", type=Path)
-    render.add_argument("-o", "--output", type=Path, required=True, help="PNG to write")
+    render.add_argument("-o", "--output", type=Path, required=True,
+                        help="picture to write; the format follows the extension: "
+                             ".png, .jpg, .jpeg, .tif, .tiff, .webp")
     render.add_argument("--color", choices=COLORS, default="height",
                         help="field to colour by (height)")
     render.add_argument("--view", type=float, nargs=2, default=(30.0, -60.0),
-                        metavar=("ELEV", "AZIM"), help="view elevation and azimuth in degrees")
-    render.add_argument("--k", type=int, default=25, help="neighbours for computed fields (25)")
-    render.add_argument("--force", action="store_true", help="overwrite the PNG if it exists")
-    render.set_defaults(run=_render)
+                        metavar=("ELEV", "AZIM"), help="view elevation and azimuth in degrees "
+                                                       "about the up axis (30 -60)")
+    render.add_argument("--up", choices=("auto", "x", "y", "z"), default="auto",
+                        help="axis drawn upwards; auto: z for LAS/LAZ, the axis of least "
+                             "extent for a flat cloud (under a third of the largest), else y "
+                             "(auto)")
+    _add_common(render)
+    _add_size(render)
+    render.add_argument("--force", action="store_true", help="overwrite the picture if it "
+                                                             "exists")
+    render.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    render.set_defaults(run=_render, method="robust")
     return parser
 
 
@@ -196,6 +211,11 @@ def _add_common(parser):
                              "default and paper, no for fast)")
     parser.add_argument("--n-jobs", "--threads", dest="n_jobs", type=int, default=None,
                         help="threads (default: all cores); the result does not depend on it")
+
+
+def _add_size(parser):
+    parser.add_argument("--size", type=int, nargs=2, default=(1000, 800),
+                        metavar=("WIDTH", "HEIGHT"), help="picture size in pixels (1000 800)")
 
 
 def _add_verbosity(parser):
@@ -230,16 +250,20 @@ class _Progress:
             sys.stderr.flush()
 
 
+def _common_options(args):
+    """The options of :func:`pssd_fast.denoise` that ``_add_common`` offers."""
+    return {"iterations": args.iterations, "k": args.k, "lam": args.lam, "preset": args.preset,
+            "rebuild_graph": args.rebuild_graph, "n_jobs": args.n_jobs}
+
+
 def _run_denoise(points, normals, args, method_params, say=None):
     from .denoise import denoise
 
     progress = _Progress(STAGE_COUNT[args.method], not args.quiet)
     started = time.perf_counter()
     try:
-        result = denoise(points, normals, method=args.method, iterations=args.iterations,
-                         k=args.k, lam=args.lam, preset=args.preset,
-                         rebuild_graph=args.rebuild_graph, n_jobs=args.n_jobs,
-                         progress=progress, **method_params)
+        result = denoise(points, normals, method=args.method, progress=progress,
+                         **_common_options(args), **method_params)
     finally:
         progress.close()
     seconds = time.perf_counter() - started
@@ -391,7 +415,7 @@ def _denoise_file(args, params, inp, out, say):
 
 
 def _demo(args):
-    from . import datasets, stages
+    from . import datasets
     from .warmup import warmup
 
     if args.out.exists() and not args.out.is_dir():
@@ -413,14 +437,11 @@ def _demo(args):
     pictures = []
     if render is not None:
         try:
-            k = result.stats["k"]
-            curvature_noisy = stages.mls_fit(cloud.points, k=k).curvature
-            curvature_out = stages.mls_fit(result.points, result.normals, k=k).curvature
+            # The generated part is z-up, as choose_up finds for it (it is flat).
             pictures = render.figure_set(
-                args.out, cloud.points, result.points, curvature=curvature_noisy,
-                likelihood=result.likelihood, feature=result.feature_intensity,
-                displacement=result.displacement / cloud.diagonal, curvature_denoised=curvature_out,
-                normals_denoised=result.normals)
+                args.out, cloud.points, result.points, likelihood=result.likelihood,
+                feature=result.feature_intensity, displacement=result.displacement,
+                normals_denoised=result.normals, up="z", size=tuple(args.size))
         except ImportError as exc:
             print(f"pssd: no pictures: {_one_line(exc)}", file=sys.stderr)
     if args.quiet:
@@ -508,28 +529,30 @@ def _vec(v, decimals):
 
 
 def _render(args):
-    from . import io, render, stages
+    from . import io, render
+    from .fields import field_values
+    from .stages import estimate_normals
 
     _check_output(args.output, args.force)
+    render.image_format(args.output)  # refuse an unknown format before the long work
     cloud = io.read(args.file)
     points = cloud.points
-    stored = {"feature": "feature_intensity"}.get(args.color, args.color)
+    up = render.choose_up(points, cloud.format == "las") if args.up == "auto" else args.up
     if args.color == "height":
-        values = render.height(points, tuple(args.view))
-    elif stored in cloud.fields:
-        values = np.asarray(cloud.fields[stored], np.float64)
-    elif args.color == "displacement":
-        raise CommandError(f"{args.file} holds no displacement; render the output of "
-                           "pssd denoise, which stores it")
-    elif args.color == "likelihood":
-        values = stages.sampling_likelihood(points, cloud.normals, k=args.k)
-    elif args.color == "feature":
-        values = stages.feature_intensity(points, cloud.normals, k=args.k)
+        values = render.height(points, up)
     else:
-        values = stages.mls_fit(points, cloud.normals, k=args.k).curvature
-    render.render(points, values, args.output, view=tuple(args.view), normals=cloud.normals,
-                  label=args.color, title=args.file.name)
-    print(f"wrote {args.output}")
+        progress = _Progress(STAGE_COUNT["robust"], not args.quiet)
+        try:
+            values = field_values(args.color, points, cloud.normals, cloud.fields,
+                                  progress=progress, **_common_options(args))
+        finally:
+            progress.close()
+    normals = estimate_normals(points, n_jobs=args.n_jobs) if cloud.normals is None \
+        else cloud.normals
+    render.render(points, values, args.output, field=args.color, view=tuple(args.view), up=up,
+                  normals=normals, title=args.file.name, size=tuple(args.size))
+    if not args.quiet:
+        print(f"wrote {args.output} (up axis {up})")
     return 0
 
 

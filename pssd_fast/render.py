@@ -6,24 +6,69 @@ cloud's spacing on screen, so that a sampled surface looks closed. Matplotlib (i
 through the Agg canvas only, never pyplot) maps values to colours and composes the final picture
 with a colour bar and a title.
 
-Views are ``(elevation, azimuth)`` in degrees with ``z`` up: ``(0, 0)`` looks along ``+y``
-(``x`` to the right, ``z`` up), a positive azimuth turns the camera counter-clockwise about
-``z`` seen from above (``(0, 90)`` looks along ``-x``), and a positive elevation raises it
-above the ``xy`` plane.
+Views are ``(elevation, azimuth)`` in degrees about the cloud's *up* axis (``"z"`` unless
+``up`` says otherwise). With ``z`` up: ``(0, 0)`` looks along ``+y`` (``x`` to the right, ``z``
+up), a positive azimuth turns the camera counter-clockwise about ``z`` seen from above
+(``(0, 90)`` looks along ``-x``), and a positive elevation raises it above the ``xy`` plane.
+Another up axis is first turned to ``z`` by a rotation: ``"y"`` by +90 degrees about ``x``
+(``y`` to ``z``, ``z`` to ``-y``: a model facing ``+z``, as y-up models do, faces the default
+view), ``"x"`` by the cyclic exchange that makes ``x`` the new ``z`` (and ``y`` the new
+``x``). :func:`choose_up` picks one from the data.
+
+Each field has one colour map and one fixed range (:data:`STYLES`), shared by ``pssd render``,
+``pssd demo`` and :func:`figure_set`, so pictures meant to be compared use one scale.
 """
 import os
 import secrets
 from pathlib import Path
 from types import SimpleNamespace
+from typing import NamedTuple, Optional
 
 import numpy as np
 
 from ._validation import as_normals, as_points, check_float, check_int
 
-__all__ = ["COLOR_FIELDS", "DEFAULT_VIEW", "bounding_frame", "figure_set", "height", "render"]
+__all__ = ["COLOR_FIELDS", "DEFAULT_VIEW", "IMAGE_FORMATS", "STYLES", "UP_AXES", "Style",
+           "bounding_frame", "choose_up", "figure_set", "height", "render"]
 
 #: Per-point fields a picture can be coloured by (the choices offered to tools).
 COLOR_FIELDS = ("likelihood", "feature", "curvature", "displacement", "height")
+
+
+class Style(NamedTuple):
+    """Colour map, colour limits (None: from the data) and colour-bar label of a field."""
+
+    cmap: str
+    vmin: Optional[float]
+    vmax: Optional[float]
+    label: str
+
+
+#: Style of each field, in the units of :func:`pssd_fast.fields.field_values`. Feature
+#: intensity and likelihood lie in [0, 1] by definition. Curvature times the diagonal: +-50
+#: shows the noise of a raw scan (median |H| d is 28 on the CAD part at 0.25% noise, 8 on
+#: Igea's vertices) and how much denoising removes (4 on the denoised part) while sharp edges
+#: (150 and more) saturate. Displacement over the diagonal: 0 to 1%, four times the demo's
+#: noise. Height: the coordinate along the up axis, 1st to 99th percentile of the cloud.
+STYLES = {
+    "feature": Style("YlOrRd", 0.0, 1.0, "feature intensity"),
+    "likelihood": Style("viridis", 0.0, 1.0, "sampling likelihood"),
+    "curvature": Style("RdBu_r", -50.0, 50.0, "mean curvature x diagonal"),
+    "displacement": Style("plasma", 0.0, 0.01, "displacement / diagonal"),
+    "height": Style("cividis", None, None, "height"),
+}
+#: Axes that can point up in a picture.
+UP_AXES = ("x", "y", "z")
+# Rotation of each up axis to z (rows: the new x, y, z in the cloud's coordinates).
+_TO_Z_UP = {"z": np.eye(3),
+            "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),
+            "x": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])}
+# choose_up: a cloud whose least extent is under this fraction of its largest is flat (a
+# terrain, a facade, a plate) and is seen from the side of its least extent.
+FLAT_EXTENT = 1.0 / 3.0
+#: Picture formats by file extension (lower case); matplotlib writes PNG, Pillow the others.
+IMAGE_FORMATS = {".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".tif": "tiff",
+                 ".tiff": "tiff", ".webp": "webp"}
 #: ``(elevation, azimuth)`` in degrees: from above, in front and to the left.
 DEFAULT_VIEW = (30.0, -60.0)
 DEFAULT_SIZE = (1000, 800)
@@ -75,33 +120,68 @@ def _check_view(view):
     return (check_float(view[0], "view elevation"), check_float(view[1], "view azimuth"))
 
 
-def _basis(view):
-    """Rows ``right, up, towards the viewer`` of the camera for ``(elevation, azimuth)``."""
+def _check_up(up):
+    if up not in UP_AXES:
+        raise ValueError(f"up must be one of {', '.join(UP_AXES)}; got {up!r}")
+    return up
+
+
+def _basis(view, up="z"):
+    """Rows ``right, up, towards the viewer`` of the camera for ``(elevation, azimuth)`` about
+    the ``up`` axis, in the cloud's coordinates."""
     elev, azim = np.radians(_check_view(view))
     ce, se, ca, sa = np.cos(elev), np.sin(elev), np.cos(azim), np.sin(azim)
     right = [ca, sa, 0.0]
-    up = [-se * sa, se * ca, ce]
+    screen_up = [-se * sa, se * ca, ce]
     eye = [ce * sa, -ce * ca, se]
-    return np.array([right, up, eye])
+    return np.array([right, screen_up, eye]) @ _TO_Z_UP[_check_up(up)]
 
 
-def height(points, view=DEFAULT_VIEW):
-    """Coordinate of each point along the picture's up axis, for the ``"height"`` colouring.
+def choose_up(points, georeferenced=False):
+    """The axis that points up in a picture of ``points`` when none is given.
 
     Parameters
     ----------
     points : array_like, shape (n, 3)
         Coordinates.
-    view : (float, float), default (30, -60)
-        ``(elevation, azimuth)`` in degrees (see the module docstring).
+    georeferenced : bool, default False
+        True for LAS/LAZ data, whose ``z`` is elevation by definition.
+
+    Returns
+    -------
+    {"x", "y", "z"}
+        ``"z"`` for georeferenced data; else, for a flat cloud (least bounding-box extent under
+        a third of the largest: a terrain, a facade, a plate), the axis of its least extent, so
+        that it is seen from above; else ``"y"``, the convention of scanned models and mesh
+        formats (the Stanford and Cyberware scans, OBJ and PLY tools), under which Igea, the
+        bunny and the dragon stand upright.
+    """
+    if georeferenced:
+        return "z"
+    pts, _ = as_points(points)
+    extent = pts.max(axis=0) - pts.min(axis=0)
+    least = int(np.argmin(extent))
+    return UP_AXES[least] if extent[least] < FLAT_EXTENT * extent.max() else "y"
+
+
+def height(points, up="z"):
+    """Coordinate of each point along the up axis, for the ``"height"`` colouring.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Coordinates.
+    up : {"x", "y", "z"}, default "z"
+        The cloud's up axis.
 
     Returns
     -------
     (n,) float64
-        ``points @ up``: larger values are drawn higher in the picture.
+        The ``up`` coordinate (elevation, for a terrain): whatever the view, larger values lie
+        higher.
     """
     pts, _ = as_points(points)
-    return pts @ _basis(view)[1]
+    return pts[:, UP_AXES.index(_check_up(up))].copy()
 
 
 def bounding_frame(points):
@@ -320,10 +400,10 @@ def _layout(width, height_px, colour_bar, title):
     return splat, bar, title_band
 
 
-def render(points, values=None, path=None, *, view=DEFAULT_VIEW, normals=None, cmap="viridis",
-           vmin=None, vmax=None, label=None, title=None, size=DEFAULT_SIZE, point_size=None,
-           background="white", frame=None):
-    """Draw a point cloud coloured by a per-point field; optionally write it as a PNG.
+def render(points, values=None, path=None, *, field=None, view=DEFAULT_VIEW, up="z",
+           normals=None, cmap=None, vmin=None, vmax=None, label=None, title=None,
+           size=DEFAULT_SIZE, point_size=None, background="white", frame=None):
+    """Draw a point cloud coloured by a per-point field; optionally write it to a file.
 
     Parameters
     ----------
@@ -333,19 +413,28 @@ def render(points, values=None, path=None, *, view=DEFAULT_VIEW, normals=None, c
         Field to colour by; NaN values are drawn grey. Without values every point is light grey
         and no colour bar is drawn.
     path : str or os.PathLike, optional
-        PNG file to write (atomically: a temporary file in the same folder, then renamed).
+        Picture to write, in the format of its extension (:func:`image_format`), atomically:
+        a temporary file in the same folder, then renamed.
+    field : str, optional
+        A key of :data:`STYLES` (``"feature"``, ``"curvature"``...): its colour map, limits and
+        label are the defaults of ``cmap``, ``vmin``, ``vmax`` and ``label``, so pictures of a
+        field share one scale. ``values`` must then be in the units of
+        :func:`pssd_fast.fields.field_values`.
     view : (float, float), default (30, -60)
         ``(elevation, azimuth)`` in degrees (see the module docstring).
+    up : {"x", "y", "z"}, default "z"
+        The cloud's axis drawn upwards (:func:`choose_up` picks one from the data).
     normals : array_like, shape (n, 3), optional
         Normals for Lambert shading under a light at the camera (a headlight), flipped to face
         the viewer so their orientation does not matter. Without them nothing is shaded.
-    cmap : str or matplotlib.colors.Colormap, default "viridis"
-        Colormap for ``values``.
+    cmap : str or matplotlib.colors.Colormap, optional
+        Colormap for ``values``; default the field's, else "viridis".
     vmin, vmax : float, optional
-        Colour limits; by default the 1st and 99th percentiles of the finite values, so a few
-        outliers do not wash out the rest. Values beyond them take the end colours.
+        Colour limits; default the field's, else the 1st and 99th percentiles of the finite
+        values, so a few outliers do not wash out the rest. Values beyond them take the end
+        colours (and the colour bar shows an arrow).
     label : str, optional
-        Label of the colour bar.
+        Label of the colour bar; default the field's.
     title : str, optional
         Title above the picture.
     size : (int, int), default (1000, 800)
@@ -379,9 +468,19 @@ def render(points, values=None, path=None, *, view=DEFAULT_VIEW, normals=None, c
     picture are not drawn. One million points take a few seconds at most.
     """
     mpl = _matplotlib()
+    if path is not None:
+        image_type = image_format(path)
+    if field is not None:
+        if field not in STYLES:
+            raise ValueError(f"field must be one of {', '.join(STYLES)}; got {field!r}")
+        style = STYLES[field]
+        cmap = style.cmap if cmap is None else cmap
+        vmin = style.vmin if vmin is None else vmin
+        vmax = style.vmax if vmax is None else vmax
+        label = style.label if label is None else label
     pts, _ = as_points(points)
     n = pts.shape[0]
-    basis = _basis(view)
+    basis = _basis(view, up)
     width, height_px = _check_size(size)
     vals = None if values is None else _as_values(values, n)
     nrm = None if normals is None else as_normals(normals, n)
@@ -389,7 +488,7 @@ def render(points, values=None, path=None, *, view=DEFAULT_VIEW, normals=None, c
     if point_size is not None:
         point_size = check_float(point_size, "point_size", positive=True)
     if vals is not None:
-        colormap = mpl.colormaps.get_cmap(cmap)
+        colormap = mpl.colormaps.get_cmap("viridis" if cmap is None else cmap)
         norm = mpl.Normalize(*_robust_limits(vals, vmin, vmax), clip=True)
     background_rgba = np.array(mpl.to_rgba(background))
 
@@ -444,36 +543,56 @@ def render(points, values=None, path=None, *, view=DEFAULT_VIEW, normals=None, c
     canvas.draw()
     picture = np.array(canvas.buffer_rgba(), dtype=np.uint8)
     if path is not None:
-        _write_png(path, picture, mpl.imsave)
+        _write_image(path, picture, image_type, mpl.imsave)
     return picture
 
 
-def _write_png(path, picture, imsave):
-    """Write ``picture`` to ``path`` atomically: a hidden temporary file, then ``os.replace``."""
+def image_format(path):
+    """The picture format that the extension of ``path`` asks for.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    str
+        A value of :data:`IMAGE_FORMATS`: ``"png"``, ``"jpeg"`` (``.jpg``, ``.jpeg``),
+        ``"tiff"`` or ``"webp"``.
+
+    Raises
+    ------
+    ValueError
+        If the extension is missing or not one of :data:`IMAGE_FORMATS` (case-insensitive).
+    """
+    path = Path(path)
+    kind = IMAGE_FORMATS.get(path.suffix.lower())
+    if kind is None:
+        what = f"extension {path.suffix!r}" if path.suffix else "no extension"
+        raise ValueError(f"{path}: cannot write a picture with {what}; supported: "
+                         f"{', '.join(IMAGE_FORMATS)}")
+    return kind
+
+
+def _write_image(path, picture, kind, imsave):
+    """Write ``picture`` to ``path`` as ``kind`` atomically: a hidden temporary file, then
+    ``os.replace``."""
     path = Path(path)
     # Open the temporary with "xb" (not mkstemp) so it gets the umask's permissions, like any
     # file the user writes, and never clobbers another file.
     tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
     try:
         with open(tmp, "xb") as f:
-            imsave(f, picture, format="png")
+            imsave(f, picture, format=kind)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
 
 
-def _symmetric(values):
-    """Limits ``(-a, a)``, ``a`` the 99th percentile of ``|values|``, for a diverging colormap."""
-    finite = np.abs(values[np.isfinite(values)])
-    limit = float(np.percentile(finite, 99.0)) if finite.size else 0.0
-    limit = limit if limit > 0.0 else 1.0
-    return -limit, limit
-
-
-def figure_set(folder, noisy, denoised, *, curvature, likelihood, feature, displacement,
-               curvature_denoised=None, normals_noisy=None, normals_denoised=None,
-               view=DEFAULT_VIEW, size=DEFAULT_SIZE):
+def figure_set(folder, noisy, denoised, *, likelihood, feature, displacement,
+               normals_noisy=None, normals_denoised=None, view=DEFAULT_VIEW, up="z",
+               size=DEFAULT_SIZE):
     """Write the paper's set of pictures of one denoising run as PNGs into ``folder``.
 
     Parameters
@@ -482,20 +601,18 @@ def figure_set(folder, noisy, denoised, *, curvature, likelihood, feature, displ
         Output folder, created if missing; existing pictures of the same names are replaced.
     noisy, denoised : array_like, shape (n, 3)
         The input and the output, point for point.
-    curvature : array_like, shape (n,)
-        Mean curvature of the input (e.g. :attr:`pssd_fast.MLSFit.curvature`).
     likelihood : array_like, shape (n,)
-        Sampling likelihood of the input points (:attr:`DenoiseResult.likelihood`).
+        Sampling likelihood (:attr:`DenoiseResult.likelihood`).
     feature : array_like, shape (n,)
         Feature intensity in ``[0, 1]`` (:attr:`DenoiseResult.feature_intensity`).
     displacement : array_like, shape (n,)
-        ``|p_noisy - p_denoised|`` (:attr:`DenoiseResult.displacement`).
-    curvature_denoised : array_like, shape (n,), optional
-        Mean curvature of the output; by default from :func:`pssd_fast.mls_fit` on it.
+        ``|p_noisy - p_denoised|`` in the points' units (:attr:`DenoiseResult.displacement`).
     normals_noisy, normals_denoised : array_like, shape (n, 3), optional
         Normals for the shading; by default estimated with :func:`pssd_fast.estimate_normals`.
     view : (float, float), default (30, -60)
         ``(elevation, azimuth)`` in degrees.
+    up : {"x", "y", "z"}, default "z"
+        The clouds' up axis.
     size : (int, int), default (1000, 800)
         ``(width, height)`` of each picture in pixels.
 
@@ -503,8 +620,8 @@ def figure_set(folder, noisy, denoised, *, curvature, likelihood, feature, displ
     -------
     list of pathlib.Path
         ``noisy.png`` (the input, shaded grey), ``curvature.png`` (the input's mean curvature),
-        ``likelihood.png``, ``feature.png``, ``denoised_curvature.png`` and
-        ``denoised_displacement.png``, in that order.
+        ``likelihood.png``, ``feature.png`` (both drawn on the input, as ``pssd render`` draws
+        them), ``denoised_curvature.png`` and ``denoised_displacement.png``, in that order.
 
     Raises
     ------
@@ -515,12 +632,13 @@ def figure_set(folder, noisy, denoised, *, curvature, likelihood, feature, displ
 
     Notes
     -----
-    Every picture uses the input's :func:`bounding_frame`, so all six line up. Curvature uses
-    a diverging colormap centred at 0 with symmetric limits (the 99th percentile of its
-    magnitude, per picture); feature intensity is drawn on its full range ``[0, 1]``;
-    displacement from 0 to its 99th percentile.
+    Every picture uses the input's :func:`bounding_frame`, so all six line up, and the field's
+    :data:`STYLES`, as ``pssd render`` does: the curvature pictures of the input and the
+    output (:func:`pssd_fast.fields.curvature` of each) share one scale, and each picture
+    equals what ``pssd render`` draws for the same field of the same points.
     """
-    from .stages import estimate_normals, mls_fit
+    from .fields import curvature, diagonal
+    from .stages import estimate_normals
 
     _matplotlib()  # fail before any work when matplotlib is missing
     noisy_pts, _ = as_points(noisy, "noisy")
@@ -530,41 +648,31 @@ def figure_set(folder, noisy, denoised, *, curvature, likelihood, feature, displ
         raise ValueError(f"denoised must have one row per input point: got "
                          f"{denoised_pts.shape[0]} rows for {n} points")
     fields = {name: _as_values(v, n, name) for name, v in (
-        ("curvature", curvature), ("likelihood", likelihood), ("feature", feature),
-        ("displacement", displacement))}
+        ("likelihood", likelihood), ("feature", feature), ("displacement", displacement))}
     nrm_in = (estimate_normals(noisy_pts) if normals_noisy is None
               else as_normals(normals_noisy, n, "normals_noisy"))
     nrm_out = (estimate_normals(denoised_pts) if normals_denoised is None
                else as_normals(normals_denoised, n, "normals_denoised"))
-    curv_out = (mls_fit(denoised_pts, nrm_out).curvature if curvature_denoised is None
-                else _as_values(curvature_denoised, n, "curvature_denoised"))
-    displacement_max = _robust_limits(fields["displacement"], 0.0, None)[1]
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    common = {"view": view, "size": size, "frame": bounding_frame(noisy_pts)}
-    curvature_limits = _symmetric(fields["curvature"])
-    denoised_limits = _symmetric(curv_out)
+    common = {"view": view, "up": up, "size": size, "frame": bounding_frame(noisy_pts)}
     pictures = [
-        ("noisy.png", noisy_pts, nrm_in, None, {"title": "Input"}),
-        ("curvature.png", noisy_pts, nrm_in, fields["curvature"],
-         {"cmap": "RdBu_r", "vmin": curvature_limits[0], "vmax": curvature_limits[1],
-          "label": "mean curvature", "title": "Input: mean curvature"}),
-        ("likelihood.png", noisy_pts, nrm_in, fields["likelihood"],
-         {"cmap": "viridis", "label": "sampling likelihood",
-          "title": "Input: sampling likelihood"}),
-        ("feature.png", noisy_pts, nrm_in, fields["feature"],
-         {"cmap": "YlOrRd", "vmin": 0.0, "vmax": 1.0, "label": "feature intensity",
-          "title": "Input: feature intensity"}),
-        ("denoised_curvature.png", denoised_pts, nrm_out, curv_out,
-         {"cmap": "RdBu_r", "vmin": denoised_limits[0], "vmax": denoised_limits[1],
-          "label": "mean curvature", "title": "Denoised: mean curvature"}),
-        ("denoised_displacement.png", denoised_pts, nrm_out, fields["displacement"],
-         {"cmap": "plasma", "vmin": 0.0, "vmax": displacement_max, "label": "displacement",
-          "title": "Denoised: displacement"}),
+        ("noisy.png", noisy_pts, nrm_in, None, None, "Input"),
+        ("curvature.png", noisy_pts, nrm_in, curvature(noisy_pts), "curvature",
+         "Input: mean curvature"),
+        ("likelihood.png", noisy_pts, nrm_in, fields["likelihood"], "likelihood",
+         "Input: sampling likelihood"),
+        ("feature.png", noisy_pts, nrm_in, fields["feature"], "feature",
+         "Input: feature intensity"),
+        ("denoised_curvature.png", denoised_pts, nrm_out, curvature(denoised_pts), "curvature",
+         "Denoised: mean curvature"),
+        ("denoised_displacement.png", denoised_pts, nrm_out,
+         fields["displacement"] / diagonal(denoised_pts), "displacement",
+         "Denoised: displacement"),
     ]
     paths = []
-    for name, pts, nrm, vals, style in pictures:
-        render(pts, vals, folder / name, normals=nrm, **common, **style)
+    for name, pts, nrm, vals, field, title in pictures:
+        render(pts, vals, folder / name, field=field, normals=nrm, title=title, **common)
         paths.append(folder / name)
     return paths

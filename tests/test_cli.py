@@ -137,12 +137,49 @@ def test_info_and_render(tmp_path, ply_with_extras):
     assert status == 0, err
     assert "3,000 points" in out and "red (uint8)" in out and "average spacing" in out
     assert "other elements: face (2)" in out
-    png = tmp_path / "feature.png"
-    status, out, err = pssd("render", path, "-o", png, "--color", "feature")
+    jpg = tmp_path / "feature.jpg"
+    status, out, err = pssd("render", path, "-o", jpg, "--color", "feature", "--preset", "fast")
     assert status == 0, err
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert jpg.read_bytes()[:3] == b"\xff\xd8\xff" and "(up axis z)" in out  # the part is flat
+    assert_one_line_error(*pssd("render", path, "-o", tmp_path / "f.gif")[::2],
+                          "cannot write a picture with extension '.gif'")
     assert_one_line_error(*pssd("render", path, "-o", tmp_path / "d.png", "--color",
                                 "displacement")[::2], "holds no displacement")
+
+
+def test_render_computes_the_fields_pssd_denoise_stores(tmp_path, ply_with_extras):
+    from pssd_fast import io
+    from pssd_fast.fields import field_values
+
+    path, _ = ply_with_extras
+    status, _, err = pssd("denoise", path, tmp_path / "out.ply", "--iterations", "2", "--quiet")
+    assert status == 0, err
+    raw, out = io.read(path), io.read(tmp_path / "out.ply")
+    assert "feature_intensity" not in raw.fields and "feature_intensity" in out.fields
+    for name in ("feature", "likelihood"):
+        stages = []
+        computed = field_values(name, raw.points, raw.normals, raw.fields, iterations=2,
+                                progress=lambda i, n, stage, s: stages.append((i, n, stage)))
+        np.testing.assert_array_equal(computed, field_values(name, out.points, out.normals,
+                                                             out.fields))
+        assert (2, 2, "feature") in stages and (1, 2, "neighbors") in stages  # progress
+    # Curvature is one measure of the drawn points, whatever else the file holds.
+    np.testing.assert_array_equal(field_values("curvature", raw.points, stored=out.fields),
+                                  field_values("curvature", raw.points))
+
+
+def test_render_shades_a_file_without_normals(tmp_path):
+    sphere = datasets.sphere(3000, noise=0.0, seed=3).points
+    path = tmp_path / "sphere.npz"
+    np.savez(path, points=sphere, displacement=np.zeros(len(sphere)))
+    status, out, err = pssd("render", path, "-o", tmp_path / "s.png", "--color", "displacement")
+    assert status == 0, err
+    import matplotlib.image
+
+    image = matplotlib.image.imread(tmp_path / "s.png")[:, :600, :3]  # without the colour bar
+    blue = image[..., 2][image[..., 2] - image[..., 0] > 0.05]  # plasma(0), not the title
+    assert blue.size > 10000
+    assert np.ptp(blue) > 0.3
 
 
 def test_demo_writes_files_and_pictures(tmp_path):

@@ -94,8 +94,8 @@ def test_missing_matplotlib_names_the_extra(monkeypatch, tmp_path):
     points = square(0, 0, 0)
     zeros = np.zeros(len(points))
     with pytest.raises(ImportError, match=r"pip install 'pssd_fast\[viz\]'"):
-        rn.figure_set(tmp_path, points, points, curvature=zeros, likelihood=zeros,
-                      feature=zeros, displacement=zeros)
+        rn.figure_set(tmp_path, points, points, likelihood=zeros, feature=zeros,
+                      displacement=zeros)
     assert os.listdir(tmp_path) == []
 
 
@@ -148,8 +148,50 @@ def test_x_right_and_z_up_in_the_front_view_and_height():
     rows, cols = np.nonzero(near_colour(image, rgb255("viridis", 1.0)))
     other_rows, other_cols = np.nonzero(near_colour(image, rgb255("viridis", 0.0)))
     assert cols.mean() > other_cols.mean() and rows.mean() < other_rows.mean()
-    np.testing.assert_allclose(rn.height(points, (0.0, 37.0)), points[:, 2], atol=1e-12)
-    np.testing.assert_allclose(rn.height(points, (90.0, 0.0)), points[:, 1], atol=1e-12)
+    np.testing.assert_array_equal(rn.height(points), points[:, 2])
+    np.testing.assert_array_equal(rn.height(points, "y"), points[:, 1])
+
+
+@pytest.mark.parametrize("up", ["x", "y", "z"])
+@pytest.mark.parametrize("view", [FRONT, rn.DEFAULT_VIEW])
+def test_the_up_axis_is_drawn_upwards(up, view):
+    axis = "xyz".index(up)
+    rng = np.random.default_rng(5)
+    blobs = rng.normal(scale=0.1, size=(2, 2000, 3))
+    blobs[0, :, axis] += 1.0  # the high blob, value 1
+    blobs[1, :, axis] -= 1.0
+    values = np.repeat([1.0, 0.0], 2000)
+    image = left_part(rn.render(blobs.reshape(-1, 3), values, view=view, up=up, vmin=0, vmax=1,
+                                size=SIZE))
+    high_rows, _ = np.nonzero(near_colour(image, rgb255("viridis", 1.0), tol=60))
+    low_rows, _ = np.nonzero(near_colour(image, rgb255("viridis", 0.0), tol=60))
+    assert high_rows.size > 100 and low_rows.size > 100
+    assert high_rows.max() < low_rows.min()  # the whole high blob above the low one
+
+
+def test_a_y_up_model_faces_the_front_view():
+    # y up: the model's front (+z) is nearer the camera than its back in the front view.
+    front, back = square(0, 0, 0.3), square(0, 0, -0.3)
+    for sq in (front, back):
+        sq[:, [1, 2]] = sq[:, [2, 1]]  # squares in planes z = +-0.3, spanning x and y
+    values = np.repeat([1.0, 0.0], len(front))
+    image = left_part(rn.render(np.vstack([front, back]), values, view=FRONT, up="y", vmin=0,
+                                vmax=1, size=SIZE))
+    assert near_colour(image, rgb255("viridis", 1.0)).sum() > 0.95 * drawn(image).sum()
+
+
+@pytest.mark.parametrize("extent, georeferenced, up", [
+    ((0.7, 1.0, 1.0), False, "y"),     # Igea's box: no flat axis, the y-up convention
+    ((0.44, 0.77, 1.0), False, "y"),   # the dragon's
+    ((1.0, 0.43, 0.27), False, "z"),   # the generated CAD part: flat along z
+    ((0.2, 1.0, 0.8), False, "x"),     # a facade
+    ((1.0, 1.0, 0.05), False, "z"),    # a terrain
+    ((1.0, 1.0, 0.05), True, "z"),
+    ((0.05, 1.0, 1.0), True, "z"),     # LAS is z-up whatever its shape
+])
+def test_choose_up(extent, georeferenced, up):
+    points = np.random.default_rng(6).uniform(size=(500, 3)) * extent
+    assert rn.choose_up(points, georeferenced) == up
 
 
 def test_headlight_shading_darkens_tilted_surfaces_and_ignores_orientation():
@@ -215,14 +257,12 @@ def test_bad_arguments(kwargs, error, match):
         rn.render(square(0, 0, 0), **kwargs)
 
 
-def test_figure_set_writes_the_six_pictures(tmp_path):
+def test_figure_set_writes_the_six_pictures_on_one_scale(tmp_path):
     cloud = datasets.sphere(4000, noise=0.01, seed=2)
     noisy, denoised = cloud.points, cloud.clean
     n = len(noisy)
-    curvature = rn.height(noisy)  # positive (red) in the upper half of the picture
-    curvature[0] = 1e6  # one outlier must not wash out the diverging colormap
-    paths = rn.figure_set(tmp_path / "figs", noisy, denoised, curvature=curvature,
-                          likelihood=np.linspace(0, 1, n), feature=np.zeros(n),
+    paths = rn.figure_set(tmp_path / "figs", noisy, denoised, likelihood=np.linspace(0, 1, n),
+                          feature=np.zeros(n),
                           displacement=np.linalg.norm(noisy - denoised, axis=1),
                           normals_denoised=cloud.normals, size=SIZE)
     names = ["noisy.png", "curvature.png", "likelihood.png", "feature.png",
@@ -231,12 +271,43 @@ def test_figure_set_writes_the_six_pictures(tmp_path):
     assert sorted(os.listdir(tmp_path / "figs")) == sorted(names)
     for path in paths:
         assert imread(path).shape == (240, 320, 4)
-    curv = left_part(np.rint(imread(paths[1]) * 255).astype(int))
-    rgb = curv[drawn(curv)][:, :3]
-    red, blue = rgb[:, 0] - rgb[:, 2] > 60, rgb[:, 2] - rgb[:, 0] > 60
-    assert red.mean() > 0.15 and blue.mean() > 0.15
+    # One fixed curvature scale: the noise of the input shows as strong reds and blues, the
+    # clean sphere (H d = 3.5 everywhere, 7% of the scale) stays pale. Scaled per picture, the
+    # clean sphere would be saturated too.
+    for path, low, high in ((paths[1], 0.1, 1.0), (paths[4], 0.0, 0.01)):
+        curv = left_part(np.rint(imread(path) * 255).astype(int))
+        rgb = curv[drawn(curv)][:, :3]
+        strong = np.abs(rgb[:, 0] - rgb[:, 2]) > 40
+        assert low <= strong.mean() <= high, (path.name, strong.mean())
     noisy_png = imread(paths[0])[..., :3]
     assert np.ptp(noisy_png, axis=-1).max() < 1e-6  # grey
+
+
+@pytest.mark.parametrize("field, value, position", [
+    ("feature", 0.25, 0.25), ("likelihood", 0.6, 0.6), ("curvature", 25.0, 0.75),
+    ("curvature", -100.0, 0.0), ("displacement", 0.005, 0.5)])
+def test_each_field_has_one_fixed_scale(field, value, position):
+    # A constant field would sit mid-scale if the limits came from the values.
+    style = rn.STYLES[field]
+    image = left_part(rn.render(square(0, 0, 0), np.full(3600, value), field=field, size=SIZE,
+                                view=FRONT))
+    assert near_colour(image, rgb255(style.cmap, position)).sum() > 0.95 * drawn(image).sum()
+
+
+@pytest.mark.parametrize("name, magic", [("pic.png", b"\x89PNG"), ("pic.JPG", b"\xff\xd8\xff"),
+                                         ("pic.jpeg", b"\xff\xd8\xff"), ("pic.tif", b"II*\x00")])
+def test_the_format_follows_the_extension(tmp_path, name, magic):
+    rn.render(square(0, 0, 0), square(0, 0, 0)[:, 0], path=tmp_path / name, size=SIZE)
+    assert (tmp_path / name).read_bytes()[:len(magic)] == magic
+    assert os.listdir(tmp_path) == [name]
+
+
+@pytest.mark.parametrize("name, match", [("pic.bmp", "extension '.bmp'; supported: .png"),
+                                         ("pic", "no extension")])
+def test_an_unsupported_format_is_refused_before_drawing(tmp_path, name, match):
+    with pytest.raises(ValueError, match=match):
+        rn.render(square(0, 0, 0), path=tmp_path / name, size=SIZE)
+    assert os.listdir(tmp_path) == []
 
 
 def test_render_1k_points_any_order_same_picture():
