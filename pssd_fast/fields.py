@@ -88,7 +88,8 @@ def field_values(name, points, normals=None, stored=None, *, progress=None, **de
     -------
     (n,) float64
         ``likelihood`` and ``feature``: as stored, else the result of ``denoise(points,
-        normals, **denoise_options)``, in ``[0, 1]``. ``curvature``: :func:`curvature` of the
+        normals, **denoise_options)`` rounded to float32 as ``pssd denoise`` stores it, in
+        ``[0, 1]``. ``curvature``: :func:`curvature` of the
         points (never read from the cloud). ``displacement``: the stored displacement divided by
         the bounding-box diagonal.
 
@@ -117,4 +118,5 @@ def field_values(name, points, normals=None, stored=None, *, progress=None, **de
         raise ValueError("the cloud holds no displacement; render the output of pssd denoise, "
                          "which stores it")
     result = denoise(pts, normals, progress=progress, **denoise_options)
-    return np.asarray(getattr(result, key), dtype=np.float64)
+    # Rounded as pssd denoise stores its added fields (float32), so both pictures agree.
+    return getattr(result, key).astype(np.float32).astype(np.float64)
