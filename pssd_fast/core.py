@@ -5,7 +5,6 @@ The pipelines (:mod:`pssd_fast.pipelines`) and the public stage functions
 arrays. Inputs are trusted: C-contiguous float64 points and normals, and a
 :class:`~pssd_fast.graph.NeighborGraph` of the same points. Not public API.
 """
-import numba
 import numpy as np
 
 from . import kernels
@@ -97,8 +96,7 @@ def feature_intensity(points, nrm, graph, radius, delta, alpha, beta):
     out = np.empty(n)
     size = np.empty(n, np.int64)
     kernels.feature.feature_intensity(points, nrm, graph.indptr, graph.indices, radius,
-                                      GROW_NEIGHBOURS, delta, alpha, beta,
-                                      numba.config.NUMBA_NUM_THREADS, out, size)
+                                      GROW_NEIGHBOURS, delta, alpha, beta, out, size)
     return out, size
 
 

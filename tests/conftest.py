@@ -81,13 +81,12 @@ def cloud(request):
 
 def block_regions(points, graph, start, stop, radius):
     """``N_R(i)`` for ``i`` in ``start..stop`` from one call of the block kernel, as sets."""
-    n = len(points)
-    slot_of = np.full(n, -1, np.int32)
-    nodes, work = np.empty(n, np.int32), np.empty(n, np.int32)
-    ball, reach = np.empty(n, np.uint64), np.empty(n, np.uint64)
+    capacity = 1 << int(np.ceil(np.log2(len(points))))  # every point fits
+    table, slot_at = np.empty(2 * capacity, np.int32), np.empty(2 * capacity, np.int64)
+    nodes, work = np.empty(capacity, np.int32), np.empty(capacity, np.int64)
+    ball, reach = np.empty(capacity, np.uint64), np.empty(capacity, np.uint64)
     count = feature.grow_block(points, graph.indptr, graph.indices, start, stop, radius * radius,
-                               9, np.empty((3, feature.BLOCK)), slot_of, nodes, ball, reach,
-                               np.empty(n, np.bool_), work)
-    assert np.all(slot_of == -1)  # the scratch is left clean for the next block
+                               9, np.empty((3, feature.BLOCK)), table, slot_at, nodes, ball,
+                               reach, np.empty(capacity, np.bool_), work)
     return [set(nodes[:count][(reach[:count] >> np.uint64(b)) & np.uint64(1) == 1].tolist())
             for b in range(stop - start)]

@@ -391,3 +391,38 @@ def test_bilateral_point_filter(cloud, sigmas):
     np.testing.assert_allclose(got, ref, atol=1e-12 * np.ptp(points, axis=0).max())
     if name == "plane":
         np.testing.assert_array_equal(got, points)
+
+
+def test_grow_block_says_when_its_node_tables_are_full():
+    points = wavy(400, seed=9)
+    graph, _ = _setup(points, 12)
+    radius = 10 * core.mean_spacing(graph)
+    table, slot_at = np.empty(16, np.int32), np.empty(16, np.int64)
+    args = (np.empty(8, np.int32), np.empty(8, np.uint64), np.empty(8, np.uint64),
+            np.empty(8, np.bool_), np.empty(8, np.int64))
+    assert feature.grow_block(points, graph.indptr, graph.indices, 0, feature.BLOCK,
+                              radius * radius, 9, np.empty((3, feature.BLOCK)), table, slot_at,
+                              *args) == -1
+    regions = block_regions(points, graph, 0, feature.BLOCK, radius)
+    assert max(len(r) for r in regions) > 8
+
+
+def test_feature_intensity_grows_its_node_tables_past_their_first_size():
+    """Regions spanning a whole cloud larger than the first node tables (feature.NODES)."""
+    points = wavy(feature.NODES + 900, noise=0.002, seed=10)
+    graph, lists = _setup(points, 10)
+    nrm = _pca_reference(points, lists)
+    radius = 10.0  # beyond the cloud's diameter: a region is its point's connected component
+    s, sizes = core.feature_intensity(points, nrm, graph, radius, 0.2, 0.3, 0.3)
+    component, todo = {0}, [0]
+    while todo:
+        for j in lists[todo.pop()][:9]:
+            if j not in component:
+                component.add(j)
+                todo.append(j)
+    assert len(component) > feature.NODES
+    inside = np.array(sorted(component))
+    np.testing.assert_array_equal(sizes[inside], len(component))
+    for i in inside[:: len(inside) // 4]:
+        expected = reference.feature_point(points, nrm, inside, i, 0.2, 0.3, 0.3)
+        assert s[i] == pytest.approx(expected, abs=1e-9)

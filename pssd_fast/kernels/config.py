@@ -24,3 +24,15 @@ def helper(func):
     calling another kernel's copy of it, optimised in another context (see :mod:`.cache`).
     """
     return numba.njit(inline="always", fastmath=FASTMATH)(func)
+
+
+def chunk_body(func):
+    """Compile ``func``, the work of one ``prange`` iteration, as a function of its own.
+
+    Written inline in the parallel loop, a body that reallocates its scratch (tables that grow
+    on demand) gave wrong results for every block after the first reallocation, under numba's
+    parfor transformations; as a function of its own it is plain serial code
+    (``tests/test_stages.py`` covers the growth). Only one kernel calls each such function, so
+    no other kernel's copy of it can be linked in its place (see :mod:`.cache`).
+    """
+    return numba.njit(fastmath=FASTMATH)(func)

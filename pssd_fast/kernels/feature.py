@@ -2,11 +2,10 @@
 Section 3)."""
 import math
 
-import numba
 import numpy as np
 from numba import prange
 
-from .config import CHUNK, helper, parallel_kernel
+from .config import CHUNK, chunk_body, helper, parallel_kernel
 from .linalg import set_sym3, sym3_eigh
 
 # Below this squared length the tangential part of a neighbour's normal is taken as zero: the
@@ -14,6 +13,8 @@ from .linalg import set_sym3, sym3_eigh
 TINY = 1e-30
 # Regions are grown for this many consecutive points at once, one bit of a uint64 each.
 BLOCK = 64
+# Node tables of a chunk start with this many slots and double when a block needs more.
+NODES = 4096
 # exp(-x) on [0, 1.5] (the range of |p_j - p_i| / sigma_e) as e^-0.75 exp(0.75 - x), the second
 # factor by its Taylor polynomial of degree 15 (relative error below 4e-15): a loop calling
 # math.exp does not vectorise.
@@ -60,9 +61,23 @@ def _ball_mask(points, c, sources, m, radius2):
 
 
 @helper
-def _add_node(points, c, sources, m, radius2, slot_of, nodes, ball, reach, queued, count):
-    """Give point ``c`` the next free slot ``count`` of the block's node table."""
-    slot_of[c] = count
+def _find(table, c):
+    """Position of point ``c`` in the open-addressing table ``table`` (capacity a power of two,
+    -1 marks a free entry), or of the free entry where it belongs."""
+    mask = table.shape[0] - 1
+    h = (np.int64(c) * np.int64(2654435761)) & mask
+    while table[h] != c and table[h] >= 0:
+        h = (h + 1) & mask
+    return h
+
+
+@helper
+def _add_node(points, c, h, sources, m, radius2, table, slot_at, nodes, ball, reach, queued,
+              count):
+    """Give point ``c`` (free table entry ``h``) the next free slot ``count`` of the node
+    table."""
+    table[h] = c
+    slot_at[h] = count
     nodes[count] = c
     ball[count] = _ball_mask(points, c, sources, m, radius2)
     reach[count] = np.uint64(0)
@@ -70,12 +85,14 @@ def _add_node(points, c, sources, m, radius2, slot_of, nodes, ball, reach, queue
 
 
 @helper
-def grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources, slot_of, nodes,
-               ball, reach, queued, work):
+def grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources, table, slot_at,
+               nodes, ball, reach, queued, work):
     """Grow ``N_R(i)`` for each ``i`` in ``start..stop-1`` (at most ``BLOCK``) together.
 
     Returns ``count``, the number of points examined; ``nodes[:count]`` are their indices and
     bit ``b`` of ``reach[t]`` is set exactly when ``nodes[t]`` belongs to ``N_R(start + b)``.
+    Returns -1 when the block needs more than ``nodes.shape[0]`` nodes: the caller grows the
+    tables and calls again.
 
     ``N_R(i)`` is the set of points reachable from ``i`` along the first ``n_vote`` entries of
     each member's list without leaving the ball of radius ``R`` around ``p_i``
@@ -85,15 +102,16 @@ def grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources, s
     bits. Neighbouring points share most of their regions, so each node is examined about once
     per block instead of once per point.
 
-    Scratch: ``sources`` (3, ``BLOCK``) receives the block's coordinates; ``slot_of`` (one
-    entry per point, -1 outside a call) maps points to node slots; ``nodes``, ``ball``,
-    ``reach``, ``queued`` and the ring buffer ``work`` hold one entry per node (capacity ``n``;
-    only ``count`` entries are touched).
+    Scratch, all sized by the block's nodes, not by the cloud: ``sources`` (3, ``BLOCK``)
+    receives the block's coordinates; ``table`` and ``slot_at`` (at least twice the node
+    capacity, a power of two) map points to node slots; ``nodes``, ``ball``, ``reach``,
+    ``queued`` and the ring buffer ``work`` hold one entry per node.
     """
     m = stop - start
     for b in range(m):
         for a in range(3):
             sources[a, b] = points[start + b, a]
+    table[:] = -1
     capacity = work.shape[0]
     count = 0
     # Ring buffer: a node is queued at most once at a time, so ``pending <= capacity``.
@@ -102,11 +120,14 @@ def grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources, s
     pending = 0
     for b in range(m):
         i = start + b
-        s = slot_of[i]
-        if s < 0:
-            s = count
-            _add_node(points, i, sources, m, radius2, slot_of, nodes, ball, reach, queued, count)
+        h = _find(table, i)
+        if table[h] < 0:
+            if count == capacity:
+                return -1
+            _add_node(points, i, h, sources, m, radius2, table, slot_at, nodes, ball, reach,
+                      queued, count)
             count += 1
+        s = slot_at[h]
         reach[s] |= np.uint64(1) << np.uint64(b)
         if not queued[s]:
             queued[s] = True
@@ -124,12 +145,14 @@ def grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources, s
         first = indptr[j] + 1
         for t in range(first, min(indptr[j + 1], first + n_vote - 1)):
             c = indices[t]
-            cs = slot_of[c]
-            if cs < 0:
-                cs = count
-                _add_node(points, c, sources, m, radius2, slot_of, nodes, ball, reach, queued,
-                          count)
+            h = _find(table, c)
+            if table[h] < 0:
+                if count == capacity:
+                    return -1
+                _add_node(points, c, h, sources, m, radius2, table, slot_at, nodes, ball,
+                          reach, queued, count)
                 count += 1
+            cs = slot_at[h]
             add = bits & ball[cs] & ~reach[cs]
             if add:
                 reach[cs] |= add
@@ -138,8 +161,6 @@ def grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources, s
                     work[tail] = cs
                     tail = tail + 1 if tail + 1 < capacity else 0
                     pending += 1
-    for t in range(count):
-        slot_of[nodes[t]] = -1
     return count
 
 
@@ -224,9 +245,51 @@ def _vote(points, normals, i, b, count, reach, gathered, members, tensor, w, v, 
     return _classify(tensor, w, v, bx, by, bz, delta, alpha, beta), size
 
 
+@helper
+def _node_tables(capacity, index_dtype):
+    """Scratch of :func:`grow_block` and :func:`_vote` for ``capacity`` nodes."""
+    return (np.empty(2 * capacity, index_dtype), np.empty(2 * capacity, np.int64),
+            np.empty(capacity, index_dtype), np.empty(capacity, np.uint64),
+            np.empty(capacity, np.uint64), np.empty(capacity, np.bool_),
+            np.empty(capacity, np.int64), np.empty((capacity, 8)),
+            np.empty(capacity, np.int64))
+
+
+@chunk_body
+def _feature_chunk(points, normals, indptr, indices, radius2, n_vote, delta, alpha, beta, lo, hi,
+                   out, region_size):
+    """:func:`feature_intensity` for the points ``lo..hi-1``, block by block, with node tables
+    of its own that grow when a block needs more."""
+    capacity = NODES
+    table, slot_at, nodes, ball, reach, queued, work, gathered, members = _node_tables(
+        capacity, indices.dtype)
+    sources = np.empty((3, BLOCK))
+    tensor = np.empty((3, 3))
+    w = np.empty(3)
+    v = np.empty((3, 3))
+    for start in range(lo, hi, BLOCK):
+        stop = min(hi, start + BLOCK)
+        count = grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources,
+                           table, slot_at, nodes, ball, reach, queued, work)
+        while count < 0:
+            capacity *= 2
+            table, slot_at, nodes, ball, reach, queued, work, gathered, members = _node_tables(
+                capacity, indices.dtype)
+            count = grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources,
+                               table, slot_at, nodes, ball, reach, queued, work)
+        for t in range(count):
+            j = nodes[t]
+            for a in range(3):
+                gathered[t, a] = points[j, a]
+                gathered[t, 3 + a] = normals[j, a]
+        for i in range(start, stop):
+            out[i], region_size[i] = _vote(points, normals, i, i - start, count, reach,
+                                           gathered, members, tensor, w, v, delta, alpha, beta)
+
+
 @parallel_kernel
-def feature_intensity(points, normals, indptr, indices, radius, n_vote, delta, alpha, beta,
-                      n_slots, out, region_size):
+def feature_intensity(points, normals, indptr, indices, radius, n_vote, delta, alpha, beta, out,
+                      region_size):
     """Feature intensity ``s_i`` of eq. (3) from the normal voting tensor over ``N_R(i)``.
 
     Parameters
@@ -241,9 +304,6 @@ def feature_intensity(points, normals, indptr, indices, radius, n_vote, delta, a
         Length of the list prefix used for growing (the paper's 9 nearest neighbours).
     delta, alpha, beta : float
         Thresholds of eq. (3).
-    n_slots : int
-        Size of numba's thread pool (``numba.config.NUMBA_NUM_THREADS``): one scratch row per
-        thread, indexed by ``numba.get_thread_id()``.
     out : (n,) float64
         Output ``s_i`` in [0, 1].
     region_size : (n,) int64
@@ -258,41 +318,11 @@ def feature_intensity(points, normals, indptr, indices, radius, n_vote, delta, a
 
     Regions are grown for blocks of ``BLOCK`` consecutive points at once (see
     :func:`grow_block`); in Morton order these are close in space and share most members.
-    Scratch per thread: ``slot_of`` (``4 n`` bytes, written) and node tables of capacity ``n``
-    of which only the block's nodes (a few times ``|N_R|``) are touched. Per-thread rather
-    than per-chunk arrays: arrays never reallocated inside the loop spare numba's reference
-    counting.
+    Scratch is per chunk of points and sized by a block's nodes (``NODES`` slots at first,
+    doubled when a block needs more): about 110 bytes a node, whatever the cloud's size and
+    the thread count.
     """
     n = points.shape[0]
-    radius2 = radius * radius
-    slot_ofs = np.full((n_slots, n), -1, indices.dtype)
-    nodess = np.empty((n_slots, n), indices.dtype)
-    works = np.empty((n_slots, n), indices.dtype)
-    balls = np.empty((n_slots, n), np.uint64)
-    reaches = np.empty((n_slots, n), np.uint64)
-    queueds = np.empty((n_slots, n), np.bool_)
-    gathereds = np.empty((n_slots, n, 8))
-    memberss = np.empty((n_slots, n), indices.dtype)
     for c in prange((n + CHUNK - 1) // CHUNK):
-        slot = numba.get_thread_id()
-        slot_of = slot_ofs[slot]
-        nodes = nodess[slot]
-        reach = reaches[slot]
-        gathered = gathereds[slot]
-        sources = np.empty((3, BLOCK))
-        tensor = np.empty((3, 3))
-        w = np.empty(3)
-        v = np.empty((3, 3))
-        for start in range(c * CHUNK, min(n, (c + 1) * CHUNK), BLOCK):
-            stop = min(n, start + BLOCK, (c + 1) * CHUNK)
-            count = grow_block(points, indptr, indices, start, stop, radius2, n_vote, sources,
-                               slot_of, nodes, balls[slot], reach, queueds[slot], works[slot])
-            for t in range(count):
-                j = nodes[t]
-                for a in range(3):
-                    gathered[t, a] = points[j, a]
-                    gathered[t, 3 + a] = normals[j, a]
-            for i in range(start, stop):
-                out[i], region_size[i] = _vote(points, normals, i, i - start, count, reach,
-                                               gathered, memberss[slot], tensor, w, v, delta,
-                                               alpha, beta)
+        _feature_chunk(points, normals, indptr, indices, radius * radius, n_vote, delta, alpha,
+                       beta, c * CHUNK, min(n, (c + 1) * CHUNK), out, region_size)
