@@ -71,8 +71,8 @@ def _parser():
         "denoise", help="denoise a point cloud file",
         description="Denoise IN and write OUT (format from OUT's extension: .ply, .xyz, .pts, "
                     ".txt, .npy, .npz, .las, .laz). Every attribute of the input is written back "
-                    "unchanged; likelihood, feature_intensity and displacement are added as "
-                    "new per-point properties where the format can hold them.")
+                    "unchanged; likelihood, feature_intensity, displacement and outlier_score "
+                    "are added as new per-point properties where the format can hold them.")
     den.add_argument("input", metavar="IN", type=Path, help="input point cloud")
     den.add_argument("output", metavar="OUT", type=Path, help="output file")
     den.add_argument("--method", choices=("robust", "bilateral", "mls"), default="robust",
@@ -84,6 +84,14 @@ def _parser():
                          help=f"{text}; method {' or '.join(methods)}")
     den.add_argument("--keep-normals", action="store_true",
                      help="use the file's normals in every iteration instead of re-estimating")
+    den.add_argument("--orient", type=_orientation, default=None, metavar="HOW",
+                     help="sign of the estimated normals: outward, up, or a viewpoint X,Y,Z "
+                          "(normals towards it), made consistent over the neighbour graph "
+                          "(default: up for .las/.laz input, else each normal away from the "
+                          "centroid)")
+    den.add_argument("--remove-outliers", action="store_true",
+                     help="drop the points whose outlier score exceeds 1 before denoising "
+                          "(the score is written as outlier_score either way)")
     den.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
     _add_verbosity(den)
     den.set_defaults(run=_denoise)
@@ -127,6 +135,20 @@ def _parser():
     render.add_argument("--force", action="store_true", help="overwrite the PNG if it exists")
     render.set_defaults(run=_render)
     return parser
+
+
+def _orientation(text):
+    """``--orient``: a named orientation or a viewpoint ``X,Y,Z``."""
+    if text in ("outward", "up"):
+        return text
+    try:
+        view = [float(v) for v in text.split(",")]
+    except ValueError:
+        view = []
+    if len(view) != 3 or not all(np.isfinite(view)):
+        raise argparse.ArgumentTypeError(f"expected outward, up or a viewpoint X,Y,Z; got "
+                                          f"{text!r}")
+    return view
 
 
 def _add_common(parser):
@@ -174,7 +196,7 @@ class _Progress:
             sys.stderr.flush()
 
 
-def _run_denoise(points, normals, args, method_params):
+def _run_denoise(points, normals, args, method_params, orient=None, remove_outliers=False):
     from .denoise import denoise
 
     progress = _Progress(STAGE_COUNT[args.method], not args.quiet)
@@ -182,7 +204,8 @@ def _run_denoise(points, normals, args, method_params):
     try:
         result = denoise(points, normals, method=args.method, iterations=args.iterations,
                          k=args.k, lam=args.lam, preset=args.preset,
-                         rebuild_graph=args.rebuild_graph, n_jobs=args.n_jobs,
+                         rebuild_graph=args.rebuild_graph, orient=orient,
+                         remove_outliers=remove_outliers, n_jobs=args.n_jobs,
                          progress=progress, **method_params)
     finally:
         progress.close()
@@ -223,8 +246,18 @@ def _denoise(args):
         raise CommandError("OUT is the input file; write elsewhere (the input is never "
                            "modified)")
     cloud = io.read(args.input)
-    result, seconds = _run_denoise(cloud.points, cloud.normals, args, params)
-    fields = {"displacement": result.displacement.astype(np.float64)}
+    orient = args.orient
+    if orient is None and cloud.format == "las" and cloud.normals is None:
+        orient = "up"  # aerial and terrestrial LiDAR: the ground's normals point to the sky
+    if orient is not None and cloud.normals is not None:
+        raise CommandError(f"--orient applies to estimated normals; {args.input} has normals, "
+                           "whose signs are kept")
+    result, seconds = _run_denoise(cloud.points, cloud.normals, args, params, orient,
+                                   args.remove_outliers)
+    if args.remove_outliers:
+        cloud = io.select(cloud, result.kept)
+    fields = {"displacement": result.displacement.astype(np.float64),
+              "outlier_score": result.outlier_score.astype(np.float32)}
     if result.likelihood is not None:
         fields["likelihood"] = result.likelihood.astype(np.float64)
         fields["feature_intensity"] = result.feature_intensity.astype(np.float64)
@@ -232,7 +265,10 @@ def _denoise(args):
              normals=result.normals.astype(np.float64), fields=fields, overwrite=args.force)
     if not args.quiet:
         disp = result.displacement
-        print(f"{args.input} -> {args.output}: {len(disp):,} points, method {args.method}, "
+        removed = (f" ({result.stats['outliers']['removed']:,} outliers removed)"
+                   if args.remove_outliers else "")
+        print(f"{args.input} -> {args.output}: {len(disp):,} points{removed}, method "
+              f"{args.method}, "
               f"{result.stats['n_iterations']} iterations, {seconds:.2f} s; displacement max "
               f"{disp.max():.4g}"
               f", mean {disp.mean():.4g}")

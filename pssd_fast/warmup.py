@@ -27,4 +27,5 @@ def warmup():
     # Two passes on one graph: the second re-sorts the first's lists (refresh_lists).
     denoise(points, k=10, iterations=2, preset="fast")
     denoise(points.astype(np.float32), points, k=10, iterations=1)
+    denoise(points, k=10, iterations=1, preset="fast", orient="outward")
     return time.perf_counter() - started

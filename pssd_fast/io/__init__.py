@@ -37,9 +37,11 @@ import os
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 from . import las, npy, ply, text
 from ._common import (COORDS, NORMALS, PointCloud, PointCloudFileError,
-                      PointCloudFileNotFoundError, as_array, as_fields, atomic_write,
+                      PointCloudFileNotFoundError, Source, as_array, as_fields, atomic_write,
                       check_finite, check_names, exists_message)
 
 # Report the public classes where users import them from, not from the private module.
@@ -48,7 +50,7 @@ for _cls in (PointCloud, PointCloudFileError, PointCloudFileNotFoundError):
 del _cls
 
 __all__ = ["PointCloud", "PointCloudFileError", "PointCloudFileNotFoundError", "formats", "read",
-           "write"]
+           "select", "write"]
 
 # Extension -> PointCloud.format, and the module reading and writing each format.
 _FORMATS = {".las": "las", ".laz": "las", ".npy": "npy", ".npz": "npz", ".ply": "ply",
@@ -192,6 +194,38 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     payload = _MODULES[kind].payload(path, pts, nrm, merged, source)
     atomic_write(path, payload, overwrite, cloud)
     return path
+
+
+def select(cloud, rows):
+    """The cloud's ``rows`` only, with everything :func:`write` keeps of its source file.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+    rows : (m,) int array_like or (n,) bool array_like
+        Row indices or a mask, as for numpy indexing.
+
+    Returns
+    -------
+    PointCloud
+        Points, normals, fields and the source's per-point records (LAS point records, PLY
+        vertex rows) of those rows; header, VLRs, comments and the other arrays of an
+        ``.npz`` are kept as they are.
+
+    Raises
+    ------
+    PointCloudFileError
+        If the cloud comes from a PLY file with elements other than vertices (faces index the
+        vertices, and would silently point at other ones).
+    """
+    rows = np.asarray(rows)
+    if rows.dtype.kind not in "biu" or rows.ndim != 1:
+        raise TypeError(f"rows must be a 1-d integer or boolean array; got {rows.dtype} with "
+                        f"shape {rows.shape}")
+    source = cloud.source.take(rows) if isinstance(cloud.source, Source) else cloud.source
+    return PointCloud(cloud.points[rows], None if cloud.normals is None else cloud.normals[rows],
+                      {name: values[rows] for name, values in cloud.fields.items()},
+                      cloud.format, source)
 
 
 def _checked_path(path):

@@ -77,6 +77,11 @@ class Source:
 
     path: str  # absolute, so that writing onto the input is recognised from any folder
 
+    def take(self, rows):
+        """This source for the cloud's ``rows`` only (formats with per-point records override
+        it; the others keep nothing per point)."""
+        return self
+
 
 # ---------------------------------------------------------------------------------------------
 # Argument checks

@@ -17,6 +17,9 @@ class _LasSource(Source):
     header: object  # laspy.LasHeader, VLRs and EVLRs included; deep-copied before each write
     records: np.ndarray  # the raw point records (structured array of the point format)
 
+    def take(self, rows):
+        return _LasSource(self.path, self.header, self.records[rows])
+
 
 def _need_laspy(path, what):
     laspy = need("laspy", "laspy[lazrs]", f"{what} .las/.laz files")
