@@ -238,3 +238,53 @@ def test_quick_start_demo_reports_the_preset(capsys, preset, iterations):
     out = capsys.readouterr().out
     assert f"preset '{preset}': {iterations} iterations" in out
     assert "within 1% of a sharp edge, mean" in out
+
+
+def _terrain_las(path, n=4000, outliers=0):
+    """A hilly LAS terrain with intensities, and ``outliers`` points scattered above it."""
+    rng = np.random.default_rng(8)
+    xy = rng.uniform(0, 100, (n, 2))
+    z = 5 * np.sin(xy[:, 0] / 15) * np.cos(xy[:, 1] / 20) + rng.normal(0, 0.05, n)
+    points = np.column_stack([xy, z])
+    points = np.vstack([points, rng.uniform([0, 0, -10], [100, 100, 30], (outliers, 3))])
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = [0.001, 0.001, 0.001]
+    header.offsets = [500_000.0, 4_000_000.0, 300.0]
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = (points + [500_000.0, 4_000_000.0, 300.0]).T
+    las.intensity = np.arange(len(points)) % 65535
+    las.write(str(path))
+    return points
+
+
+def test_las_normals_point_up_and_outliers_are_dropped(tmp_path):
+    """LAS input: normals up by default; --remove-outliers drops the flagged records (the
+    others keep their own intensity) and every output point carries a float32 outlier_score."""
+    _terrain_las(tmp_path / "scan.las", outliers=40)
+    out = tmp_path / "clean.las"
+    status, text, err = pssd("denoise", tmp_path / "scan.las", out, "--preset", "fast",
+                             "--remove-outliers")
+    assert status == 0, err
+    after = laspy.read(str(out))
+    assert (np.asarray(after["nz"]) > 0).all()
+    kept = np.asarray(after.intensity).astype(np.int64)
+    assert 4000 - 20 <= len(kept) < 4040 and (kept >= 4000).sum() <= 4
+    assert np.asarray(after["outlier_score"]).dtype == np.float32
+    assert (np.asarray(after["outlier_score"]) <= 1).all()
+    assert "outliers removed" in text
+    status, _, err = pssd("denoise", tmp_path / "scan.las", tmp_path / "all.las",
+                          "--preset", "fast", "--orient", "0,0,-1000")
+    assert status == 0, err
+    every = laspy.read(str(tmp_path / "all.las"))
+    # The terrain faces the viewpoint below it; the 40 scattered points have no surface.
+    assert len(every.x) == 4040 and (np.asarray(every["nz"])[:4000] < 0).all()
+
+
+def test_orient_and_removal_errors(tmp_path, ply_with_extras):
+    path, _ = ply_with_extras
+    status, _, err = pssd("denoise", path, tmp_path / "out.ply", "--remove-outliers",
+                          "--iterations", "1")
+    assert_one_line_error(status, err, "cannot drop vertices of a PLY file that also holds face")
+    assert not (tmp_path / "out.ply").exists()
+    status, _, err = pssd("denoise", path, tmp_path / "out.ply", "--orient", "left")
+    assert status == 2 and "expected outward, up or a viewpoint X,Y,Z" in err
