@@ -8,13 +8,14 @@ Numpy in, numpy out::
 
 The stages of the method are public too (:func:`neighbors`, :func:`estimate_normals`,
 :func:`mls_fit`, :func:`sampling_likelihood`, :func:`feature_intensity`,
-:func:`filter_normals`), so other tools can use them as a backend. Kernels are compiled by
+:func:`filter_normals`, :func:`outlier_score`), so other tools can use them as a backend. Kernels are compiled by
 numba on first use and cached on disk; :func:`warmup` compiles them ahead of time.
 """
 from .denoise import METHODS, DenoiseResult, denoise
 from .graph import NeighborGraph, morton_order, neighbors
 from .stages import (
-    MLSFit, estimate_normals, feature_intensity, filter_normals, mls_fit, sampling_likelihood,
+    MLSFit, estimate_normals, feature_intensity, filter_normals, mls_fit, outlier_score,
+    sampling_likelihood,
 )
 from .warmup import warmup
 
@@ -23,5 +24,5 @@ __version__ = "0.1.0"
 __all__ = [
     "METHODS", "DenoiseResult", "MLSFit", "NeighborGraph", "denoise", "estimate_normals",
     "feature_intensity", "filter_normals", "mls_fit", "morton_order", "neighbors",
-    "sampling_likelihood", "warmup",
+    "outlier_score", "sampling_likelihood", "warmup",
 ]

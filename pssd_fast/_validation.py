@@ -60,6 +60,24 @@ def as_normals(normals, n, name="normals"):
     return arr / length[:, None]
 
 
+#: Named orientations of :func:`pssd_fast.estimate_normals` and :func:`pssd_fast.denoise`.
+ORIENTATIONS = ("outward", "up")
+
+
+def check_orient(orient):
+    """``"outward"``, ``"up"`` or a viewpoint as a finite ``(3,) float64`` array."""
+    if isinstance(orient, str):
+        return check_choice(orient, "orient", ORIENTATIONS)
+    try:
+        view = np.asarray(orient, dtype=np.float64)
+    except (TypeError, ValueError):
+        view = None
+    if view is None or view.shape != (3,) or not np.isfinite(view).all():
+        raise ValueError(f"orient must be 'outward', 'up' or a viewpoint (3 finite numbers); "
+                         f"got {orient!r}")
+    return view
+
+
 def check_k(k, n_points, minimum=MIN_K):
     """Check the neighbour count against the cubic's needs and the cloud's size."""
     k = check_int(k, "k", minimum=minimum)

@@ -37,7 +37,7 @@ DEMO_FILES = ("noisy", "denoised", "curvature", "likelihood", "feature", "denois
               "denoised_displacement")
 STAGE_COUNT = {"robust": 7, "mls": 3, "bilateral": 3}
 #: What ``pssd denoise --fields`` may add; all of them by default (where the method has them).
-RESULT_FIELDS = ("likelihood", "feature_intensity", "displacement", "normals")
+RESULT_FIELDS = ("likelihood", "feature_intensity", "displacement", "outlier_score", "normals")
 
 
 class CommandError(Exception):
@@ -112,8 +112,8 @@ def _parser():
                     "PLY and OBJ also gzipped, e.g. .ply.gz), .npy, .npz, .las, .laz; '-' is "
                     "standard input or output, in the format --format names. Every attribute "
                     "of the input is written back unchanged; likelihood, feature_intensity, "
-                    "displacement (float32) and normals are added where the format can hold "
-                    "them (see --fields).")
+                    "displacement, outlier_score (float32) and normals are added where the "
+                    "format can hold them (see --fields).")
     den.add_argument("paths", metavar="PATH", nargs="+",
                      help="IN OUT, or with -o the inputs; '-' reads stdin or writes stdout")
     den.add_argument("-o", "--output-dir", type=Path, default=None, metavar="FOLDER",
@@ -134,6 +134,14 @@ def _parser():
                          help=f"{text}; method {' or '.join(methods)}")
     den.add_argument("--keep-normals", action="store_true",
                      help="use the file's normals in every iteration instead of re-estimating")
+    den.add_argument("--orient", type=_orientation, default=None, metavar="HOW",
+                     help="sign of the estimated normals: outward, up, or a viewpoint X,Y,Z "
+                          "(normals towards it), made consistent over the neighbour graph "
+                          "(default: up for .las/.laz input, else each normal away from the "
+                          "centroid)")
+    den.add_argument("--remove-outliers", action="store_true",
+                     help="drop the points whose outlier score exceeds 1 before denoising "
+                          "(the score is written as outlier_score either way)")
     den.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
     _add_verbosity(den)
     den.set_defaults(run=_denoise)
@@ -196,6 +204,20 @@ def _parser():
     return parser
 
 
+def _orientation(text):
+    """``--orient``: a named orientation or a viewpoint ``X,Y,Z``."""
+    if text in ("outward", "up"):
+        return text
+    try:
+        view = [float(v) for v in text.split(",")]
+    except ValueError:
+        view = []
+    if len(view) != 3 or not all(np.isfinite(view)):
+        raise argparse.ArgumentTypeError(f"expected outward, up or a viewpoint X,Y,Z; got "
+                                          f"{text!r}")
+    return view
+
+
 def _add_common(parser):
     parser.add_argument("--iterations", type=int, default=None,
                         help="iterations (preset: 4 default, 2 fast, 2 paper)")
@@ -256,14 +278,14 @@ def _common_options(args):
             "rebuild_graph": args.rebuild_graph, "n_jobs": args.n_jobs}
 
 
-def _run_denoise(points, normals, args, method_params, say=None):
+def _run_denoise(points, normals, args, method_params, say=None, **options):
     from .denoise import denoise
 
     progress = _Progress(STAGE_COUNT[args.method], not args.quiet)
     started = time.perf_counter()
     try:
         result = denoise(points, normals, method=args.method, progress=progress,
-                         **_common_options(args), **method_params)
+                         **_common_options(args), **options, **method_params)
     finally:
         progress.close()
     seconds = time.perf_counter() - started
@@ -338,7 +360,8 @@ def _added_fields(args, result, out, had_normals):
     from . import io
 
     have = {"likelihood": result.likelihood, "feature_intensity": result.feature_intensity,
-            "displacement": result.displacement, "normals": result.normals}
+            "displacement": result.displacement, "outlier_score": result.outlier_score,
+            "normals": result.normals}
     fmt = args.format if _is_stdio(out) else None
     if args.fields is None:
         scalars = [n for n in RESULT_FIELDS if n != "normals" and have[n] is not None]
@@ -402,14 +425,25 @@ def _denoise_file(args, params, inp, out, say):
 
     fmt = args.format
     cloud = io.read(inp, format=fmt if _is_stdio(inp) else None)
-    result, seconds = _run_denoise(cloud.points, cloud.normals, args, params, say)
+    orient = args.orient
+    if orient is None and cloud.format == "las" and cloud.normals is None:
+        orient = "up"  # aerial and terrestrial LiDAR: the ground's normals point to the sky
+    if orient is not None and cloud.normals is not None:
+        raise CommandError(f"--orient applies to estimated normals; {inp} has normals, whose "
+                           "signs are kept")
+    result, seconds = _run_denoise(cloud.points, cloud.normals, args, params, say,
+                                   orient=orient, remove_outliers=args.remove_outliers)
+    if args.remove_outliers:
+        cloud = io.select(cloud, result.kept)
     fields, with_normals = _added_fields(args, result, out, cloud.normals is not None)
     normals = result.normals.astype(np.float64) if with_normals else None
     io.write(out, cloud, points=result.points.astype(np.float64), normals=normals,
              fields=fields, overwrite=args.force, format=fmt if _is_stdio(out) else None)
     if not args.quiet:
         disp = result.displacement
-        print(f"{inp} -> {out}: {len(disp):,} points, method {args.method}, "
+        removed = (f" ({result.stats['outliers']['removed']:,} outliers removed)"
+                   if args.remove_outliers else "")
+        print(f"{inp} -> {out}: {len(disp):,} points{removed}, method {args.method}, "
               f"{result.stats['n_iterations']} iterations, {seconds:.2f} s; displacement max "
               f"{disp.max():.4g}, mean {disp.mean():.4g}", file=say)
 

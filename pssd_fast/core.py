@@ -43,6 +43,60 @@ def outward_hints(points):
     return points - points.mean(axis=0)
 
 
+#: List entries (the point itself included) over which orientation propagates: enough to
+#: connect a sampled surface, few enough not to bridge close sheets (and to keep it cheap).
+ORIENT_NEIGHBOURS = 10
+#: Neighbours of the outlier score and its two thresholds (docs/DECISIONS.md, "Outliers").
+OUTLIER_K = 64
+OUTLIER_RADIUS_RATIO = 2.0
+OUTLIER_OFFSET_RATIO = 6.0
+#: Floor of the outlier score's scales, relative to the bounding-box diagonal (exact clouds).
+OUTLIER_SCALE_FLOOR = 1e-9
+
+
+def orient_normals(points, nrm, graph, orient):
+    """``nrm`` (unit, any signs) made consistent by propagation, in place, then each connected
+    component turned as a whole towards ``orient``: ``"outward"``, ``"up"`` or a viewpoint.
+
+    A component is flipped when the sum of ``n_i . d_i`` over its points is negative, ``d_i``
+    being ``p_i`` minus the cloud's centroid (outward), ``+z`` (up) or the viewpoint minus
+    ``p_i``. For a closed surface sampled uniformly the outward sum is ``3 V / density`` (the
+    divergence theorem) whatever the centroid, so the vote cannot be fooled by its shape.
+    Returns the number of components.
+    """
+    component = np.empty(points.shape[0], np.int64)
+    count = kernels.orient.propagate_orientation(graph.indptr, graph.indices,
+                                                 ORIENT_NEIGHBOURS, nrm, component)
+    if isinstance(orient, str) and orient == "up":
+        agree = nrm[:, 2]
+    elif isinstance(orient, str):
+        agree = np.einsum("ij,ij->i", nrm, points - points.mean(axis=0))
+    else:
+        agree = np.einsum("ij,ij->i", nrm, orient - points)
+    vote = np.bincount(component, weights=agree, minlength=count)
+    nrm *= np.where(vote[component] < 0.0, -1.0, 1.0)[:, None]
+    return count
+
+
+def outlier_score(points, graph):
+    """Per-point outlier score: flagged where it exceeds 1 (docs/DECISIONS.md, "Outliers").
+
+    The larger of two ratios: the list radius (distance to the farthest of the ``k``
+    neighbours) over ``OUTLIER_RADIUS_RATIO`` times its median over the cloud, and the
+    distance to the plane of the other list members over ``OUTLIER_OFFSET_RATIO`` times its
+    median. The first catches points far from everything, the second points just off the
+    surface. Medians are floored at ``OUTLIER_SCALE_FLOOR`` times the bounding-box diagonal,
+    so that exact (noise-free) samples keep finite scores.
+    """
+    offsets = np.empty(points.shape[0])
+    kernels.outliers.plane_offsets(points, graph.indptr, graph.indices, offsets)
+    radius = graph.list_radius()
+    extent = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    floor = max(OUTLIER_SCALE_FLOOR * extent, np.finfo(np.float64).tiny)
+    return np.maximum(radius / (OUTLIER_RADIUS_RATIO * max(float(np.median(radius)), floor)),
+                      offsets / (OUTLIER_OFFSET_RATIO * max(float(np.median(offsets)), floor)))
+
+
 def pca_normals(points, graph, hints):
     """PCA normals oriented along ``hints``, and the mask of degenerate neighbourhoods."""
     out = np.empty_like(points)

@@ -8,9 +8,10 @@ import numpy as np
 from . import core
 from ._threads import threads
 from ._validation import (
-    as_normals, as_points, check_choice, check_float, check_int, check_k, check_size,
+    as_normals, as_points, check_choice, check_float, check_int, check_k, check_orient,
+    check_size,
 )
-from .graph import knn_graph, morton_order, refresh_graph, truncate_graph
+from .graph import caller_order_graph, knn_graph, morton_order, refresh_graph, truncate_graph
 from .kernels.order import gather_rows, scatter_rows
 from .pipelines import STEPS, aware
 from .progress import Clock, reporter
@@ -58,6 +59,13 @@ class DenoiseResult:
         Feature intensity ``s_i`` of the last iteration (robust method only).
     displacement : (n,) ndarray
         ``|p_noisy - p_denoised|``, the quantity of the paper's Table 1 and Fig. 8.
+    outlier_score : (n,) ndarray
+        :func:`pssd_fast.outlier_score` of the input points (before any iteration, ``k = 64``);
+        above 1: flagged as an outlier.
+    kept : (n,) int64 ndarray
+        Rows of the input that the other arrays hold, in increasing order: every row, or with
+        ``remove_outliers=True`` those scoring at most 1 (so ``points[kept]`` is what was
+        denoised and ``outlier_score`` has one value per kept row).
     stats : dict
         ``"iterations"``: one dict per iteration with per-stage wall times in seconds
         (``"times"``), the derived scales (``h``, ``mean_spacing``, ``region_radius``,
@@ -74,11 +82,14 @@ class DenoiseResult:
     likelihood: Optional[np.ndarray]
     feature_intensity: Optional[np.ndarray]
     displacement: np.ndarray
+    outlier_score: np.ndarray
+    kept: np.ndarray
     stats: dict = field(repr=False)
 
 
 def denoise(points, normals=None, *, method="robust", iterations=None, k=None, lam=None,
-            preset="default", rebuild_graph=None, n_jobs=None, progress=None, **method_params):
+            preset="default", rebuild_graph=None, orient=None, remove_outliers=False, n_jobs=None,
+            progress=None, **method_params):
     """Denoise a point-sampled surface while keeping its sharp features.
 
     Parameters
@@ -120,6 +131,16 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         iterations keep the first iteration's lists, re-sorted by the current distances (one
         kNN query in all; see docs/DECISIONS.md for what it changes). Default from
         ``preset``: False ("fast"), True ("default", "paper").
+    orient : {"outward", "up"} or array_like of shape (3,), optional
+        Sign of the first iteration's PCA normals (later iterations follow it):
+        made consistent by propagation over the neighbour graph, then each connected
+        component turned outward, up (``+z``) or towards a viewpoint on balance (see
+        :func:`pssd_fast.estimate_normals`). ``None`` (default): each normal away from the
+        cloud's centroid, as before (docs/DECISIONS.md, "Normal orientation"). Not with
+        ``normals``, whose signs are the caller's. The positions do not depend on it.
+    remove_outliers : bool, default False
+        Drop the points whose ``outlier_score`` exceeds 1 before denoising; ``kept`` says
+        which input rows the result holds. The score is computed either way.
     n_jobs : int or None, default None
         Threads for the kernels: ``None`` or -1 use every thread numba may use (by default one
         per core), a positive number that many (capped at that maximum). Numba's setting is
@@ -221,8 +242,24 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     given = None if normals is None else as_normals(normals, n)
     if params["keep_normals"] and given is None:
         raise ValueError("keep_normals=True needs normals; pass normals=... or drop keep_normals")
+    if orient is not None:
+        orient = check_orient(orient)
+        if given is not None:
+            raise ValueError("orient applies to estimated normals; the given normals keep their "
+                             "signs (pass normals=None or drop orient)")
+    if not isinstance(remove_outliers, (bool, np.bool_)):
+        raise TypeError(f"remove_outliers must be True or False; got {remove_outliers!r}")
 
     started = time.perf_counter()
+    with threads(n_jobs):
+        score, kept, outlier_seconds = _outliers(pts, remove_outliers)
+    score_all, n_input = score, n
+    if remove_outliers:
+        pts, given, score = pts[kept], None if given is None else given[kept], score[kept]
+        if k is not None and pts.shape[0] < k + 1:
+            raise ValueError(f"only {pts.shape[0]} of {n} points remain after removing "
+                             f"outliers, too few for k = {k}; lower k or keep the outliers")
+        n = pts.shape[0]
     order = morton_order(pts)
     # Work relative to the bounding-box centre: georeferenced coordinates (1e6 m offsets) would
     # otherwise cost the kNN distances most of their digits.
@@ -249,8 +286,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             if given is not None:
                 nrm, degenerate = clock.run("normals", _given_normals, given)
             else:
-                hints = core.outward_hints(current) if out_normals is None else out_normals
-                nrm, degenerate = clock.run("normals", core.pca_normals, current, graph, hints)
+                first = orient if out_normals is None else None
+                nrm, degenerate = clock.run("normals", _estimated_normals, current, graph,
+                                            out_normals, first, centre)
             moved, out_normals, extra, record = step(current, nrm, graph, lam, params, clock,
                                                      iteration == iterations - 1)
             record["degenerate_normals"] = int(degenerate.sum())
@@ -273,6 +311,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         "auto_k": scale,
         "noise": None if scale is None else scale["noise"],
         "rebuild_graph": bool(rebuild_graph),
+        "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
+        "outliers": {"flagged": int((score_all > 1.0).sum()), "removed": n_input - n,
+                     "seconds": outlier_seconds},
         "n_iterations": iterations,
         "params": dict(params),
         "n_jobs": n_threads,
@@ -287,6 +328,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         likelihood=lik,
         feature_intensity=feat,
         displacement=np.linalg.norm(shift - (pts - centre), axis=1).astype(dtype, copy=False),
+        outlier_score=score.astype(dtype, copy=False),
+        kept=kept,
         stats=stats,
     )
 
@@ -342,6 +385,26 @@ def _method_params(method, method_params):
         raise TypeError(f"keep_normals must be True or False; got {params['keep_normals']!r}")
     params["keep_normals"] = bool(params["keep_normals"])
     return params
+
+
+def _estimated_normals(points, graph, previous, orient, centre):
+    """PCA normals signed like the ``previous`` iteration's, else by ``orient`` (propagation)
+    or away from the centroid (``orient=None``); ``points`` are relative to ``centre``."""
+    hints = core.outward_hints(points) if previous is None else previous
+    nrm, degenerate = core.pca_normals(points, graph, hints)
+    if orient is not None:
+        core.orient_normals(points, nrm, graph, orient if isinstance(orient, str)
+                            else orient - centre)
+    return nrm, degenerate
+
+
+def _outliers(points, remove):
+    """Outlier score of the input (caller's order), the rows to keep and the seconds spent."""
+    started = time.perf_counter()
+    k = min(core.OUTLIER_K, points.shape[0] - 1)
+    score = core.outlier_score(points, caller_order_graph(points, k))
+    kept = np.flatnonzero(score <= 1.0) if remove else np.arange(points.shape[0])
+    return score, kept, time.perf_counter() - started
 
 
 def _given_normals(normals):

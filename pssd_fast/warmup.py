@@ -28,6 +28,7 @@ def warmup():
     # Two passes on one graph: the second re-sorts the first's lists (refresh_lists).
     denoise(points, k=10, iterations=2, preset="fast")
     denoise(points.astype(np.float32), points, k=10, iterations=1)
+    denoise(points, k=10, iterations=1, preset="fast", orient="outward")
     # Lists as long as the default's at scan sizes come from the grid query.
     sphere = rng.normal(size=(GRID_K + 1, 3))
     knn_graph(sphere / np.linalg.norm(sphere, axis=1)[:, None], GRID_K, False)

@@ -311,3 +311,75 @@ def robust_iteration(points, normals, k, lam=0.5, form="exp", radius_factor=10.0
     feat, _ = feature_intensity(points, normals, lists, radius_factor * spacing)
     filtered = filter_normals(points, normals, lists)
     return move_points(points, proj, filtered, lik, feat, lam), filtered, lik, feat
+
+
+def propagate_orientation(normals, lists, limit):
+    """Hoppe et al.'s orientation: Prim's minimum spanning tree over the undirected graph of
+    the first ``limit`` list entries, weights ``1 - |n_i . n_j|``, each point flipped to agree
+    with the point it is reached from. Lazy heap of ``(weight, point, parent)`` tuples (ties
+    to the lower point, then the lower parent); components start at their lowest index.
+    Returns the signed normals and the component of each point."""
+    import heapq
+
+    n = len(normals)
+    nrm = [list(map(float, v)) for v in normals]
+    edges = [[] for _ in range(n)]
+    for i, members in enumerate(lists):
+        for j in members[:limit]:
+            if j != i:
+                edges[i].append(int(j))
+                edges[int(j)].append(i)
+    component = [-1] * n
+    count = 0
+    for seed in range(n):
+        if component[seed] >= 0:
+            continue
+        heap = [(0.0, seed, seed)]
+        while heap:
+            _, j, p = heapq.heappop(heap)
+            if component[j] >= 0:
+                continue
+            component[j] = count
+            if nrm[j][0] * nrm[p][0] + nrm[j][1] * nrm[p][1] + nrm[j][2] * nrm[p][2] < 0.0:
+                nrm[j] = [-x for x in nrm[j]]
+            for m in edges[j]:
+                if component[m] < 0:
+                    w = 1.0 - abs(nrm[j][0] * nrm[m][0] + nrm[j][1] * nrm[m][1]
+                                  + nrm[j][2] * nrm[m][2])
+                    heapq.heappush(heap, (w, m, j))
+        count += 1
+    return np.array(nrm), np.array(component)
+
+
+def orient_components(points, normals, component, orient):
+    """Each component flipped when the sum of ``n_i . d_i`` over it is negative (``d_i``:
+    from the centroid, ``+z``, or towards the viewpoint)."""
+    out = normals.copy()
+    for c in set(component.tolist()):
+        rows = component == c
+        if isinstance(orient, str) and orient == "up":
+            d = np.tile([0.0, 0.0, 1.0], (rows.sum(), 1))
+        elif isinstance(orient, str):
+            d = points[rows] - points.mean(axis=0)
+        else:
+            d = np.asarray(orient) - points[rows]
+        if sum(float(a @ b) for a, b in zip(out[rows], d)) < 0.0:
+            out[rows] = -out[rows]
+    return out
+
+
+def outlier_score(points, lists):
+    """max(list radius / (2 median), offset from the plane of the other members /
+    (6 median)), medians over the cloud floored at 1e-9 of the bounding-box diagonal."""
+    radius = np.array([np.linalg.norm(points[m[-1]] - points[i]) for i, m in enumerate(lists)])
+    offsets = []
+    for i, members in enumerate(lists):
+        rest = points[members[1:]]
+        centre = rest.mean(axis=0)
+        w, v = np.linalg.eigh((rest - centre).T @ (rest - centre))
+        offsets.append(abs((points[i] - centre) @ v[:, 0]))
+    offsets = np.array(offsets)
+    floor = max(1e-9 * np.linalg.norm(points.max(axis=0) - points.min(axis=0)),
+                np.finfo(float).tiny)
+    return np.maximum(radius / (2.0 * max(np.median(radius), floor)),
+                      offsets / (6.0 * max(np.median(offsets), floor)))

@@ -393,7 +393,7 @@ def test_stdin_to_stdout_in_a_subprocess(small):
                           capture_output=True, timeout=600)
     assert done.returncode == 0, done.stderr
     lines = done.stdout.decode().splitlines()
-    assert lines[0] == "# x y z nx ny nz likelihood feature_intensity displacement"
+    assert lines[0] == "# x y z nx ny nz likelihood feature_intensity displacement outlier_score"
     assert len(lines) == len(small) + 1
     assert "- -> -: 800 points" in done.stderr.decode()
 
@@ -409,7 +409,7 @@ def test_stdin_csv_to_stdout_ply_in_process(small, monkeypatch, capsys):
     assert status == 0, err
     assert "iteration 1:" in err and "- -> -" in err  # messages on stderr, data on stdout
     lines = out.buffer.getvalue().decode().splitlines()
-    assert lines[0] == "x,y,z,nx,ny,nz,red,green,blue,likelihood,feature_intensity,displacement"
+    assert lines[0] == "x,y,z,nx,ny,nz,red,green,blue,likelihood,feature_intensity,displacement,outlier_score"
     assert [row.split(",")[6:9] for row in lines[1:3]] == [list(map(str, c)) for c in rgb[:2]]
 
 
@@ -452,7 +452,8 @@ def test_fields_choose_what_is_added(tmp_path, small, capsys):
     dims = {name: list(laspy.read(tmp_path / f"{name}.las").point_format.extra_dimension_names)
             for name in ("none", "some", "all")}
     assert dims == {"none": [], "some": ["displacement", "nx", "ny", "nz"],
-                    "all": ["likelihood", "feature_intensity", "displacement", "nx", "ny", "nz"]}
+                    "all": ["likelihood", "feature_intensity", "displacement", "outlier_score",
+                            "nx", "ny", "nz"]}
     las = laspy.read(tmp_path / "all.las")
     assert {las[d].dtype for d in dims["all"]} == {np.dtype(np.float32)}
     # .npy holds points only: the default adds nothing, and says nothing.
@@ -500,3 +501,53 @@ def test_obj_and_gzip_end_to_end(tmp_path, small, capsys):
     assert sum(line.startswith("v ") for line in lines) == len(small)
     assert sum(line.startswith("vn ") for line in lines) == len(small)
     assert capsys.readouterr().err == ""
+
+
+def _terrain_las(path, n=4000, outliers=0):
+    """A hilly LAS terrain with intensities, and ``outliers`` points scattered above it."""
+    rng = np.random.default_rng(8)
+    xy = rng.uniform(0, 100, (n, 2))
+    z = 5 * np.sin(xy[:, 0] / 15) * np.cos(xy[:, 1] / 20) + rng.normal(0, 0.05, n)
+    points = np.column_stack([xy, z])
+    points = np.vstack([points, rng.uniform([0, 0, -10], [100, 100, 30], (outliers, 3))])
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = [0.001, 0.001, 0.001]
+    header.offsets = [500_000.0, 4_000_000.0, 300.0]
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = (points + [500_000.0, 4_000_000.0, 300.0]).T
+    las.intensity = np.arange(len(points)) % 65535
+    las.write(str(path))
+    return points
+
+
+def test_las_normals_point_up_and_outliers_are_dropped(tmp_path):
+    """LAS input: normals up by default; --remove-outliers drops the flagged records (the
+    others keep their own intensity) and every output point carries a float32 outlier_score."""
+    _terrain_las(tmp_path / "scan.las", outliers=40)
+    out = tmp_path / "clean.las"
+    status, text, err = pssd("denoise", tmp_path / "scan.las", out, "--preset", "fast",
+                             "--remove-outliers")
+    assert status == 0, err
+    after = laspy.read(str(out))
+    assert (np.asarray(after["nz"]) > 0).all()
+    kept = np.asarray(after.intensity).astype(np.int64)
+    assert 4000 - 20 <= len(kept) < 4040 and (kept >= 4000).sum() <= 4
+    assert np.asarray(after["outlier_score"]).dtype == np.float32
+    assert (np.asarray(after["outlier_score"]) <= 1).all()
+    assert "outliers removed" in text
+    status, _, err = pssd("denoise", tmp_path / "scan.las", tmp_path / "all.las",
+                          "--preset", "fast", "--orient", "0,0,-1000")
+    assert status == 0, err
+    every = laspy.read(str(tmp_path / "all.las"))
+    # The terrain faces the viewpoint below it; the 40 scattered points have no surface.
+    assert len(every.x) == 4040 and (np.asarray(every["nz"])[:4000] < 0).all()
+
+
+def test_orient_and_removal_errors(tmp_path, ply_with_extras):
+    path, _ = ply_with_extras
+    status, _, err = pssd("denoise", path, tmp_path / "out.ply", "--remove-outliers",
+                          "--iterations", "1")
+    assert_one_line_error(status, err, "cannot drop vertices of a PLY file that also holds face")
+    assert not (tmp_path / "out.ply").exists()
+    status, _, err = pssd("denoise", path, tmp_path / "out.ply", "--orient", "left")
+    assert status == 2 and "expected outward, up or a viewpoint X,Y,Z" in err

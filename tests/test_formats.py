@@ -306,3 +306,21 @@ def test_new_las_normals_are_float32(tmp_path):
     las = laspy.read(tmp_path / "a.las")
     assert {name: las[name].dtype for name in ("nx", "ny", "nz")} == {
         "nx": np.float32, "ny": np.float32, "nz": np.float32}
+
+
+def test_selected_rows_of_an_obj_without_faces_are_written(tmp_path):
+    from pssd_fast import io as pio
+    path = tmp_path / "pts.obj"
+    path.write_text("# points\nv 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\n")
+    cloud = pio.select(pio.read(path), [0, 2, 3])
+    pio.write(tmp_path / "out.obj", cloud)
+    lines = (tmp_path / "out.obj").read_text().splitlines()
+    assert lines[0] == "# points" and [float(line.split()[1]) for line in lines[1:]] == [0, 2, 3]
+
+
+def test_selecting_rows_of_an_obj_with_faces_is_refused(tmp_path):
+    from pssd_fast import io as pio
+    path = tmp_path / "mesh.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\n")
+    with pytest.raises(pio.PointCloudFileError, match="faces"):
+        pio.select(pio.read(path), [0, 1, 2])

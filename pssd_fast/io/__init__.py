@@ -49,9 +49,11 @@ import warnings
 import zlib
 from pathlib import Path
 
+import numpy as np
+
 from . import las, npy, obj, ply, text
 from ._common import (COORDS, NORMALS, PointCloud, PointCloudFileError,
-                      PointCloudFileNotFoundError, as_array, as_fields, atomic_write,
+                      PointCloudFileNotFoundError, Source, as_array, as_fields, atomic_write,
                       check_finite, check_names, exists_message)
 
 
@@ -65,7 +67,7 @@ for _cls in (PointCloud, PointCloudFileError, PointCloudFileNotFoundError, Point
 del _cls
 
 __all__ = ["STDIO", "PointCloud", "PointCloudFileError", "PointCloudFileNotFoundError",
-           "PointCloudWarning", "describe", "formats", "read", "storable", "write"]
+           "PointCloudWarning", "describe", "formats", "read", "select", "storable", "write"]
 
 #: The path that means standard input (:func:`read`) or standard output (:func:`write`).
 STDIO = "-"
@@ -362,6 +364,39 @@ def describe(cloud):
     if cloud.source is None or not hasattr(module, "describe"):
         return []
     return module.describe(cloud.source)
+
+
+def select(cloud, rows):
+    """The cloud's ``rows`` only, with everything :func:`write` keeps of its source file.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        A cloud from :func:`read`.
+    rows : (m,) int array_like or (n,) bool array_like
+        Row indices or a mask, as for numpy indexing.
+
+    Returns
+    -------
+    PointCloud
+        Points, normals, fields and the source's per-point records (LAS point records, PLY
+        vertex rows) of those rows; header, VLRs, comments and the other arrays of an
+        ``.npz`` are kept as they are.
+
+    Raises
+    ------
+    PointCloudFileError
+        If the cloud comes from a PLY file with elements other than vertices (faces index the
+        vertices, and would silently point at other ones).
+    """
+    rows = np.asarray(rows)
+    if rows.dtype.kind not in "biu" or rows.ndim != 1:
+        raise TypeError(f"rows must be a 1-d integer or boolean array; got {rows.dtype} with "
+                        f"shape {rows.shape}")
+    source = cloud.source.take(rows) if isinstance(cloud.source, Source) else cloud.source
+    return PointCloud(cloud.points[rows], None if cloud.normals is None else cloud.normals[rows],
+                      {name: values[rows] for name, values in cloud.fields.items()},
+                      cloud.format, source)
 
 
 def _gzipped(payload):

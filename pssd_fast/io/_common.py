@@ -79,6 +79,11 @@ class Source:
     # Set by the dispatcher after the format module has read the data.
     path: str = field(default=None, kw_only=True)
 
+    def take(self, rows):
+        """This source for the cloud's ``rows`` only (formats with per-point records override
+        it; the others keep nothing per point)."""
+        return self
+
 
 # ---------------------------------------------------------------------------------------------
 # Argument checks

@@ -1,5 +1,6 @@
 """LAS and LAZ files through ``laspy[lazrs]``: header, VLRs, EVLRs and point records kept."""
 import copy
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,6 +16,9 @@ _LAS_CHUNK = 2**20
 class _LasSource(Source):
     header: object  # laspy.LasHeader, VLRs and EVLRs included; deep-copied before each write
     records: np.ndarray  # the raw point records (structured array of the point format)
+
+    def take(self, rows):
+        return dataclasses.replace(self, records=self.records[rows])
 
 
 def _need_laspy(ext, what):

@@ -1,5 +1,6 @@
 """Wavefront OBJ files: the vertices are the points; every other line is kept as it was."""
 import io
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +18,21 @@ class _ObjSource(Source):
     lines: list  # every line of the file, verbatim
     v_lines: np.ndarray  # indices of the ``v`` lines
     vn_lines: np.ndarray  # indices of the ``vn`` lines
+
+    def take(self, rows):
+        if any(line.lstrip()[:2] in ("f ", "l ", "p ", "f\t", "l\t", "p\t")
+               for line in self.lines):
+            # Faces, lines and points elements index the vertices: dropping some would rewire them.
+            raise PointCloudFileError(f"{self.path}: cannot drop vertices of an OBJ file with "
+                                      "faces, lines or point elements (they index the vertices)")
+        keep = np.zeros(len(self.v_lines), np.bool_)
+        keep[rows] = True
+        dropped = set(self.v_lines[~keep].tolist())
+        if len(self.vn_lines) == len(self.v_lines):
+            dropped |= set(self.vn_lines[~keep].tolist())
+        lines = [line for i, line in enumerate(self.lines) if i not in dropped]
+        return dataclasses.replace(self, lines=lines, v_lines=_keyword_lines(lines, "v"),
+                                   vn_lines=_keyword_lines(lines, "vn"))
 
 
 def _keyword_lines(lines, keyword):

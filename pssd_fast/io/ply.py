@@ -1,4 +1,5 @@
 """PLY files, ASCII or binary, through ``plyfile``: every element, property and comment kept."""
+import copy
 import re
 from dataclasses import dataclass
 
@@ -20,6 +21,20 @@ _PLY_NARROW = {"b1": "u1", "i8": "i4", "u8": "u4"}
 @dataclass(frozen=True)
 class _PlySource(Source):
     ply: object  # plyfile.PlyData with all elements in memory
+
+    def take(self, rows):
+        others = [e.name for e in self.ply.elements if e.name != "vertex"]
+        if others:
+            # Faces and edges index the vertices: dropping rows would silently rewire them.
+            raise PointCloudFileError(f"{self.path}: cannot drop vertices of a PLY file that "
+                                      f"also holds {', '.join(others)} (they index the "
+                                      f"vertices)")
+        vertex = copy.copy(self.ply["vertex"])
+        vertex.data = self.ply["vertex"].data[rows]
+        base = self.ply
+        ply = type(base)([vertex], text=base.text, byte_order=base.byte_order,
+                         comments=base.comments, obj_info=base.obj_info)
+        return _PlySource(self.path, ply)
 
 
 @dataclass(frozen=True)

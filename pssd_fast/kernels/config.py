@@ -17,6 +17,16 @@ def parallel_kernel(func):
     return Kernel(compile_kernel(func, parallel=True, fastmath=FASTMATH))
 
 
+def serial_kernel(func):
+    """Compile ``func`` as a cached single-threaded kernel, for work that is sequential by nature
+    (a traversal whose every step depends on the previous ones).
+
+    No fastmath: a serial kernel gains nothing from vectorising reductions, and exact IEEE
+    arithmetic lets its plain-Python reference reproduce every comparison bit for bit.
+    """
+    return Kernel(compile_kernel(func, parallel=False))
+
+
 def helper(func):
     """Compile ``func`` as a scalar helper that numba inlines into every kernel calling it.
 

@@ -7,13 +7,15 @@ from .linalg import DEGENERATE_RATIO, set_sym3, sym3_eigh
 
 
 @helper
-def neighbourhood_covariance(points, indptr, indices, i, cov):
-    """Covariance of the neighbour list of point ``i`` about its centroid, into ``cov``.
+def neighbourhood_covariance(points, indptr, indices, i, skip, cov, centre):
+    """Covariance of the neighbour list of point ``i`` about its centroid, into ``cov``, and
+    the centroid relative to ``points[i]`` into ``centre``; the first ``skip`` list entries
+    (the point itself) are left out.
 
     Coordinates are taken relative to ``points[i]`` so that large offsets (georeferenced scans)
     cost no precision.
     """
-    start = indptr[i]
+    start = indptr[i] + skip
     count = indptr[i + 1] - start
     px, py, pz = points[i, 0], points[i, 1], points[i, 2]
     cx = cy = cz = 0.0
@@ -25,6 +27,7 @@ def neighbourhood_covariance(points, indptr, indices, i, cov):
     cx /= count
     cy /= count
     cz /= count
+    centre[0], centre[1], centre[2] = cx, cy, cz
     c00 = c01 = c02 = c11 = c12 = c22 = 0.0
     for t in range(start, start + count):
         j = indices[t]
@@ -62,8 +65,9 @@ def pca_normals(points, indptr, indices, hints, normals, degenerate):
         cov = np.empty((3, 3))
         w = np.empty(3)
         v = np.empty((3, 3))
+        centre = np.empty(3)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            neighbourhood_covariance(points, indptr, indices, i, cov)
+            neighbourhood_covariance(points, indptr, indices, i, 0, cov, centre)
             sym3_eigh(cov, w, v)
             degenerate[i] = not (w[1] > DEGENERATE_RATIO * w[2])
             nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
