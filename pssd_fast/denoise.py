@@ -11,7 +11,7 @@ from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_k, check_orient,
     check_size,
 )
-from .graph import caller_order_graph, knn_graph, morton_order, refresh_graph, truncate_graph
+from .graph import knn_graph, morton_order, refresh_graph, truncate_graph
 from .kernels.order import gather_rows, scatter_rows
 from .pipelines import STEPS, aware
 from .progress import Clock, reporter
@@ -251,11 +251,15 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         raise TypeError(f"remove_outliers must be True or False; got {remove_outliers!r}")
 
     started = time.perf_counter()
-    with threads(n_jobs):
-        score, kept, outlier_seconds = _outliers(pts, remove_outliers)
-    score_all, n_input = score, n
+    n_input = n
+    kept = np.arange(n)
+    score = None
     if remove_outliers:
-        pts, given, score = pts[kept], None if given is None else given[kept], score[kept]
+        # Before anything else, so that the result is exactly that of denoise(points[kept]).
+        with threads(n_jobs):
+            score_all, outlier_seconds = _outlier_score(pts)
+        kept = np.flatnonzero(score_all <= 1.0)
+        pts, given, score = pts[kept], None if given is None else given[kept], score_all[kept]
         if k is not None and pts.shape[0] < k + 1:
             raise ValueError(f"only {pts.shape[0]} of {n} points remain after removing "
                              f"outliers, too few for k = {k}; lower k or keep the outliers")
@@ -273,6 +277,10 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     with threads(n_jobs) as n_threads:
         if auto:
             k, scale, probe = aware.choose_k(current, given)
+        if score is None:
+            # In Morton order, on the probe's lists when there are enough of them.
+            sorted_score, outlier_seconds = _outlier_score(current, True, probe)
+            score = score_all = _to_caller_order(sorted_score, order)
         out_normals = graph = None
         for iteration in range(iterations):
             clock = Clock(report, iteration, iterations)
@@ -398,13 +406,28 @@ def _estimated_normals(points, graph, previous, orient, centre):
     return nrm, degenerate
 
 
-def _outliers(points, remove):
-    """Outlier score of the input (caller's order), the rows to keep and the seconds spent."""
+def _outlier_score(points, presorted=False, probe=None):
+    """:func:`pssd_fast.core.outlier_score` of ``points`` and the seconds spent.
+
+    ``points`` in the caller's order are sorted along a Morton curve (and centred) for the
+    query, and the score comes back in their order. ``presorted`` points are already sorted
+    and centred; ``probe``, lists of at least ``OUTLIER_K`` entries of them, spares the query.
+    """
     started = time.perf_counter()
-    k = min(core.OUTLIER_K, points.shape[0] - 1)
-    score = core.outlier_score(points, caller_order_graph(points, k))
-    kept = np.flatnonzero(score <= 1.0) if remove else np.arange(points.shape[0])
-    return score, kept, time.perf_counter() - started
+    n = points.shape[0]
+    k = min(core.OUTLIER_K, n - 1)
+    if not presorted:
+        order = morton_order(points)
+        current = np.empty_like(points)
+        gather_rows(points, order, 0.5 * (points.min(axis=0) + points.max(axis=0)), current)
+        score = np.empty(n)
+        score[order] = _outlier_score(current, True)[0]
+        return score, time.perf_counter() - started
+    if probe is not None and probe.indices.shape[0] >= k * n:
+        graph = truncate_graph(probe, points, k)
+    else:
+        graph = knn_graph(points, k, False)
+    return core.outlier_score(points, graph), time.perf_counter() - started
 
 
 def _given_normals(normals):
