@@ -5,7 +5,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import core
+from . import core, inputs
 from ._threads import threads
 from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_k, check_orient,
@@ -257,7 +257,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     if remove_outliers:
         # Before anything else, so that the result is exactly that of denoise(points[kept]).
         with threads(n_jobs):
-            score_all, outlier_seconds = _outlier_score(pts)
+            score_all, outlier_seconds = inputs.outlier_score(pts)
         kept = np.flatnonzero(score_all <= 1.0)
         pts, given, score = pts[kept], None if given is None else given[kept], score_all[kept]
         if k is not None and pts.shape[0] < k + 1:
@@ -279,7 +279,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             k, scale, probe = aware.choose_k(current, given)
         if score is None:
             # In Morton order, on the probe's lists when there are enough of them.
-            sorted_score, outlier_seconds = _outlier_score(current, True, probe)
+            sorted_score, outlier_seconds = inputs.outlier_score(current, True, probe)
             score = score_all = _to_caller_order(sorted_score, order)
         out_normals = graph = None
         for iteration in range(iterations):
@@ -295,7 +295,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
                 nrm, degenerate = clock.run("normals", _given_normals, given)
             else:
                 first = orient if out_normals is None else None
-                nrm, degenerate = clock.run("normals", _estimated_normals, current, graph,
+                nrm, degenerate = clock.run("normals", inputs.estimated_normals, current, graph,
                                             out_normals, first, centre)
             moved, out_normals, extra, record = step(current, nrm, graph, lam, params, clock,
                                                      iteration == iterations - 1)
@@ -393,41 +393,6 @@ def _method_params(method, method_params):
         raise TypeError(f"keep_normals must be True or False; got {params['keep_normals']!r}")
     params["keep_normals"] = bool(params["keep_normals"])
     return params
-
-
-def _estimated_normals(points, graph, previous, orient, centre):
-    """PCA normals signed like the ``previous`` iteration's, else by ``orient`` (propagation)
-    or away from the centroid (``orient=None``); ``points`` are relative to ``centre``."""
-    hints = core.outward_hints(points) if previous is None else previous
-    nrm, degenerate = core.pca_normals(points, graph, hints)
-    if orient is not None:
-        core.orient_normals(points, nrm, graph, orient if isinstance(orient, str)
-                            else orient - centre)
-    return nrm, degenerate
-
-
-def _outlier_score(points, presorted=False, probe=None):
-    """:func:`pssd_fast.core.outlier_score` of ``points`` and the seconds spent.
-
-    ``points`` in the caller's order are sorted along a Morton curve (and centred) for the
-    query, and the score comes back in their order. ``presorted`` points are already sorted
-    and centred; ``probe``, lists of at least ``OUTLIER_K`` entries of them, spares the query.
-    """
-    started = time.perf_counter()
-    n = points.shape[0]
-    k = min(core.OUTLIER_K, n - 1)
-    if not presorted:
-        order = morton_order(points)
-        current = np.empty_like(points)
-        gather_rows(points, order, 0.5 * (points.min(axis=0) + points.max(axis=0)), current)
-        score = np.empty(n)
-        score[order] = _outlier_score(current, True)[0]
-        return score, time.perf_counter() - started
-    if probe is not None and probe.indices.shape[0] >= k * n:
-        graph = truncate_graph(probe, points, k)
-    else:
-        graph = knn_graph(points, k, False)
-    return core.outlier_score(points, graph), time.perf_counter() - started
 
 
 def _given_normals(normals):

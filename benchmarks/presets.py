@@ -1,0 +1,142 @@
+"""Whole denoise runs of each preset at scan sizes: time, accuracy and memory.
+
+Usage::
+
+    python -m benchmarks.presets                                   # 1,000,000 points
+    python -m benchmarks.presets --sizes 100000 1000000 --presets default fast paper
+
+Each (size, preset) cell runs in a fresh process: the child loads the generated CAD part from a
+``.npy`` file, compiles on a small cloud, denoises the whole cloud with the preset's own
+iterations (``--paper-iterations`` for "paper", 1 by default: the issue's target is one
+iteration), reads its peak resident size, scores the result against the true surface and times
+pykdtree's k=25 query on the same points in Morton order, the reference of the ratio column.
+Errors are in 1e-4 of the bounding-box diagonal: the mean distance to the true surface over all
+points, and over the points within 1% of the diagonal of a sharp edge. Writes
+``benchmarks/results/presets.md`` and ``.json``.
+"""
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .scaling import _resident_bytes
+from .stages import RESULTS, knn_query_seconds, machine, write_results
+
+UNIT = 1e-4
+
+
+def child(path, noise, preset, iterations):
+    """Measure one cell in this process; print the result as one JSON line."""
+    import pssd_fast
+    from pssd_fast import datasets
+    from pssd_fast.graph import morton_order
+
+    points = np.load(path)
+    run = {"preset": preset, "iterations": iterations}
+    pssd_fast.denoise(points[:5000], **run)
+    rss_before = _resident_bytes()
+    started = time.perf_counter()
+    result = pssd_fast.denoise(points, **run)
+    total = time.perf_counter() - started
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    output = sum(a.nbytes for a in (result.points, result.normals, result.likelihood,
+                                     result.feature_intensity, result.displacement,
+                                     result.outlier_score, result.kept) if a is not None)
+    cloud = datasets.cad_part(n_points=len(points), noise=noise, seed=0)
+    edge = cloud.edge_distance < 0.01 * cloud.diagonal
+    before = cloud.surface_distance(points) / UNIT
+    after = cloud.surface_distance(result.points) / UNIT
+    stats = result.stats
+    stages = {}
+    for record in stats["iterations"]:
+        for stage, seconds in record["times"].items():
+            stages[stage] = stages.get(stage, 0.0) + seconds
+    ordered = np.ascontiguousarray(points[morton_order(points)])
+    knn = knn_query_seconds(ordered, 25)
+    print(json.dumps({
+        "total": total, "knn_query": knn, "k": stats["k"], "iterations": stats["n_iterations"],
+        "noise_estimate": stats["noise"], "stages": stages,
+        "probe_seconds": None if stats["auto_k"] is None else stats["auto_k"]["seconds"],
+        "outlier_seconds": stats["outliers"]["seconds"],
+        "mean_before": float(before.mean()), "edge_before": float(before[edge].mean()),
+        "mean_after": float(after.mean()), "edge_after": float(after[edge].mean()),
+        "peak_bytes": peak, "bytes_per_point": (peak - rss_before - output) / len(points)}))
+
+
+def measure(path, noise, preset, iterations, threads):
+    env = dict(os.environ, NUMBA_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads))
+    out = subprocess.run([sys.executable, "-m", "benchmarks.presets", "--child", str(path),
+                          "--noise", str(noise), "--presets", preset,
+                          "--paper-iterations", str(iterations or 0)],
+                         env=env, capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def table(cells):
+    lines = ["| points | threads | preset | k | iterations | noisy mean / edge | denoised mean / edge"
+             " | kNN k=25 (s) | total (s) | total / kNN | peak RSS (MB) | bytes/point |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for c in cells:
+        lines.append(f"| {c['points']:,} | {c['threads']} | {c['preset']} | {c['k']} | "
+                     f"{c['iterations']} | {c['mean_before']:.1f} / {c['edge_before']:.1f} | "
+                     f"{c['mean_after']:.1f} / {c['edge_after']:.1f} | {c['knn_query']:.3f} | "
+                     f"{c['total']:.2f} | {c['total'] / c['knn_query']:.1f} | "
+                     f"{c['peak_bytes'] / 1e6:.0f} | {c['bytes_per_point']:.0f} |")
+    lines.append("")
+    lines.append("Stage times (s, summed over the iterations; probe: the noise probe of k):")
+    lines.append("")
+    for c in cells:
+        stages = ", ".join(f"{s} {t:.2f}" for s, t in c["stages"].items())
+        probe = "" if c["probe_seconds"] is None else f"probe {c['probe_seconds']:.2f}, "
+        lines.append(f"- {c['points']:,} points, {c['preset']}: {probe}outlier score "
+                     f"{c['outlier_seconds']:.2f}, {stages}")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1_000_000])
+    parser.add_argument("--presets", nargs="+", default=["default", "fast", "paper"])
+    parser.add_argument("--paper-iterations", type=int, default=1,
+                        help="iterations of preset 'paper' (0: the preset's own)")
+    parser.add_argument("--threads", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--noise", type=float, default=0.005)
+    parser.add_argument("--out", default="presets", help="file stem in benchmarks/results/")
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        preset = args.presets[0]
+        iterations = args.paper_iterations if preset == "paper" else 0
+        child(args.child, args.noise, preset, iterations or None)
+        return
+
+    from pssd_fast import datasets
+
+    cells = []
+    with tempfile.TemporaryDirectory() as scratch:
+        for n in args.sizes:
+            path = Path(scratch) / f"cloud_{n}.npy"
+            np.save(path, datasets.cad_part(n_points=n, noise=args.noise, seed=0).points)
+            for preset in args.presets:
+                cell = {"points": n, "threads": args.threads, "preset": preset,
+                        **measure(path, args.noise, preset, args.paper_iterations,
+                                  args.threads)}
+                cells.append(cell)
+                print(f"{n:>10,} points {preset:>8}: {cell['total']:8.2f} s "
+                      f"({cell['total'] / cell['knn_query']:.1f}x kNN), error "
+                      f"{cell['mean_after']:.1f} / {cell['edge_after']:.1f}", flush=True)
+    text = (f"Machine: {machine()}\n\nInput: the generated CAD part, noise {args.noise:.2%} of "
+            f"the diagonal, seed 0; one process per cell.\n\n" + table(cells))
+    print(text)
+    write_results(RESULTS, args.out, text, {"noise": args.noise, "cells": cells})
+
+
+if __name__ == "__main__":
+    main()
