@@ -643,6 +643,7 @@ def test_the_probe_graph_serves_the_first_iteration(monkeypatch):
 
     monkeypatch.setattr(denoise_module, "knn_graph", counted)
     monkeypatch.setattr("pssd_fast.pipelines.aware.knn_graph", counted)
+    monkeypatch.setattr("pssd_fast.inputs.knn_graph", counted)
     auto = pssd_fast.denoise(points, iterations=1)
     k = auto.stats["k"]
     assert k <= auto.stats["auto_k"]["probe_k"] and calls == [auto.stats["auto_k"]["probe_k"]]
