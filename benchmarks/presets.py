@@ -47,8 +47,8 @@ def child(path, noise, preset, iterations):
     total = time.perf_counter() - started
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     output = sum(a.nbytes for a in (result.points, result.normals, result.likelihood,
-                                     result.feature_intensity, result.displacement,
-                                     result.outlier_score, result.kept) if a is not None)
+                                     result.feature_intensity, result.displacement, result.kept)
+                 if a is not None)
     cloud = datasets.cad_part(n_points=len(points), noise=noise, seed=0)
     edge = cloud.edge_distance < 0.01 * cloud.diagonal
     before = cloud.surface_distance(points) / UNIT
@@ -64,7 +64,6 @@ def child(path, noise, preset, iterations):
         "total": total, "knn_query": knn, "k": stats["k"], "iterations": stats["n_iterations"],
         "noise_estimate": stats["noise"], "stages": stages,
         "probe_seconds": None if stats["auto_k"] is None else stats["auto_k"]["seconds"],
-        "outlier_seconds": stats["outliers"]["seconds"],
         "mean_before": float(before.mean()), "edge_before": float(before[edge].mean()),
         "mean_after": float(after.mean()), "edge_after": float(after[edge].mean()),
         "peak_bytes": peak, "bytes_per_point": (peak - rss_before - output) / len(points)}))
@@ -80,8 +79,8 @@ def measure(path, noise, preset, iterations, threads):
 
 
 def table(cells):
-    lines = ["| points | threads | preset | k | iterations | noisy mean / edge | denoised mean / edge"
-             " | kNN k=25 (s) | total (s) | total / kNN | peak RSS (MB) | bytes/point |",
+    lines = ["| points | threads | preset | k | iterations | noisy mean / edge | denoised mean / "
+             "edge | kNN k=25 (s) | total (s) | total / kNN | peak RSS (MB) | bytes/point |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for c in cells:
         lines.append(f"| {c['points']:,} | {c['threads']} | {c['preset']} | {c['k']} | "
@@ -95,8 +94,7 @@ def table(cells):
     for c in cells:
         stages = ", ".join(f"{s} {t:.2f}" for s, t in c["stages"].items())
         probe = "" if c["probe_seconds"] is None else f"probe {c['probe_seconds']:.2f}, "
-        lines.append(f"- {c['points']:,} points, {c['preset']}: {probe}outlier score "
-                     f"{c['outlier_seconds']:.2f}, {stages}")
+        lines.append(f"- {c['points']:,} points, {c['preset']}: {probe}{stages}")
     return "\n".join(lines) + "\n"
 
 

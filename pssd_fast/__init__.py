@@ -8,8 +8,9 @@ Numpy in, numpy out::
 
 The stages of the method are public too (:func:`neighbors`, :func:`estimate_normals`,
 :func:`mls_fit`, :func:`sampling_likelihood`, :func:`feature_intensity`,
-:func:`filter_normals`, :func:`outlier_score`), so other tools can use them as a backend. Kernels are compiled by
-numba on first use and cached on disk; :func:`warmup` compiles them ahead of time.
+:func:`filter_normals`, :func:`outlier_score`), so other tools can use them as a backend.
+Kernels are compiled by numba on first use and cached on disk; :func:`warmup` compiles them
+ahead of time.
 """
 from .denoise import METHODS, DenoiseResult, denoise
 from .graph import NeighborGraph, morton_order, neighbors

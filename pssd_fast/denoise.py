@@ -1,11 +1,12 @@
 """`denoise`: resolves the parameters, then runs the iterations of the chosen pipeline."""
+import functools
 import time
 from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
 
-from . import core, inputs
+from . import core, inputs, stages
 from ._threads import threads
 from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_k, check_orient,
@@ -32,9 +33,9 @@ AWARE_ONLY = ("sigma_n",)
 #: Presets: the pipeline of the robust method and where ``k``, ``lam``, ``iterations`` and
 #: ``rebuild_graph`` come from when not given (``k=None``: chosen from the estimated noise, see
 #: ``pssd_fast.pipelines.aware.AUTO_K``). "default" and "fast" run the feature-aware pipeline
-#: chosen on generated shapes (docs/DECISIONS.md, "Beyond the paper"); "fast" keeps the first iteration's neighbours
-#: (1.2-2x faster, errors unchanged or lower), "default" queries them anew, which keeps its
-#: sharp-edge error up to 1% lower. "paper" is the paper's formulation.
+#: chosen on generated shapes (docs/DECISIONS.md, "Beyond the paper"); "fast" keeps the first
+#: iteration's neighbours (1.2-2x faster, errors unchanged or lower), "default" queries them
+#: anew, which keeps its sharp-edge error up to 1% lower. "paper" is the paper's formulation.
 PRESETS = {
     "default": {"pipeline": "aware", "k": None, "lam": None, "iterations": 4,
                 "rebuild_graph": True},
@@ -61,7 +62,9 @@ class DenoiseResult:
         ``|p_noisy - p_denoised|``, the quantity of the paper's Table 1 and Fig. 8.
     outlier_score : (n,) ndarray
         :func:`pssd_fast.outlier_score` of the input points (before any iteration, ``k = 64``);
-        above 1: flagged as an outlier.
+        above 1: flagged as an outlier. Computed on first access (a query of 64 neighbours,
+        about 2-4 times the run's cheapest kNN query), unless ``remove_outliers=True`` needed
+        it already.
     kept : (n,) int64 ndarray
         Rows of the input that the other arrays hold, in increasing order: every row, or with
         ``remove_outliers=True`` those scoring at most 1 (so ``points[kept]`` is what was
@@ -82,9 +85,17 @@ class DenoiseResult:
     likelihood: Optional[np.ndarray]
     feature_intensity: Optional[np.ndarray]
     displacement: np.ndarray
-    outlier_score: np.ndarray
     kept: np.ndarray
     stats: dict = field(repr=False)
+    # The score once known, else what computes it: the input rows the result holds and n_jobs.
+    _outliers: object = field(default=None, repr=False, compare=False)
+
+    @functools.cached_property
+    def outlier_score(self):
+        if isinstance(self._outliers, np.ndarray):
+            return self._outliers
+        points, n_jobs = self._outliers
+        return stages.outlier_score(points, n_jobs=n_jobs)
 
 
 def denoise(points, normals=None, *, method="robust", iterations=None, k=None, lam=None,
@@ -140,7 +151,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         ``normals``, whose signs are the caller's. The positions do not depend on it.
     remove_outliers : bool, default False
         Drop the points whose ``outlier_score`` exceeds 1 before denoising; ``kept`` says
-        which input rows the result holds. The score is computed either way.
+        which input rows the result holds.
     n_jobs : int or None, default None
         Threads for the kernels: ``None`` or -1 use every thread numba may use (by default one
         per core), a positive number that many (capped at that maximum). Numba's setting is
@@ -253,11 +264,12 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     started = time.perf_counter()
     n_input = n
     kept = np.arange(n)
-    score = None
+    score = outlier_seconds = None
     if remove_outliers:
         # Before anything else, so that the result is exactly that of denoise(points[kept]).
-        with threads(n_jobs):
-            score_all, outlier_seconds = inputs.outlier_score(pts)
+        outlier_started = time.perf_counter()
+        score_all = stages.outlier_score(pts, n_jobs=n_jobs)
+        outlier_seconds = time.perf_counter() - outlier_started
         kept = np.flatnonzero(score_all <= 1.0)
         pts, given, score = pts[kept], None if given is None else given[kept], score_all[kept]
         if k is not None and pts.shape[0] < k + 1:
@@ -277,10 +289,6 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     with threads(n_jobs) as n_threads:
         if auto:
             k, scale, probe = aware.choose_k(current, given)
-        if score is None:
-            # In Morton order, on the probe's lists when there are enough of them.
-            sorted_score, outlier_seconds = inputs.outlier_score(current, True, probe)
-            score = score_all = _to_caller_order(sorted_score, order)
         out_normals = graph = None
         for iteration in range(iterations):
             clock = Clock(report, iteration, iterations)
@@ -320,8 +328,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         "noise": None if scale is None else scale["noise"],
         "rebuild_graph": bool(rebuild_graph),
         "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
-        "outliers": {"flagged": int((score_all > 1.0).sum()), "removed": n_input - n,
-                     "seconds": outlier_seconds},
+        "outliers": None if score is None else {
+            "flagged": int((score_all > 1.0).sum()), "removed": n_input - n,
+            "seconds": outlier_seconds},
         "n_iterations": iterations,
         "params": dict(params),
         "n_jobs": n_threads,
@@ -336,7 +345,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         likelihood=lik,
         feature_intensity=feat,
         displacement=np.linalg.norm(shift - (pts - centre), axis=1).astype(dtype, copy=False),
-        outlier_score=score.astype(dtype, copy=False),
+        # A copy (in the input's dtype): the caller may change the input before the access.
+        _outliers=(pts.astype(dtype), n_jobs) if score is None else score.astype(dtype, copy=False),
         kept=kept,
         stats=stats,
     )

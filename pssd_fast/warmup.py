@@ -5,6 +5,7 @@ import numpy as np
 
 from .denoise import METHODS, denoise
 from .graph import GRID_K, knn_graph
+from .stages import outlier_score
 
 
 def warmup():
@@ -29,6 +30,7 @@ def warmup():
     denoise(points, k=10, iterations=2, preset="fast")
     denoise(points.astype(np.float32), points, k=10, iterations=1)
     denoise(points, k=10, iterations=1, preset="fast", orient="outward")
+    outlier_score(points, k=10)
     # Lists as long as the default's at scan sizes come from the grid query.
     sphere = rng.normal(size=(GRID_K + 1, 3))
     knn_graph(sphere / np.linalg.norm(sphere, axis=1)[:, None], GRID_K, False)

@@ -409,7 +409,8 @@ def test_stdin_csv_to_stdout_ply_in_process(small, monkeypatch, capsys):
     assert status == 0, err
     assert "iteration 1:" in err and "- -> -" in err  # messages on stderr, data on stdout
     lines = out.buffer.getvalue().decode().splitlines()
-    assert lines[0] == "x,y,z,nx,ny,nz,red,green,blue,likelihood,feature_intensity,displacement,outlier_score"
+    assert lines[0] == ("x,y,z,nx,ny,nz,red,green,blue,likelihood,feature_intensity,"
+                        "displacement,outlier_score")
     assert [row.split(",")[6:9] for row in lines[1:3]] == [list(map(str, c)) for c in rgb[:2]]
 
 

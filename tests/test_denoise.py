@@ -630,8 +630,8 @@ def test_float32_with_large_offsets_is_as_accurate_as_float64(preset):
 
 
 def test_the_probe_graph_serves_the_first_iteration(monkeypatch):
-    """k chosen at most the probe's k: one kNN query (the probe's) serves the outlier score and
-    one iteration, with the same result as querying the lists anew."""
+    """k chosen at most the probe's k: one kNN query (the probe's) for one iteration, and the
+    same result as querying k neighbours anew."""
     denoise_module = sys.modules["pssd_fast.denoise"]
     points = wavy(3000, noise=0.002, seed=5)
     calls = []
@@ -643,16 +643,14 @@ def test_the_probe_graph_serves_the_first_iteration(monkeypatch):
 
     monkeypatch.setattr(denoise_module, "knn_graph", counted)
     monkeypatch.setattr("pssd_fast.pipelines.aware.knn_graph", counted)
-    monkeypatch.setattr("pssd_fast.inputs.knn_graph", counted)
     auto = pssd_fast.denoise(points, iterations=1)
     k = auto.stats["k"]
     assert k <= auto.stats["auto_k"]["probe_k"] and calls == [auto.stats["auto_k"]["probe_k"]]
     assert auto.stats["noise"] == auto.stats["auto_k"]["noise"] > 0
     calls.clear()
     fresh = pssd_fast.denoise(points, iterations=1, k=k)
-    assert calls == [core.OUTLIER_K, k] and fresh.stats["noise"] is None
+    assert calls == [k] and fresh.stats["noise"] is None
     np.testing.assert_allclose(auto.points, fresh.points, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(auto.outlier_score, fresh.outlier_score, rtol=1e-12)
 
 
 def test_progress_lines_tell_the_elapsed_and_the_time_left(capsys):

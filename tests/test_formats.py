@@ -1,4 +1,5 @@
-"""pssd_fast.io formats of issue 14: CSV and headers, integer columns, PTS, OBJ, gzip, stdin/stdout."""
+"""pssd_fast.io formats of issue 14: CSV and headers, integer columns, PTS, OBJ, gzip and
+stdin/stdout."""
 import gzip
 import io
 

@@ -53,7 +53,9 @@ def test_score_and_kept_without_removal():
     points, n_surface = with_outliers(datasets.sphere(5000, noise=0.0025, seed=0))
     result = pssd_fast.denoise(points, preset="fast")
     np.testing.assert_array_equal(result.kept, np.arange(len(points)))
-    np.testing.assert_allclose(result.outlier_score, pssd_fast.outlier_score(points), rtol=1e-12)
+    assert result.stats["outliers"] is None  # not computed until asked for
+    np.testing.assert_array_equal(result.outlier_score, pssd_fast.outlier_score(points))
+    assert result.outlier_score is result.outlier_score  # computed once
     removed = pssd_fast.denoise(points, preset="fast", remove_outliers=True)
     np.testing.assert_array_equal(removed.kept, np.flatnonzero(result.outlier_score <= 1.0))
     np.testing.assert_array_equal(removed.points,

@@ -2,9 +2,9 @@
 
 :func:`read` turns a ``.ply``, ``.xyz``/``.pts``/``.txt``/``.csv``, ``.obj``, ``.npy``, ``.npz`` or
 ``.las``/``.laz`` file (text, PLY and OBJ also gzipped: ``scan.ply.gz``), or standard input
-(``"-"`` with ``format=``), into a :class:`PointCloud`: float64 points, normals when the file has them, and every other
-per-point attribute (colours, intensity, classification, scalar fields...) in ``fields`` with its
-original dtype. :func:`write` writes a cloud back with new points, normals and added per-point
+(``"-"`` with ``format=``), into a :class:`PointCloud`: float64 points, normals when the file
+has them, and every other per-point attribute (colours, intensity, classification, scalar
+fields...) in ``fields`` with its original dtype. :func:`write` writes a cloud back with new points, normals and added per-point
 fields (``likelihood``, ``feature_intensity``...), keeping everything else of the input as it was
 when the output has the input's format: other PLY properties and elements (faces), comments,
 ASCII/binary and byte order; LAS point format, version, scale, offset, every point record, VLRs
@@ -138,8 +138,9 @@ def _split_ext(name, ext, what):
     if base not in _FORMATS:
         raise PointCloudFileError(f"{name}: {what}; supported: {', '.join(formats())}")
     if gz and _FORMATS[base] not in _GZIP_KINDS:
+        gzipped = ", ".join(e for e in formats() if e.endswith(".gz"))
         raise PointCloudFileError(f"{name}: {base} files cannot be gzipped (only text, PLY and "
-                                  f"OBJ files: {', '.join(e for e in formats() if e.endswith('.gz'))})")
+                                  f"OBJ files: {gzipped})")
     return base, gz
 
 

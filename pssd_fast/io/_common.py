@@ -159,7 +159,8 @@ def stream_size(fh):
 
 def exists_message(path, cloud):
     src = cloud.source
-    if isinstance(src, Source) and src.path is not None and os.path.exists(src.path) and os.path.samefile(path, src.path):
+    if (isinstance(src, Source) and src.path is not None and os.path.exists(src.path)
+            and os.path.samefile(path, src.path)):
         return (f"{path}: is the file this cloud was read from; refusing to overwrite the input "
                 f"(pass overwrite=True, --force on the command line, to replace it)")
     return (f"{path}: already exists; pass overwrite=True (--force on the command line) to "
