@@ -289,16 +289,19 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     with threads(n_jobs) as n_threads:
         if auto:
             k, scale, probe = aware.choose_k(current, given)
+            if k > scale["probe_k"]:
+                probe = None  # too short to serve: freed before the longer lists are built
         out_normals = graph = None
         for iteration in range(iterations):
             clock = Clock(report, iteration, iterations)
-            if probe is not None and iteration == 0 and k <= scale["probe_k"]:
+            if probe is not None:
                 # The probe's lists, cut to k, are this iteration's: no second query.
                 graph = clock.run("neighbors", truncate_graph, probe, current, k)
             elif graph is None or rebuild_graph:
                 graph = clock.run("neighbors", knn_graph, current, k, False)
             else:
                 graph = clock.run("neighbors", refresh_graph, graph, current)
+            probe = None  # used or not, its lists (4 bytes x 96 a point) are not kept
             if given is not None:
                 nrm, degenerate = clock.run("normals", _given_normals, given)
             else:
@@ -313,7 +316,6 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             current = moved
             if not params["keep_normals"]:
                 given = None
-            probe = None
 
     shift = _to_caller_order(current, order)
     out = shift + centre
