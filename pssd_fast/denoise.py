@@ -298,6 +298,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
                 # The probe's lists, cut to k, are this iteration's: no second query.
                 graph = clock.run("neighbors", truncate_graph, probe, current, k)
             elif graph is None or rebuild_graph:
+                graph = None  # the last lists go before the new ones are built, not after
                 graph = clock.run("neighbors", knn_graph, current, k, False)
             else:
                 graph = clock.run("neighbors", refresh_graph, graph, current)
