@@ -302,7 +302,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
                 graph = clock.run("neighbors", knn_graph, current, k, False)
             else:
                 graph = clock.run("neighbors", refresh_graph, graph, current)
-            probe = None  # used or not, its lists (4 bytes x 96 a point) are not kept
+            probe = None  # its lists (4 bytes x 96 a point) are not kept past their use
             if given is not None:
                 nrm, degenerate = clock.run("normals", _given_normals, given)
             else:
