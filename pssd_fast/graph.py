@@ -157,6 +157,10 @@ def _grid_query(points, k):
     extent = points.max(axis=0) - low
     cell = _grid_cell(points, k, extent)
     dims = (extent / cell).astype(np.int64) + 1
+    # Keys must fit 63 bits: a far outlier on every axis widens the cells instead.
+    while float(np.prod(dims.astype(np.float64))) > 2.0**62:
+        cell *= 2.0
+        dims = (extent / cell).astype(np.int64) + 1
     coords = np.minimum(((points - low) / cell).astype(np.int64), dims - 1)
     keys = (coords[:, 0] * dims[1] + coords[:, 1]) * dims[2] + coords[:, 2]
     members = np.argsort(keys, kind="stable").astype(np.int32 if n < 2**31 else np.int64)
@@ -180,8 +184,7 @@ def _grid_cell(points, k, extent):
     evenly spread sample, so that nearly every query finds its list among the 27 cells around it.
 
     The sample's distances are scaled by ``sqrt(sample / n)``, as on a surface (a
-    two-dimensional density). Any edge gives exact lists; a poor one only costs time. The grid
-    is kept under ``2**21`` cells per axis so that cell keys fit 63 bits.
+    two-dimensional density). Any edge gives exact lists; a poor one only costs time.
     """
     n = points.shape[0]
     step = max(1, n // 20000)
@@ -194,7 +197,7 @@ def _grid_cell(points, k, extent):
     longest = float(extent.max())
     if not cell > 0.0:
         cell = longest if longest > 0.0 else 1.0
-    return max(cell, longest / (2**21 - 2))
+    return cell
 
 
 def refresh_graph(graph, points):

@@ -173,3 +173,16 @@ def test_check_graph_rejects_foreign_graphs():
         check_graph(shuffled, len(points))
     with pytest.raises(ValueError, match=r"lie in \[0"):
         check_graph(graph._replace(indices=graph.indices + len(points)), len(points))
+
+
+def test_grid_query_with_outliers_far_away_on_every_axis(monkeypatch):
+    """Keys stay within 63 bits and far outliers find their lists in few rounds."""
+    monkeypatch.setattr(graph_module, "GRID_K", 2)
+    rng = np.random.default_rng(12)
+    surface = np.column_stack([rng.uniform(0, 1, (2000, 2)), rng.normal(0, 1e-3, 2000)])
+    far = np.array([[1e6, 1e6, 1e6], [-1e6, 3e5, -2e6], [5e5, -1e6, 1e6]])
+    uniform = rng.uniform(-0.2, 1.2, (40, 3))
+    points = np.vstack([surface, far, uniform])
+    lists, dists = reference.knn_lists(points, 15)
+    graph = knn_graph(points, 15)
+    np.testing.assert_allclose(graph.distances.reshape(-1, 15), np.array(dists), rtol=1e-12)

@@ -62,9 +62,11 @@ def grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, member
     -----
     Cells within Chebyshev distance ``R`` of the query's cell are gathered, ``R = 1`` first. The
     k-th smallest distance is exact once it is at most the distance from the query to the
-    border of the gathered block (or the block covers the grid); otherwise ``R`` grows.
+    border of the gathered block (or the block covers the grid); otherwise ``R`` doubles. A
+    block with more columns than the grid has occupied cells visits those cells instead.
     """
     rows = out_idx.shape[0]
+    n_cells = cell_keys.shape[0]
     nx, ny, nz = dims[0], dims[1], dims[2]
     for c in prange((rows + CHUNK - 1) // CHUNK):
         capacity = 64 * k
@@ -84,19 +86,36 @@ def grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, member
                 y0, y1 = max(cy - reach, 0), min(cy + reach, ny - 1)
                 z0, z1 = max(cz - reach, 0), min(cz + reach, nz - 1)
                 columns = (x1 - x0 + 1) * (y1 - y0 + 1)
-                if ranges.shape[1] < columns:
-                    ranges = np.empty((2, columns), np.int64)
-                # One binary search per (x, y) column: its z cells have consecutive keys.
                 total = 0
                 col = 0
-                for x in range(x0, x1 + 1):
-                    for y in range(y0, y1 + 1):
-                        base = (x * ny + y) * nz
-                        lo, hi = _column_range(cell_keys, base + z0, base + z1)
-                        ranges[0, col] = cell_start[lo]
-                        ranges[1, col] = cell_start[hi]
-                        total += cell_start[hi] - cell_start[lo]
-                        col += 1
+                if columns <= n_cells:
+                    if ranges.shape[1] < columns:
+                        ranges = np.empty((2, columns), np.int64)
+                    # One binary search per (x, y) column: its z cells have consecutive keys.
+                    for x in range(x0, x1 + 1):
+                        for y in range(y0, y1 + 1):
+                            base = (x * ny + y) * nz
+                            lo, hi = _column_range(cell_keys, base + z0, base + z1)
+                            ranges[0, col] = cell_start[lo]
+                            ranges[1, col] = cell_start[hi]
+                            total += cell_start[hi] - cell_start[lo]
+                            col += 1
+                else:
+                    # A block wider than the cloud's occupied cells (a far outlier): visit
+                    # those cells instead of the block's columns.
+                    if ranges.shape[1] < n_cells:
+                        ranges = np.empty((2, n_cells), np.int64)
+                    for t in range(n_cells):
+                        key = cell_keys[t]
+                        z = key % nz
+                        y = (key // nz) % ny
+                        x = key // (nz * ny)
+                        if x0 <= x <= x1 and y0 <= y <= y1 and z0 <= z <= z1:
+                            ranges[0, col] = cell_start[t]
+                            ranges[1, col] = cell_start[t + 1]
+                            total += cell_start[t + 1] - cell_start[t]
+                            col += 1
+                columns = col
                 if total > capacity:
                     capacity = 2 * total
                     cand = np.empty(capacity, members.dtype)
@@ -126,7 +145,7 @@ def grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, member
                 elif covers:
                     kth = np.inf
                     break
-                reach += 1
+                reach *= 2  # doubling: a far outlier needs few rounds
             # The k winners in gathering order: all below the k-th distance, then its ties.
             taken = 0
             for t in range(count):
