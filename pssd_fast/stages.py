@@ -149,7 +149,7 @@ def estimate_normals(points, *, k=25, graph=None, orient=None, n_jobs=None):
     return run.unsort(run.normals)
 
 
-def outlier_score(points, *, k=64, graph=None, n_jobs=None):
+def outlier_score(points, *, k=core.OUTLIER_K, graph=None, n_jobs=None):
     """Per-point outlier score: points scoring above 1 are flagged as outliers.
 
     Parameters

@@ -73,6 +73,8 @@ def grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, member
         cand = np.empty(capacity, members.dtype)
         dist2 = np.empty(capacity)
         ranges = np.empty((2, 1), np.int64)
+        chosen = np.empty(k, members.dtype)
+        chosen_d2 = np.empty(k)
         for r in range(c * CHUNK, min(rows, (c + 1) * CHUNK)):
             i = start + r
             px, py, pz = points[i, 0], points[i, 1], points[i, 2]
@@ -162,8 +164,8 @@ def grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, member
                     taken += 1
             # Quicksort is deterministic too: ties land in the same order on every run.
             order = np.argsort(out_dist[r])
-            chosen = out_idx[r].copy()
-            chosen_d2 = out_dist[r].copy()
+            chosen[:] = out_idx[r]
+            chosen_d2[:] = out_dist[r]
             for t in range(k):
                 out_idx[r, t] = chosen[order[t]]
                 out_dist[r, t] = np.sqrt(chosen_d2[order[t]])
