@@ -117,14 +117,29 @@ def mls_fit(points, nrm, graph, h):
     return proj, resid, degree, curvature
 
 
-def aware_fit(points, nrm, graph, sigma_n):
+def aware_fit(points, nrm, graph, sigma_n, mass=None):
     """Feature-aware quadratic of every point in the frame of ``nrm``: height of the surface
-    above the point, RMS residual and number of coefficients fitted."""
+    above the point, RMS residual and number of coefficients fitted. ``mass``: a factor on
+    each point's weight, or None."""
     n = points.shape[0]
     height = np.empty(n)
     rms = np.empty(n)
     degree = np.empty(n, np.int8)
-    kernels.mls.aware_fit(points, nrm, graph.indptr, graph.indices, sigma_n, height, rms, degree)
+    mass = np.empty(0) if mass is None else mass
+    kernels.mls.aware_fit(points, nrm, mass, graph.indptr, graph.indices, sigma_n, height, rms,
+                          degree)
+    return height, rms, degree
+
+
+def surface_fit(points, surface, nrm, lists, sigma_n):
+    """Feature-aware quadratic of each point's listed ``surface`` points (unit normals ``nrm``)
+    in the frame of the point and its nearest listed normal: height, RMS residual, degree."""
+    n = points.shape[0]
+    height = np.empty(n)
+    rms = np.empty(n)
+    degree = np.empty(n, np.int8)
+    kernels.mls.surface_fit(points, surface, nrm, lists.indptr, lists.indices, sigma_n, height,
+                            rms, degree)
     return height, rms, degree
 
 

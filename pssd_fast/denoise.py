@@ -14,7 +14,7 @@ from ._validation import (
 )
 from .graph import knn_graph, morton_order, refresh_graph, truncate_graph
 from .kernels.order import gather_rows, scatter_rows
-from .pipelines import STEPS, aware
+from .pipelines import STEPS, aware, coarse
 from .progress import Clock, reporter
 
 #: Parameters of each method beyond the common ones, with their defaults.
@@ -31,17 +31,22 @@ METHODS = tuple(METHOD_DEFAULTS)
 PAPER_ONLY = ("h", "radius_factor", "delta", "alpha", "beta", "likelihood")
 AWARE_ONLY = ("sigma_n",)
 #: Presets: the pipeline of the robust method and where ``k``, ``lam``, ``iterations`` and
-#: ``rebuild_graph`` come from when not given (``k=None``: chosen from the estimated noise, see
-#: ``pssd_fast.pipelines.aware.AUTO_K``). "default" and "fast" run the feature-aware pipeline
-#: chosen on generated shapes (docs/DECISIONS.md, "Beyond the paper"); "fast" keeps the first
-#: iteration's neighbours (1.2-2x faster, errors unchanged or lower), "default" queries them
-#: anew, which keeps its sharp-edge error up to 1% lower. "paper" is the paper's formulation.
+#: ``rebuild_graph`` come from when not given, and how many points the noise probe fits at most
+#: (``k=None``: chosen from the estimated noise, see ``pssd_fast.pipelines.aware.AUTO_K``, or
+#: the coarse-to-fine route of ``pssd_fast.pipelines.coarse``; ``rebuild_graph=None``: new
+#: lists in every iteration on the input, refreshed ones on the cell means). "default" and
+#: "fast" run the feature-aware pipeline (docs/DECISIONS.md, "Beyond the paper" and "Scan
+#: sizes"); "paper" is the paper's formulation.
 PRESETS = {
     "default": {"pipeline": "aware", "k": None, "lam": None, "iterations": 4,
-                "rebuild_graph": True},
-    "fast": {"pipeline": "aware", "k": 48, "lam": None, "iterations": 2, "rebuild_graph": False},
-    "paper": {"pipeline": "paper", "k": 25, "lam": 0.5, "iterations": 2, "rebuild_graph": True},
+                "rebuild_graph": None, "probe": (100_000, 96)},
+    "fast": {"pipeline": "aware", "k": None, "lam": None, "iterations": 2,
+             "rebuild_graph": False, "probe": (5_000, 32), "without_cells_k": 48},
+    "paper": {"pipeline": "paper", "k": 25, "lam": 0.5, "iterations": 2, "rebuild_graph": True,
+              "probe": (100_000, 96)},
 }
+
+
 @dataclass(frozen=True)
 class DenoiseResult:
     """Output of :func:`denoise`; arrays are in the caller's point order and float dtype.
@@ -229,9 +234,10 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     setting = PRESETS[preset]
     pipeline = setting["pipeline"] if method == "robust" else "paper"
     explicit = set(method_params)
+    chosen_graph = rebuild_graph
     rebuild_graph = setting["rebuild_graph"] if rebuild_graph is None else rebuild_graph
-    if not isinstance(rebuild_graph, (bool, np.bool_)):
-        raise TypeError(f"rebuild_graph must be True or False; got {rebuild_graph!r}")
+    if rebuild_graph is not None and not isinstance(rebuild_graph, (bool, np.bool_)):
+        raise TypeError(f"rebuild_graph must be True or False; got {chosen_graph!r}")
     params = _method_params(method, method_params)
     _check_pipeline_params(method, preset, pipeline, explicit, lam)
     report = reporter(progress)
@@ -285,12 +291,27 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     given = None if given is None else given[order]
     step = STEPS[pipeline if method == "robust" else method]
     records = []
-    scale = probe = None
+    scale = probe = cells = None
     with threads(n_jobs) as n_threads:
         if auto:
-            k, scale, probe = aware.choose_k(current, given)
-            if k > scale["probe_k"]:
-                probe = None  # too short to serve: freed before the longer lists are built
+            k, scale, probe = aware.choose_k(current, given, *setting["probe"])
+            if pipeline == "aware" and method == "robust":
+                sigma = aware.noise_sigma(current, given, scale)
+                cells = coarse.coarsen(current, given, sigma, preset)
+            if cells is not None:
+                # Iterate on the cell means; the input points are projected onto them last.
+                fine, current, given = current, cells.points, cells.normals
+                k = cells.k
+                probe = None
+            else:
+                k = min(setting.get("without_cells_k") or k, n - 1)
+                if probe is not None and k > scale["probe_k"]:
+                    probe = None  # too short to serve: freed before the longer lists are built
+        # A cell mean weighs as many points as it stands for in the fits.
+        weighting = {} if cells is None else {"mass": cells.counts.astype(np.float64)}
+        if rebuild_graph is None:
+            # New lists each iteration on the input; the cell means keep theirs (refreshed).
+            rebuild_graph = cells is None
         out_normals = graph = None
         for iteration in range(iterations):
             clock = Clock(report, iteration, iterations)
@@ -310,13 +331,25 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
                 nrm, degenerate = clock.run("normals", inputs.estimated_normals, current, graph,
                                             out_normals, first, centre)
             moved, out_normals, extra, record = step(current, nrm, graph, lam, params, clock,
-                                                     iteration == iterations - 1)
+                                                     iteration == iterations - 1, **weighting)
             record["degenerate_normals"] = int(degenerate.sum())
             record["mean_step"] = float(np.linalg.norm(moved - current, axis=1).mean())
             records.append(record)
             current = moved
             if not params["keep_normals"]:
                 given = None
+        graph = None
+        if cells is not None:
+            clock = Clock(report, iterations - 1, iterations)
+            surface, surface_normals, extra = coarse.collapse(cells, current, out_normals, extra)
+            current, out_normals, nearest, fit = coarse.refine(
+                fine, surface, surface_normals, cells.surface_k, params["sigma_n"], clock)
+            records[-1]["times"].update(clock.times)
+            extra = tuple(x[nearest] for x in extra)
+            scale["coarse"] = {"cell_edge": cells.edge, "cells": int(cells.counts.shape[0]),
+                               "mean_points": float(cells.counts.mean()),
+                               "surface_points": int(surface.shape[0]),
+                               "surface_k": cells.surface_k, **fit}
 
     shift = _to_caller_order(current, order)
     out = shift + centre

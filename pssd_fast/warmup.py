@@ -3,8 +3,10 @@ import time
 
 import numpy as np
 
+from . import core
 from .denoise import METHODS, denoise
-from .graph import GRID_K, knn_graph
+from .graph import GRID_K, cross_lists, knn_graph
+from .pipelines import coarse
 from .stages import outlier_score
 
 
@@ -34,4 +36,9 @@ def warmup():
     # Lists as long as the default's at scan sizes come from the grid query.
     sphere = rng.normal(size=(GRID_K + 1, 3))
     knn_graph(sphere / np.linalg.norm(sphere, axis=1)[:, None], GRID_K, False)
+    # The coarse-to-fine default: cell means (with and without normals), fits onto them.
+    order, starts = coarse.group_cells(points, 0.5)
+    for normals in (None, points):
+        coarse.cell_means(points, normals, order, starts)
+    core.surface_fit(points, points, points, cross_lists(points, points, 16), 0.05)
     return time.perf_counter() - started

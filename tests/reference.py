@@ -28,6 +28,15 @@ def morton_order(points):
     return np.argsort(code, kind="stable")
 
 
+def morton_code(cell):
+    """Interleaved bits of integer cell coordinates ``(x, y, z)`` (x in bit 0 of each triple)."""
+    code = 0
+    for bit in range(21):
+        for axis in range(3):
+            code |= ((int(cell[axis]) >> bit) & 1) << (3 * bit + axis)
+    return code
+
+
 def knn_lists(points, k):
     """Brute-force k nearest neighbours (self included), sorted by distance, self first."""
     lists, dists = [], []
@@ -122,17 +131,18 @@ def mls_fit(points, normals, lists, h):
     return tuple(np.array([o[c] for o in out]) for c in range(4))
 
 
-def aware_point(points, normals, members, i, sigma_n):
-    """Feature-aware fit of point i: height of the weighted quadratic at p_i along n_i, the
-    weighted RMS residual and the number of coefficients fitted (docs/DECISIONS.md)."""
-    n = normals[i]
-    rel = points[members] - points[i]
+def frame_fit(origin, n, pts, nrms, sigma_n, mass=None):
+    """Weighted quadratic of ``pts`` in the frame of ``origin`` and axis ``n``: height at the
+    origin, weighted RMS residual and number of coefficients fitted (docs/DECISIONS.md)."""
+    rel = pts - origin
     d2 = (rel ** 2).sum(axis=1)
     radius2 = d2.max()
-    weights = np.exp(-d2 / radius2) if radius2 > 0 else np.ones(len(members))
+    weights = np.exp(-d2 / radius2) if radius2 > 0 else np.ones(len(pts))
     if sigma_n > 0:
-        agree = np.minimum(np.abs(normals[members] @ n), 1.0)
+        agree = np.minimum(np.abs(nrms @ n), 1.0)
         weights = weights * np.exp(-((1 - agree) / sigma_n) ** 2)
+    if mass is not None:
+        weights = weights * mass
     u, v = _basis(n)
     scale = np.sqrt(radius2) if radius2 > 0 else 1.0
     x, y, z = rel @ u / scale, rel @ v / scale, rel @ n
@@ -149,20 +159,36 @@ def aware_point(points, normals, members, i, sigma_n):
     return coef[0], rms, fitted
 
 
-def aware_fit(points, normals, lists, sigma_n):
-    out = [aware_point(points, normals, m, i, sigma_n) for i, m in enumerate(lists)]
+def aware_point(points, normals, members, i, sigma_n, mass=None):
+    """Feature-aware fit of point i over its list, in the frame of p_i and n_i; ``mass``
+    multiplies each member's weight."""
+    return frame_fit(points[i], normals[i], points[members], normals[members], sigma_n,
+                     None if mass is None else mass[members])
+
+
+def aware_fit(points, normals, lists, sigma_n, mass=None):
+    out = [aware_point(points, normals, m, i, sigma_n, mass) for i, m in enumerate(lists)]
     return tuple(np.array([o[c] for o in out]) for c in range(3))
 
 
-def aware_iteration(points, normals, k, sigma_n=0.05):
+def surface_fit(points, surface, normals, lists, sigma_n):
+    """Fit of each point's listed surface points in the frame of the point and the normal of its
+    first (nearest) listed surface point."""
+    out = [frame_fit(p, normals[m[0]], surface[m], normals[m], sigma_n)
+           for p, m in zip(points, lists)]
+    return tuple(np.array([o[c] for o in out]) for c in range(3))
+
+
+def aware_iteration(points, normals, k, sigma_n=0.05, mass=None):
     """One iteration of the feature-aware pipeline: PCA normals (oriented like ``normals``, or
-    away from the centroid), bilateral filter, feature-aware fit, projection along n*_i."""
+    away from the centroid), bilateral filter, feature-aware fit (each neighbour's weight times
+    its ``mass`` if given), projection along n*_i."""
     lists, _ = knn_lists(points, k)
     nrm = pca_normals(points, lists)
     hints = points - points.mean(axis=0) if normals is None else normals
     nrm *= np.where((nrm * hints).sum(axis=1) < 0, -1.0, 1.0)[:, None]
     filtered = filter_normals(points, nrm, lists)
-    height, _, _ = aware_fit(points, filtered, lists, sigma_n)
+    height, _, _ = aware_fit(points, filtered, lists, sigma_n, mass)
     return points + height[:, None] * filtered, filtered
 
 
@@ -383,3 +409,80 @@ def outlier_score(points, lists):
                 np.finfo(float).tiny)
     return np.maximum(radius / (2.0 * max(np.median(radius), floor)),
                       offsets / (6.0 * max(np.median(offsets), floor)))
+
+
+def cell_of(p, low, edge):
+    """Integer grid coordinates of ``p``: ``floor((p - low) * (1 / edge))`` (the kernels
+    multiply by the inverse edge)."""
+    return tuple(np.floor((p - low) * (1.0 / edge)).astype(int))
+
+
+def cell_means(points, normals, edge):
+    """Mean point and mean normal (signs turned to the cell's first normal) of each grid cell
+    (:func:`cell_of`), keyed by the cell's integer coordinates."""
+    cells = {}
+    low = points.min(axis=0)
+    for i, p in enumerate(points):
+        cells.setdefault(cell_of(p, low, edge), []).append(i)
+    out = {}
+    for key, members in cells.items():
+        mean = points[members].mean(axis=0)
+        if normals is None:
+            out[key] = (mean, None, len(members))
+            continue
+        first = normals[members[0]]
+        turned = [normals[j] if normals[j] @ first >= 0 else -normals[j] for j in members]
+        total = np.sum(turned, axis=0)
+        norm = np.linalg.norm(total)
+        out[key] = (mean, total / norm if norm > 0 else first, len(members))
+    return out
+
+
+def coarse_to_fine(points, edge, k, iterations, surface_k, sigma_n=0.05):
+    """The coarse-to-fine default (docs/ALGORITHM.md, "Coarse to fine"): cell means of edge
+    ``edge``, ``iterations`` feature-aware iterations on them weighted by their counts,
+    :func:`collapse` and :func:`refine`. Returns points and normals."""
+    cells = cell_means(points, None, edge)
+    coarse = np.array([value[0] for value in cells.values()])
+    mass = np.array([value[2] for value in cells.values()], dtype=float)
+    normals = None
+    for _ in range(iterations):
+        coarse, normals = aware_iteration(coarse, normals, k, sigma_n, mass)
+    surface, surface_normals, _ = collapse(coarse, normals, mass, edge, ())
+    return refine(points, surface, surface_normals, surface_k, sigma_n)
+
+
+def collapse(points, normals, mass, edge, fields):
+    """Means of ``points`` over grid cells of edge ``edge`` (low corner at their minimum),
+    weighted by ``mass``; the weighted mean of the normals (each turned to the side of the
+    cell's first) and of each of ``fields``. Rows in any order (sorted by cell key)."""
+    groups = {}
+    low = points.min(axis=0)
+    for i, p in enumerate(points):
+        groups.setdefault(cell_of(p, low, edge), []).append(i)
+    out, out_normals, out_fields = [], [], []
+    for key in sorted(groups):
+        members = groups[key]
+        w = mass[members]
+        out.append((w[:, None] * points[members]).sum(axis=0) / w.sum())
+        first = normals[members[0]]
+        total = sum(w_j * (normals[j] if normals[j] @ first >= 0 else -normals[j])
+                    for w_j, j in zip(w, members))
+        norm = np.linalg.norm(total)
+        out_normals.append(total / norm if norm > 0 else first)
+        out_fields.append([(w * f[members]).sum() / w.sum() for f in fields])
+    return np.array(out), np.array(out_normals), np.array(out_fields).T
+
+
+def refine(points, surface, normals, surface_k, sigma_n=0.05):
+    """Each point projected, along the normal of its nearest surface point, onto the
+    feature-aware quadratic of its ``surface_k`` nearest surface points."""
+    moved = np.empty_like(points)
+    out_normals = np.empty_like(points)
+    for i, p in enumerate(points):
+        order = np.argsort(np.linalg.norm(surface - p, axis=1), kind="stable")[:surface_k]
+        n = normals[order[0]]
+        height, _, _ = frame_fit(p, n, surface[order], normals[order], sigma_n)
+        moved[i] = p + height * n
+        out_normals[i] = n
+    return moved, out_normals

@@ -113,13 +113,16 @@ def test_mls_fit_uses_the_given_h():
         np.testing.assert_allclose(lik, reference.likelihood(resid, "exp"), atol=1e-7, rtol=0)
 
 
+@pytest.mark.parametrize("weighted", [False, True])
 @pytest.mark.parametrize("sigma_n", [0.0, 0.05, 0.5])
-def test_aware_fit(cloud, sigma_n):
+def test_aware_fit(cloud, sigma_n, weighted):
     name, points, k = cloud
     graph, lists = _setup(points, k)
     nrm = _normals_for(name, points, lists)
-    height, rms, degree = core.aware_fit(points, nrm, graph, sigma_n)
-    ref_height, ref_rms, ref_degree = reference.aware_fit(points, nrm, lists, sigma_n)
+    mass = np.random.default_rng(9).integers(1, 40, len(points)).astype(float) if weighted \
+        else None
+    height, rms, degree = core.aware_fit(points, nrm, graph, sigma_n, mass)
+    ref_height, ref_rms, ref_degree = reference.aware_fit(points, nrm, lists, sigma_n, mass)
     np.testing.assert_array_equal(degree, ref_degree)
     scale = np.ptp(points, axis=0).max()
     np.testing.assert_allclose(height, ref_height, atol=1e-9 * scale, rtol=0)
@@ -426,3 +429,134 @@ def test_feature_intensity_grows_its_node_tables_past_their_first_size():
     for i in inside[:: len(inside) // 4]:
         expected = reference.feature_point(points, nrm, inside, i, 0.2, 0.3, 0.3)
         assert s[i] == pytest.approx(expected, abs=1e-9)
+
+
+@pytest.mark.parametrize("sigma_n", [0.0, 0.05])
+def test_surface_fit(cloud, sigma_n):
+    """Each point of a second noisy draw fitted to the listed points of the cloud."""
+    from pssd_fast.graph import cross_lists
+
+    name, surface, k = cloud
+    graph, lists = _setup(surface, k)
+    nrm = _normals_for(name, surface, lists)
+    rng = np.random.default_rng(7)
+    scale = np.ptp(surface, axis=0).max()
+    points = surface[rng.integers(0, len(surface), 50)] + rng.normal(0, 0.01 * scale, (50, 3))
+    near = cross_lists(points, surface, min(16, len(surface)))
+    height, rms, degree = core.surface_fit(points, surface, nrm, near, sigma_n)
+    rows = near.indices.reshape(len(points), -1)
+    ref_height, ref_rms, ref_degree = reference.surface_fit(points, surface, nrm, rows, sigma_n)
+    np.testing.assert_array_equal(degree, ref_degree)
+    np.testing.assert_allclose(height, ref_height, atol=1e-9 * scale, rtol=0)
+    np.testing.assert_allclose(rms, ref_rms, atol=1e-9 * scale, rtol=0)
+    # The nearest listed point is the nearest point of the surface.
+    nearest = np.linalg.norm(points[:, None] - surface[None], axis=2).min(axis=1)
+    np.testing.assert_allclose(np.linalg.norm(points - surface[rows[:, 0]], axis=1), nearest)
+    if name == "plane":
+        np.testing.assert_allclose(points[:, 2] + height * nrm[rows[:, 0], 2], 0, atol=1e-12)
+
+
+def test_surface_fit_of_a_point_on_its_surface_is_zero():
+    """A point lying on a noiseless quadratic patch has height 0 above it."""
+    from pssd_fast.graph import cross_lists
+
+    g = np.linspace(-1, 1, 15)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    surface = np.column_stack([x, y, 0.2 * x * x - 0.1 * x * y])
+    nrm = np.column_stack([-0.4 * x + 0.1 * y, 0.1 * x, np.ones_like(x)])
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    points = np.array([[0.05, -0.03, 0.2 * 0.05**2 + 0.1 * 0.05 * 0.03]])
+    height, _, degree = core.surface_fit(points, surface, nrm, cross_lists(points, surface, 16),
+                                         0.0)
+    assert degree[0] == 6 and abs(height[0]) < 1e-4
+
+
+@pytest.mark.parametrize("with_normals", [False, True])
+@pytest.mark.parametrize("name", ["wavy", "sphere", "duplicates", "plane", "tiny"])
+def test_cell_means(name, with_normals):
+    from pssd_fast.pipelines import coarse
+
+    points = {"wavy": wavy, "sphere": sphere, "plane": plane}.get(name, wavy)(400)
+    if name == "duplicates":
+        points = np.repeat(points[:150], 3, axis=0)
+    if name == "tiny":
+        points = points[:1]
+    rng = np.random.default_rng(3)
+    normals = None
+    if with_normals:
+        normals = rng.normal(size=points.shape)
+        normals /= np.linalg.norm(normals, axis=1)[:, None]
+        normals[1::7] = -normals[::7][:len(normals[1::7])]  # opposite pairs: a sum may cancel
+    edge = 0.15
+    order, starts = coarse.group_cells(points, edge)
+    means, mean_normals = coarse.cell_means(points, normals, order, starts)
+    ref = reference.cell_means(points, normals, edge)
+    low = points.min(axis=0)
+    keys = [reference.cell_of(mean, low, edge) for mean in means]
+    assert sorted(keys) == sorted(ref) and np.diff(starts).sum() == len(points)
+    for i, key in enumerate(keys):
+        ref_mean, ref_normal, count = ref[key]
+        assert starts[i + 1] - starts[i] == count
+        np.testing.assert_allclose(means[i], ref_mean, atol=1e-12)
+        if with_normals:
+            np.testing.assert_allclose(mean_normals[i], ref_normal, atol=1e-12)
+    assert (mean_normals is None) == (normals is None)
+    # The cells follow the Morton curve of their coordinates, their members the input order.
+    codes = [reference.morton_code(key) for key in keys]
+    assert codes == sorted(codes)
+    assert all((np.diff(order[a:b]) > 0).all() for a, b in zip(starts[:-1], starts[1:]))
+
+
+def test_cell_grid_too_fine_for_the_codes():
+    from pssd_fast.pipelines import coarse
+
+    assert coarse.group_cells(wavy(50), 1e-9) is None
+    assert coarse.group_cells(wavy(50), 0.0) is None
+
+
+@pytest.mark.parametrize("name", ["wavy", "sphere", "duplicates"])
+def test_collapse(name):
+    """The denoised cell means averaged over the grid again, weighted by their counts."""
+    from pssd_fast.pipelines import coarse
+
+    points = {"wavy": wavy, "sphere": sphere}.get(name, wavy)(600)
+    if name == "duplicates":
+        points = np.repeat(points[:200], 3, axis=0)
+    rng = np.random.default_rng(4)
+    normals = rng.normal(size=points.shape)
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    counts = rng.integers(1, 30, len(points))
+    field = rng.uniform(size=len(points))
+    edge = 0.2
+    cells = coarse.Cells(points, None, counts, edge, 10, 16)
+    got, got_normals, (got_field,) = coarse.collapse(cells, points, normals, (field,))
+    ref, ref_normals, ref_fields = reference.collapse(points, normals, counts.astype(float),
+                                                      edge, (field,))
+    # The reference's rows are sorted by cell key, the kernel's along the Morton curve.
+    low = points.min(axis=0)
+    keys = [reference.cell_of(p, low, edge) for p in got]
+    rows = np.array([sorted(keys).index(key) for key in keys])
+    codes = [reference.morton_code(key) for key in keys]
+    assert len(set(keys)) == len(got) == len(ref) and codes == sorted(codes)
+    np.testing.assert_allclose(got, ref[rows], atol=1e-12)
+    np.testing.assert_allclose(got_normals, ref_normals[rows], atol=1e-12)
+    np.testing.assert_allclose(got_field, ref_fields[0][rows], atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["wavy", "sphere", "plane"])
+def test_refine(name):
+    from pssd_fast.pipelines import coarse
+    from pssd_fast.progress import Clock
+
+    surface = {"wavy": wavy, "sphere": sphere, "plane": plane}[name](300)
+    graph, lists = _setup(surface, 20)
+    nrm = _pca_reference(surface, lists)
+    rng = np.random.default_rng(8)
+    points = surface[rng.integers(0, len(surface), 80)] + rng.normal(0, 0.02, (80, 3))
+    moved, normals, nearest, record = coarse.refine(points, surface, nrm, 16, 0.05,
+                                                    Clock(None, 0, 1))
+    ref_moved, ref_normals = reference.refine(points, surface, nrm, 16)
+    np.testing.assert_allclose(moved, ref_moved, atol=1e-10)
+    np.testing.assert_array_equal(normals, ref_normals)
+    np.testing.assert_array_equal(normals, nrm[nearest])
+    assert record["held_points"] == 0 and sum(record["fit_degree"].values()) == len(points)

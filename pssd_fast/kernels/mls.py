@@ -221,13 +221,12 @@ def mls_fit(points, normals, indptr, indices, h, proj, resid, degree, curvature)
 
 
 @helper
-def _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, zs, a, b, phi,
-                 height, rms, degree):
-    px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-    nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, count,
+               inv_sigma_n, wts, xs, zs, a, b, phi):
+    """Weighted quadratic over the listed ``points`` in the frame of origin ``(px, py, pz)`` and
+    unit axis ``(nx, ny, nz)``: the height ``g(0, 0)``, the weighted RMS residual and the number
+    of coefficients fitted (see :func:`aware_fit`)."""
     ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
-    start = indptr[i]
-    count = indptr[i + 1] - start
     radius2 = 0.0
     for t in range(count):
         j = indices[start + t]
@@ -250,6 +249,8 @@ def _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, zs, 
             u = (1.0 - min(abs(nx * normals[j, 0] + ny * normals[j, 1] + nz * normals[j, 2]),
                            1.0)) * inv_sigma_n
             wgt *= math.exp(-u * u)
+        if mass.shape[0] > 0:
+            wgt *= mass[j]
         zs[t] = z
         wts[t] = wgt
         _basis(x, y, phi, t)
@@ -263,22 +264,20 @@ def _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, zs, 
         m = 3
     else:
         m = min(rank, 1)
-    degree[i] = m
     cholesky_solve(a, b, m)
     for p in range(m, 6):
         b[p] = 0.0
-    height[i] = b[0]
     _residuals(phi, b, m, zs, count, xs)
     se = 0.0
     sw = 0.0
     for t in range(count):
         se += wts[t] * xs[t] * xs[t]
         sw += wts[t]
-    rms[i] = math.sqrt(se / sw) if sw > 0.0 else 0.0
+    return b[0], math.sqrt(se / sw) if sw > 0.0 else 0.0, m
 
 
 @parallel_kernel
-def aware_fit(points, normals, indptr, indices, sigma_n, height, rms, degree):
+def aware_fit(points, normals, mass, indptr, indices, sigma_n, height, rms, degree):
     """Feature-aware local quadratic in each point's own normal frame (the default pipeline).
 
     Parameters
@@ -287,6 +286,9 @@ def aware_fit(points, normals, indptr, indices, sigma_n, height, rms, degree):
     normals : (n, 3) float64
         Unit normals ``n*_i`` (the filtered normals); only ``|n_i . n_j|`` is used, so signs
         need not agree.
+    mass : (n,) float64 or (0,)
+        A factor on each point's weight (the number of input points a cell mean stands for,
+        in the coarse-to-fine default); no entries: every factor is 1.
     indptr, indices : CSR neighbour graph (each list contains the point itself)
     sigma_n : float
         Width of the normal-agreement weight ``exp(-((1 - |n_i . n_j|) / sigma_n)^2)``; 0 or
@@ -303,8 +305,8 @@ def aware_fit(points, normals, indptr, indices, sigma_n, height, rms, degree):
     Notes
     -----
     Frame: origin ``p_i``, axis ``n_i``, tangent coordinates scaled by the list radius ``r_i``.
-    Weights: ``exp(-|p_j - p_i|^2 / r_i^2)`` times the normal-agreement weight, the point itself
-    included with weight 1. Neighbours whose normal disagrees with ``n_i`` (the other side of a
+    Weights: ``exp(-|p_j - p_i|^2 / r_i^2)`` times the normal-agreement weight (times
+    ``mass[j]``), the point itself included with weight 1 (``mass[i]``). Neighbours whose normal disagrees with ``n_i`` (the other side of a
     crease) hardly count, so points near a sharp edge are fitted to their own face. The
     quadratic's normal equations are factored with the same pivot test as :func:`mls_fit`; a
     leading block that fails falls back to the plane (first three monomials), then to the
@@ -321,5 +323,55 @@ def aware_fit(points, normals, indptr, indices, sigma_n, height, rms, degree):
         b = np.empty(6)
         phi = np.empty((10, longest))
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            _aware_point(i, points, normals, indptr, indices, inv_sigma_n, wts, xs, zs, a, b,
-                         phi, height, rms, degree)
+            height[i], rms[i], degree[i] = _frame_fit(
+                points[i, 0], points[i, 1], points[i, 2], normals[i, 0], normals[i, 1],
+                normals[i, 2], points, normals, mass, indices, indptr[i],
+                indptr[i + 1] - indptr[i], inv_sigma_n, wts, xs, zs, a, b, phi)
+
+
+@parallel_kernel
+def surface_fit(points, surface, normals, indptr, indices, sigma_n, height, rms, degree):
+    """Feature-aware quadratic of a denoised ``surface`` around each of ``points`` (the last step
+    of the coarse-to-fine default, docs/ALGORITHM.md).
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+        Where to fit: the origin of each frame.
+    surface : (m, 3) float64
+        Points of the surface to fit.
+    normals : (m, 3) float64
+        Unit normals of ``surface``.
+    indptr, indices : CSR lists of ``surface`` rows for each of ``points``, nearest first
+    sigma_n : float
+        Width of the normal-agreement weight, as in :func:`aware_fit`; 0 or less turns it off.
+    height, rms, degree : (n,) float64, float64, int8
+        Outputs as in :func:`aware_fit`.
+
+    Notes
+    -----
+    As :func:`aware_fit`, except that the frame's axis is the normal of the nearest listed
+    surface point and the point itself is not among the fitted ones: ``p_i + height_i n`` is the
+    projection of ``p_i`` onto the surface along that normal.
+    """
+    n = points.shape[0]
+    longest = max_degree(indptr)
+    inv_sigma_n = 1.0 / sigma_n if sigma_n > 0.0 else 0.0
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        wts = np.empty(longest)
+        xs = np.empty(longest)
+        zs = np.empty(longest)
+        a = np.empty((6, 6))
+        b = np.empty(6)
+        phi = np.empty((10, longest))
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            start = indptr[i]
+            count = indptr[i + 1] - start
+            if count == 0:
+                height[i], rms[i], degree[i] = 0.0, 0.0, 0
+                continue
+            first = indices[start]
+            height[i], rms[i], degree[i] = _frame_fit(
+                points[i, 0], points[i, 1], points[i, 2], normals[first, 0],
+                normals[first, 1], normals[first, 2], surface, normals, np.empty(0), indices,
+                start, count, inv_sigma_n, wts, xs, zs, a, b, phi)

@@ -17,20 +17,28 @@ from ..graph import knn_graph
 #: (48, 64, 96, 128, 160, 192) that beat both CGAL peers on both errors (docs/DECISIONS.md,
 #: "Beyond the paper").
 AUTO_K = {"probe_k": 96, "anchors": ((0.133, 64), (0.227, 96), (0.304, 160))}
+#: The probe fits at most this many points: a larger cloud is probed on every ``s``-th point of
+#: its Morton order (an evenly spread subsample), its list radius scaled by ``sqrt(1 / s)`` as on
+#: a surface.
+PROBE_POINTS = 100_000
+#: When :func:`noise_sigma` probes again, and how: above ``ratio`` (noise over the sample's list
+#: radius) it thins the sample towards ``target``, keeping at least ``points`` points.
+NOISE_PROBE = {"ratio": 0.15, "target": 0.12, "points": 10_000}
 
 
-def step(points, nrm, graph, lam, params, clock, last=True):
+def step(points, nrm, graph, lam, params, clock, last=True, mass=None):
     """One feature-aware iteration once the graph and normals exist.
 
     Bilateral filter of the normals to ``n*_i``, a quadratic fitted in the frame of ``p_i`` and
     ``n*_i`` with each neighbour weighted by distance and normal agreement (``sigma_n``), and
-    the projection ``p_i + g_i(0, 0) n*_i``. The move uses neither the likelihood nor the feature
-    intensity; the last iteration still computes both (from the fit's RMS residual, and by the
+    the projection ``p_i + g_i(0, 0) n*_i``; ``mass`` (or None) multiplies each neighbour's
+    weight in the fit (the points a cell mean stands for). The move uses neither the likelihood
+    nor the feature intensity; the last iteration still computes both (from the fit's RMS residual, and by the
     paper's voting at the paper's constants) so that every preset returns them.
     """
     filtered = clock.run("filter", core.filter_normals, points, nrm, graph)
     height, rms, degree = clock.run("mls", core.aware_fit, points, filtered, graph,
-                                    params["sigma_n"])
+                                    params["sigma_n"], mass)
     moved, held = clock.run("update", core.project, points, filtered, height)
     extra = None
     if last:
@@ -48,7 +56,7 @@ def step(points, nrm, graph, lam, params, clock, last=True):
     return moved, filtered, extra, record
 
 
-def choose_k(points, given):
+def choose_k(points, given, probe_points=PROBE_POINTS, probe_k=AUTO_K["probe_k"]):
     """``k`` from the noise: a probe fit gives ``sigma`` and the list radius (:data:`AUTO_K`).
 
     Parameters
@@ -57,31 +65,67 @@ def choose_k(points, given):
         The input points (Morton order).
     given : (n, 3) float64 or None
         The caller's normals, else PCA normals are estimated on the probe graph.
+    probe_points : int
+        The most points the probe fits (an evenly spread subsample of larger clouds).
+    probe_k : int
+        Neighbours of each probe fit; the anchors of :data:`AUTO_K` hold for its default.
 
     Returns
     -------
     k : int
     probe : dict
         What the probe measured (``noise``, ``probe_radius``, their ``ratio``), for ``stats``.
-    graph : ListScales
-        The probe's lists, which serve the first iteration when ``k`` is at most ``probe_k``.
+    graph : ListScales or None
+        The probe's lists, which serve the first iteration when ``k`` is at most ``probe_k``;
+        None when the probe ran on a subsample.
     """
     started = time.perf_counter()
     n = points.shape[0]
-    probe = min(AUTO_K["probe_k"], n - 1)
-    graph = knn_graph(points, probe, False)
-    if given is None:
-        nrm, _ = core.pca_normals(points, graph, core.outward_hints(points))
-    else:
-        nrm = given
-    filtered = core.filter_normals(points, nrm, graph)
-    _, rms, _ = core.aware_fit(points, filtered, graph, 0.0)
-    sigma = float(np.median(rms))
-    radius = float(np.mean(graph.list_radius()))
+    stride = -(-n // probe_points)
+    sigma, radius, probe, graph = _probe(points, given, stride, probe_k)
     ratio = sigma / radius if radius > 0.0 else 0.0
     anchors = np.log(np.array(AUTO_K["anchors"], dtype=float))
     k = int(round(np.exp(np.interp(np.log(max(ratio, 1e-12)), anchors[:, 0], anchors[:, 1]))))
     k = max(min(k, n - 1), min(10, n - 1))
-    scales = {"k": k, "probe_k": probe, "noise": sigma, "probe_radius": radius, "ratio": ratio,
-              "seconds": time.perf_counter() - started}
-    return check_k(k, n), scales, graph
+    scales = {"k": k, "probe_k": probe, "probe_points": -(-n // stride), "noise": sigma,
+              "probe_radius": radius, "ratio": ratio, "seconds": time.perf_counter() - started}
+    return check_k(k, n), scales, graph if stride == 1 else None
+
+
+def noise_sigma(points, given, scales):
+    """The noise's standard deviation, for the cells of the coarse-to-fine default.
+
+    The probe of :func:`choose_k` underestimates a noise that is large against its lists
+    (their ball cuts off the tails: by a third at 1% noise on the CAD part at 100,000 points).
+    Where its noise is above ``NOISE_PROBE["ratio"]`` times its list radius, the probe runs
+    again on a sparser subsample, whose longer lists bring the ratio down to about
+    ``NOISE_PROBE["target"]``, but on no fewer than ``NOISE_PROBE["points"]`` points (their
+    lists would bend with the surface).
+    """
+    n = points.shape[0]
+    stride = -(-n // scales["probe_points"])
+    ratio = scales["ratio"] / np.sqrt(stride)  # noise over the sample's own list radius
+    if ratio <= NOISE_PROBE["ratio"]:
+        return scales["noise"]
+    sparser = int(stride * min((ratio / NOISE_PROBE["target"]) ** 2,
+                               scales["probe_points"] / NOISE_PROBE["points"]))
+    if sparser <= stride or -(-n // sparser) <= scales["probe_k"]:
+        return scales["noise"]
+    return _probe(points, given, sparser, scales["probe_k"])[0]
+
+
+def _probe(points, given, stride, probe_k):
+    """Median RMS residual of unweighted quadratics over ``probe_k`` neighbours of every
+    ``stride``-th point, the lists' mean radius scaled to the whole cloud, ``probe_k`` and the
+    lists."""
+    sample = np.ascontiguousarray(points[::stride])
+    probe = min(probe_k, sample.shape[0] - 1)
+    graph = knn_graph(sample, probe, False)
+    if given is None:
+        nrm, _ = core.pca_normals(sample, graph, core.outward_hints(sample))
+    else:
+        nrm = np.ascontiguousarray(given[::stride])
+    filtered = core.filter_normals(sample, nrm, graph)
+    _, rms, _ = core.aware_fit(sample, filtered, graph, 0.0)
+    return (float(np.median(rms)), float(np.mean(graph.list_radius())) / np.sqrt(stride), probe,
+            graph)

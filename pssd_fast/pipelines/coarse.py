@@ -1,0 +1,169 @@
+"""Coarse to fine: the default on clouds whose noise spans several point spacings
+(docs/ALGORITHM.md, "Coarse to fine"; docs/DECISIONS.md, "Scan sizes").
+
+The points are averaged over grid cells whose edge follows the estimated noise, the feature-aware
+iterations denoise those cell means with a fixed ``k``, and every input point is then projected
+onto the denoised cell means by a feature-aware fit of its nearest ones. The cost of the
+iterations follows the noise (the number of cells), not the number of points.
+"""
+from typing import NamedTuple, Optional
+
+import numpy as np
+
+from .. import core, kernels
+from ..graph import cross_lists
+from ..kernels.order import morton_codes
+
+#: Settings of each preset. ``cell``: cell edge over the noise's standard deviation
+#: (:func:`.aware.noise_sigma`); ``k``: neighbours of the iterations on the cell means,
+#: interpolated linearly in ``log(points per cell)`` between the anchors
+#: ``(points per cell, k)`` and held at the end values outside them; ``surface_k``: cell means
+#: each input point is fitted to; ``min_points``: the mean number of points a cell must hold;
+#: ``grow``: with fewer, False gives up the cells (the input is iterated on), True widens them
+#: until they hold that many. Chosen on the CAD part at 0.1 to 10 million points and 0.25% to
+#: 1% noise (docs/DECISIONS.md, "Scan sizes").
+COARSE = {
+    "default": {"cell": 1.5, "k": ((4.0, 96), (13.0, 128)), "surface_k": 16, "min_points": 3.0,
+                "grow": False},
+    "fast": {"cell": 1.5, "k": ((4.0, 48), (13.0, 96)), "surface_k": 16, "min_points": 3.0,
+             "grow": True},
+}
+
+_CELL_BITS = 21  # per axis, as the Morton codes of :func:`pssd_fast.graph.morton_order`
+
+
+class Cells(NamedTuple):
+    """The coarse cloud: cell means in Morton order of their cells.
+
+    Attributes
+    ----------
+    points : (m, 3) float64
+    normals : (m, 3) float64 or None
+        Mean of the given normals of each cell's points (None without given normals).
+    counts : (m,) int64
+        Points of each cell.
+    edge : float
+        Cell edge.
+    k : int
+        Neighbours of the iterations on the cell means (:data:`COARSE`).
+    surface_k : int
+        Cell means each input point is fitted to.
+    """
+
+    points: np.ndarray
+    normals: Optional[np.ndarray]
+    counts: np.ndarray
+    edge: float
+    k: int
+    surface_k: int
+
+
+#: Rounds of widening (``grow``): each scales the edge by ``sqrt`` of the shortfall, plus 5%.
+_GROW_ROUNDS = 8
+
+
+def coarsen(points, normals, noise, preset):
+    """The coarse cloud of the ``preset``'s cells (:data:`COARSE`), of edge ``cell * noise``
+    (widened until they hold ``min_points`` points on average where ``grow``), as
+    :class:`Cells`; None when the cells hold too few points (and do not grow), when there would
+    be no more cells than the iterations' ``k``, or more cells than the grid's codes allow."""
+    setting = COARSE[preset]
+    n = points.shape[0]
+    edge = setting["cell"] * noise
+    for _ in range(_GROW_ROUNDS):
+        grouped = group_cells(points, edge)
+        if grouped is None:
+            return None
+        order, starts = grouped
+        m = starts.shape[0] - 1
+        if n >= setting["min_points"] * m or not setting["grow"]:
+            break
+        # Points per cell grow about as the square of the edge on a surface.
+        edge *= 1.05 * np.sqrt(setting["min_points"] * m / n)
+    anchors = np.log(np.array(setting["k"], dtype=float))
+    k = int(round(np.exp(np.interp(np.log(n / m), anchors[:, 0], anchors[:, 1]))))
+    if n < setting["min_points"] * m or m <= k:
+        return None
+    means, mean_normals = cell_means(points, normals, order, starts)
+    return Cells(means, mean_normals, np.diff(starts), edge, k, setting["surface_k"])
+
+
+def group_cells(points, edge):
+    """The rows of ``points`` grouped by grid cell of edge ``edge``: ``(order, starts)``, cell
+    ``c`` holding rows ``order[starts[c]:starts[c + 1]]`` in increasing order, the cells along
+    the Morton curve of their grid coordinates; None if the grid needs more than 21 bits an
+    axis."""
+    n = points.shape[0]
+    low = points.min(axis=0)
+    extent = float((points.max(axis=0) - low).max())
+    if not edge > 0.0 or extent / edge >= 2**_CELL_BITS - 1:
+        return None
+    codes = np.empty(n, np.uint64)
+    morton_codes(points, low, 1.0 / edge, codes)
+    order = np.argsort(codes, kind="stable")
+    codes = codes[order]
+    starts = np.flatnonzero(np.concatenate(([True], codes[1:] != codes[:-1])))
+    return order, np.concatenate((starts, [n]))
+
+
+def cell_means(points, normals, order, starts, mass=None):
+    """Mean point of each group of :func:`group_cells`, and the unit mean of its ``normals``
+    (each turned to the side of the group's first; None without ``normals``), each point
+    weighted by its ``mass`` if given. The sums run in ``order``, so the result does not depend
+    on the thread count."""
+    m = starts.shape[0] - 1
+    means = np.empty((m, 3))
+    mean_normals = np.empty((m, 3))
+    kernels.cells.cell_means(points, np.empty((0, 3)) if normals is None else normals,
+                             np.empty(0) if mass is None else mass, order, starts, means,
+                             mean_normals)
+    return means, None if normals is None else mean_normals
+
+
+def collapse(cells, points, normals, fields):
+    """The denoised cell means ``points`` (unit ``normals``, per-point ``fields``) averaged
+    again over the grid of ``cells``, each weighted by the points it stands for:
+    ``(points, normals, fields)``.
+
+    Where the noise spans several cells across the surface, each column of cells gives one mean
+    per layer; once projected onto the surface those means nearly coincide, and the few nearest
+    of them would no longer span the surface around a point. One mean per cell of the denoised
+    surface does.
+    """
+    order, starts = group_cells(points, cells.edge)
+    mass = cells.counts.astype(np.float64)
+    means, mean_normals = cell_means(points, normals, order, starts, mass)
+    total = np.add.reduceat(mass[order], starts[:-1])
+    fields = tuple(np.add.reduceat((mass * f)[order], starts[:-1]) / total for f in fields)
+    return means, mean_normals, fields
+
+
+def refine(points, surface, normals, surface_k, sigma_n, clock):
+    """Project each of ``points`` onto the denoised cell means ``surface`` (unit ``normals``).
+
+    Each point's ``surface_k`` nearest cell means are fitted by the feature-aware quadratic in
+    the frame of the point and the nearest mean's normal, and the point moves to the fitted
+    surface along that normal.
+
+    Returns
+    -------
+    moved : (n, 3) float64
+    out_normals : (n, 3) float64
+        The normal each point moved along.
+    nearest : (n,) int64
+        Row of ``surface`` nearest to each point (the source of its per-point fields).
+    record : dict
+        ``held_points``, ``mean_residual`` and ``fit_degree`` of the fits, as an iteration's.
+    """
+    k = min(surface_k, surface.shape[0])
+    lists = clock.run("surface_neighbors", cross_lists, points, surface, k)
+    height, rms, degree = clock.run("surface_fit", core.surface_fit, points, surface, normals,
+                                    lists, sigma_n)
+    nearest = lists.indices[lists.indptr[:-1]].astype(np.int64)
+    out_normals = normals[nearest]
+    moved, held = clock.run("surface_update", core.project, points, out_normals, height)
+    counts = np.bincount(degree, minlength=7)
+    record = {"held_points": int(held.sum()), "mean_residual": float(rms.mean()),
+              "fit_degree": {name: int(counts[code])
+                             for name, code in core.AWARE_FIT_DEGREES.items()}}
+    return moved, out_normals, nearest, record
