@@ -31,15 +31,16 @@ METHODS = tuple(METHOD_DEFAULTS)
 PAPER_ONLY = ("h", "radius_factor", "delta", "alpha", "beta", "likelihood")
 AWARE_ONLY = ("sigma_n",)
 #: Presets: the pipeline of the robust method and where ``k``, ``lam``, ``iterations`` and
-#: ``rebuild_graph`` come from when not given, and how many points the noise probe fits at most
+#: ``rebuild_graph`` (on the input; on cell means see ``pssd_fast.pipelines.coarse.COARSE``)
+#: come from when not given, and the most points and the neighbours of the noise probe
 #: (``k=None``: chosen from the estimated noise, see ``pssd_fast.pipelines.aware.AUTO_K``, or
-#: the coarse-to-fine route of ``pssd_fast.pipelines.coarse``; ``rebuild_graph=None``: new
-#: lists in every iteration on the input, refreshed ones on the cell means). "default" and
-#: "fast" run the feature-aware pipeline (docs/DECISIONS.md, "Beyond the paper" and "Scan
-#: sizes"); "paper" is the paper's formulation.
+#: the coarse-to-fine route of ``pssd_fast.pipelines.coarse``; ``without_cells_k``: the ``k``
+#: where that route finds no cells). "default" and "fast" run the feature-aware pipeline
+#: (docs/DECISIONS.md, "Beyond the paper" and "Scan sizes"); "paper" is the paper's
+#: formulation.
 PRESETS = {
     "default": {"pipeline": "aware", "k": None, "lam": None, "iterations": 4,
-                "rebuild_graph": None, "probe": (100_000, 96)},
+                "rebuild_graph": True, "probe": (100_000, 96)},
     "fast": {"pipeline": "aware", "k": None, "lam": None, "iterations": 2,
              "rebuild_graph": False, "probe": (5_000, 32), "without_cells_k": 48},
     "paper": {"pipeline": "paper", "k": 25, "lam": 0.5, "iterations": 2, "rebuild_graph": True,
@@ -234,10 +235,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     setting = PRESETS[preset]
     pipeline = setting["pipeline"] if method == "robust" else "paper"
     explicit = set(method_params)
-    chosen_graph = rebuild_graph
-    rebuild_graph = setting["rebuild_graph"] if rebuild_graph is None else rebuild_graph
     if rebuild_graph is not None and not isinstance(rebuild_graph, (bool, np.bool_)):
-        raise TypeError(f"rebuild_graph must be True or False; got {chosen_graph!r}")
+        raise TypeError(f"rebuild_graph must be True or False; got {rebuild_graph!r}")
     params = _method_params(method, method_params)
     _check_pipeline_params(method, preset, pipeline, explicit, lam)
     report = reporter(progress)
@@ -310,8 +309,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         # A cell mean weighs as many points as it stands for in the fits.
         weighting = {} if cells is None else {"mass": cells.counts.astype(np.float64)}
         if rebuild_graph is None:
-            # New lists each iteration on the input; the cell means keep theirs (refreshed).
-            rebuild_graph = cells is None
+            rebuild_graph = setting["rebuild_graph"] if cells is None else cells.rebuild_graph
         out_normals = graph = None
         for iteration in range(iterations):
             clock = Clock(report, iteration, iterations)

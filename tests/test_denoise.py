@@ -488,8 +488,10 @@ def test_presets(noisy):
     np.testing.assert_array_equal(paper.points, explicit.points)
     assert paper.stats["pipeline"] == "paper" and paper.likelihood is not None
     fast = pssd_fast.denoise(noisy, preset="fast")
-    assert (fast.stats["k"], fast.stats["n_iterations"], fast.stats["pipeline"]) == (48, 2,
+    # Cells of at least 3 points, 64 neighbours at that count.
+    assert (fast.stats["k"], fast.stats["n_iterations"], fast.stats["pipeline"]) == (64, 2,
                                                                                     "aware")
+    assert fast.stats["auto_k"]["coarse"]["mean_points"] >= 3.0
     default = pssd_fast.denoise(noisy)
     assert paper.stats["rebuild_graph"] and default.stats["rebuild_graph"]
     assert not fast.stats["rebuild_graph"]
@@ -758,7 +760,7 @@ def test_fast_widens_its_cells_where_the_noise_is_small():
     # The default keeps the input there: too few points a cell.
     assert pssd_fast.denoise(cloud.points).stats["auto_k"].get("coarse") is None
     before = cloud.surface_distance(cloud.points).mean()
-    assert cloud.surface_distance(fast.points).mean() < 0.7 * before
+    assert cloud.surface_distance(fast.points).mean() < 0.8 * before
 
 
 def test_the_noise_is_probed_again_where_it_fills_the_probe_lists():

@@ -528,7 +528,7 @@ def test_collapse(name):
     counts = rng.integers(1, 30, len(points))
     field = rng.uniform(size=len(points))
     edge = 0.2
-    cells = coarse.Cells(points, None, counts, edge, 10, 16)
+    cells = coarse.Cells(points, None, counts, edge, 10, 16, False)
     got, got_normals, (got_field,) = coarse.collapse(cells, points, normals, (field,))
     ref, ref_normals, ref_fields = reference.collapse(points, normals, counts.astype(float),
                                                       edge, (field,))

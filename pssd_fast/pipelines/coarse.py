@@ -20,13 +20,15 @@ from ..kernels.order import morton_codes
 #: ``(points per cell, k)`` and held at the end values outside them; ``surface_k``: cell means
 #: each input point is fitted to; ``min_points``: the mean number of points a cell must hold;
 #: ``grow``: with fewer, False gives up the cells (the input is iterated on), True widens them
-#: until they hold that many. Chosen on the CAD part at 0.1 to 10 million points and 0.25% to
-#: 1% noise (docs/DECISIONS.md, "Scan sizes").
+#: until they hold that many; ``rebuild_from``: from this many points per cell on, the cell
+#: means' neighbours are queried anew in every iteration (``rebuild_graph=None``), else the
+#: first iteration's are refreshed. Chosen on the CAD part at 0.1 to 10 million points and
+#: 0.25% to 1% noise (docs/DECISIONS.md, "Scan sizes").
 COARSE = {
     "default": {"cell": 1.5, "k": ((4.0, 96), (13.0, 128)), "surface_k": 16, "min_points": 3.0,
-                "grow": False},
-    "fast": {"cell": 1.5, "k": ((4.0, 48), (13.0, 96)), "surface_k": 16, "min_points": 3.0,
-             "grow": True},
+                "grow": False, "rebuild_from": float("inf")},
+    "fast": {"cell": 1.5, "k": ((4.0, 64), (13.0, 96)), "surface_k": 16, "min_points": 3.0,
+             "grow": True, "rebuild_from": 13.0},
 }
 
 _CELL_BITS = 21  # per axis, as the Morton codes of :func:`pssd_fast.graph.morton_order`
@@ -48,6 +50,8 @@ class Cells(NamedTuple):
         Neighbours of the iterations on the cell means (:data:`COARSE`).
     surface_k : int
         Cell means each input point is fitted to.
+    rebuild_graph : bool
+        Whether the iterations query the cell means' neighbours anew (unless the caller says).
     """
 
     points: np.ndarray
@@ -56,6 +60,7 @@ class Cells(NamedTuple):
     edge: float
     k: int
     surface_k: int
+    rebuild_graph: bool
 
 
 #: Rounds of widening (``grow``): each scales the edge by ``sqrt`` of the shortfall, plus 5%.
@@ -85,7 +90,8 @@ def coarsen(points, normals, noise, preset):
     if n < setting["min_points"] * m or m <= k:
         return None
     means, mean_normals = cell_means(points, normals, order, starts)
-    return Cells(means, mean_normals, np.diff(starts), edge, k, setting["surface_k"])
+    return Cells(means, mean_normals, np.diff(starts), edge, k, setting["surface_k"],
+                 n >= setting["rebuild_from"] * m)
 
 
 def group_cells(points, edge):
