@@ -295,7 +295,7 @@ def _run_denoise(points, normals, args, method_params, say=None, **options):
             f" chosen from the estimated noise {probe['noise']:.4g} (probe: "
             f"{probe['probe_k']} neighbours, mean radius {probe['probe_radius']:.4g}, ratio "
             f"{probe['ratio']:.3f})")
-        cells = None if probe is None else probe.get("coarse")
+        cells = None if probe is None else probe["coarse"]
         if cells:
             chosen = (f"{chosen}; on {cells['cells']:,} cell means of {cells['mean_points']:.1f} "
                       f"points each (cell edge {cells['cell_edge']:.4g}), each point then fitted "

@@ -82,8 +82,9 @@ class DenoiseResult:
         plane fits; ``degenerate_normals``; ``held_points``, points left in place because their
         step was not finite), region sizes and the mean step; plus the run's settings
         (``"k"``; ``"pipeline"``: "paper" or "aware"; ``"auto_k"``: the noise probe behind a
-        ``k`` chosen from the data, else None; ``"noise"``: the noise it estimated, else None)
-        and ``"total_seconds"``. JSON-serialisable.
+        ``k`` chosen from the data, else None, with ``"coarse"``: the cells of the
+        coarse-to-fine route and its final fit, else None; ``"noise"``: the noise it
+        estimated, else None) and ``"total_seconds"``. JSON-serialisable.
     """
 
     points: np.ndarray
@@ -130,8 +131,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     k : int, optional
         Neighbourhood size including the point itself (paper Section 2.2: ``k in [20, 35]``);
         at least 10 and at most ``n - 1``. Default from ``preset``: chosen from the estimated
-        noise, 64 to 160 ("default", see ``pssd_fast.pipelines.aware.AUTO_K``), 48 ("fast"),
-        25 ("paper").
+        noise ("default": 64 to 160 on the input, see ``pssd_fast.pipelines.aware.AUTO_K``, or
+        96 to 128 on cell means; "fast": 64 to 96 on cell means), 25 ("paper"). Given, the
+        iterations run on the input points with that ``k``.
     lam : float, optional
         ``lambda`` in [0, 1] of Section 4.2: weight of the likelihood term against the feature
         term in the step ``m_i``. Paper's pipeline only (default 0.5); the other presets and
@@ -140,14 +142,17 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         ``"paper"``: the paper's formulation (k = 25, lambda = 0.5, 2 iterations; the Notes'
         first paragraph). ``"default"``: the feature-aware pipeline (Notes), ``k`` from the
         estimated noise, 4 iterations; chosen on generated shapes to beat CGAL's jet and
-        bilateral smoothing (docs/DECISIONS.md, README "Beyond the paper"). ``"fast"``: the
-        same pipeline with k = 48, 2 iterations and one kNN query per call. For the baselines a
-        preset sets ``k``, ``iterations`` and ``rebuild_graph``.
+        bilateral smoothing (docs/DECISIONS.md, README "Beyond the paper"); where the noise
+        spans several point spacings it iterates on cell means (Notes). ``"fast"``: the same
+        pipeline, always on cell means (of at least 3 points), 2 iterations and a cheaper noise
+        probe. For the baselines a preset sets ``k`` ("default" and "fast": from the noise
+        probe; "fast" 48), ``iterations`` and ``rebuild_graph``.
     rebuild_graph : bool, optional
         ``True``: query the k nearest neighbours anew in every iteration. ``False``: later
         iterations keep the first iteration's lists, re-sorted by the current distances (one
         kNN query in all; see docs/DECISIONS.md for what it changes). Default from
-        ``preset``: False ("fast"), True ("default", "paper").
+        ``preset``: on the input points True ("default", "paper") or False ("fast"); on cell
+        means False, except "fast" from 13 points a cell.
     orient : {"outward", "up"} or array_like of shape (3,), optional
         Sign of the first iteration's PCA normals (later iterations follow it):
         made consistent by propagation over the neighbour graph, then each connected
@@ -220,10 +225,18 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     normals; bilateral filtering to ``n*_i``; a quadratic fitted in the frame of ``p_i`` and
     ``n*_i`` with each neighbour weighted by distance and by normal agreement (so a point near a
     crease is fitted to its own face); and the projection ``p*_i = p_i + g_i(0, 0) n*_i`` along
-    the filtered normal. With ``k=None`` under "default", a probe fit on the input measures the
+    the filtered normal. With ``k=None``, a probe fit on (a subsample of) the input measures the
     noise and sets ``k`` (``stats["auto_k"]``). The last iteration also computes ``l_i`` (from
     the fit's RMS residual) and ``s_i`` (the paper's voting) for the result; the moves use
     neither.
+
+    Coarse to fine (``k=None``; "default" where grid cells of 1.5 times the noise hold at least
+    3 points on average, "fast" always, its cells widened to 3 points): the iterations run on
+    the cell means, each neighbour's fit weight times the points its cell holds; the denoised
+    means are averaged again over the same grid, and every input point is projected along the
+    normal of its nearest mean onto the feature-aware quadratic of its 16 nearest means. Its
+    cost follows the number of cells (the noise), not ``n``; ``stats["auto_k"]["coarse"]``
+    describes it (docs/ALGORITHM.md, "Coarse to fine").
 
     References
     ----------
@@ -294,7 +307,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     with threads(n_jobs) as n_threads:
         if auto:
             k, scale, probe = aware.choose_k(current, given, *setting["probe"])
-            if pipeline == "aware" and method == "robust":
+            scale["coarse"] = None
+            if (pipeline == "aware" and method == "robust"
+                    and scale["ratio"] >= coarse.COARSE[preset]["min_ratio"]):
                 sigma = aware.noise_sigma(current, given, scale)
                 cells = coarse.coarsen(current, given, sigma, preset)
             if cells is not None:
@@ -344,7 +359,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
                 fine, surface, surface_normals, cells.surface_k, params["sigma_n"], clock)
             records[-1]["times"].update(clock.times)
             extra = tuple(x[nearest] for x in extra)
-            scale["coarse"] = {"cell_edge": cells.edge, "cells": int(cells.counts.shape[0]),
+            scale["coarse"] = {"noise": sigma, "cell_edge": cells.edge,
+                               "cells": int(cells.counts.shape[0]),
                                "mean_points": float(cells.counts.mean()),
                                "surface_points": int(surface.shape[0]),
                                "surface_k": cells.surface_k, **fit}

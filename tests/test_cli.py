@@ -552,3 +552,17 @@ def test_orient_and_removal_errors(tmp_path, ply_with_extras):
     assert not (tmp_path / "out.ply").exists()
     status, _, err = pssd("denoise", path, tmp_path / "out.ply", "--orient", "left")
     assert status == 2 and "expected outward, up or a viewpoint X,Y,Z" in err
+
+
+def test_verbose_tells_the_coarse_to_fine_route(tmp_path):
+    thick = datasets.cad_part(n_points=20000, noise=0.03, seed=3)
+    path = tmp_path / "thick.xyz"
+    np.savetxt(path, thick.points)
+    status, stdout, err = pssd("denoise", path, tmp_path / "out.xyz", "--verbose", "--preset",
+                               "fast")
+    assert status == 0, err
+    cells = pssd_fast.denoise(thick.points, preset="fast").stats["auto_k"]["coarse"]
+    assert (f"on {cells['cells']:,} cell means of {cells['mean_points']:.1f} points each (cell "
+            f"edge {cells['cell_edge']:.4g}), each point then fitted to its 16 nearest denoised "
+            "means") in stdout
+    assert "iteration 2: neighbors" in stdout and "surface_fit" in stdout

@@ -680,12 +680,31 @@ def test_time_left_is_the_mean_iteration_times_the_iterations_to_go(monkeypatch)
 
 @pytest.fixture(scope="module")
 def thick():
-    """Noise several times the point spacing: the default iterates on cell means."""
+    """Noise several times the point spacing: cells of 1.5 times the noise hold 4 points."""
     from pssd_fast import datasets
 
     return datasets.cad_part(n_points=20000, noise=0.03, seed=3)
 
 
+@pytest.fixture
+def coarse_default(monkeypatch):
+    """The default's coarse-to-fine route from the probe ratio of ``thick`` (0.33) on: it takes
+    that route from 0.5 on, which a probe of 100,000 points or fewer hardly reaches."""
+    from pssd_fast.pipelines import coarse
+
+    monkeypatch.setitem(coarse.COARSE["default"], "min_ratio", 0.3)
+
+
+def test_the_default_keeps_the_input_below_its_ratio(thick):
+    from pssd_fast.pipelines import coarse
+
+    result = pssd_fast.denoise(thick.points, iterations=1)
+    ratio = result.stats["auto_k"]["ratio"]
+    assert ratio < coarse.COARSE["default"]["min_ratio"]
+    assert result.stats["auto_k"]["coarse"] is None
+
+
+@pytest.mark.usefixtures("coarse_default")
 def test_coarse_to_fine_matches_the_reference(thick):
     points = thick.points
     result = pssd_fast.denoise(points, iterations=2, rebuild_graph=True)
@@ -705,6 +724,7 @@ def test_coarse_to_fine_matches_the_reference(thick):
     assert cells["surface_points"] < cells["cells"] < len(points) / 3
 
 
+@pytest.mark.usefixtures("coarse_default")
 def test_coarse_to_fine_denoises_and_says_so(thick):
     result = pssd_fast.denoise(thick.points)
     stats = result.stats
@@ -724,6 +744,7 @@ def test_coarse_to_fine_denoises_and_says_so(thick):
     np.testing.assert_allclose(np.linalg.norm(result.normals, axis=1), 1.0)
 
 
+@pytest.mark.usefixtures("coarse_default")
 @pytest.mark.parametrize("preset", ["default", "fast"])
 def test_coarse_to_fine_is_bit_identical_across_thread_counts(thick, preset):
     one = pssd_fast.denoise(thick.points, preset=preset, n_jobs=1)
@@ -733,6 +754,7 @@ def test_coarse_to_fine_is_bit_identical_across_thread_counts(thick, preset):
         np.testing.assert_array_equal(getattr(one, field), getattr(two, field))
 
 
+@pytest.mark.usefixtures("coarse_default")
 def test_coarse_to_fine_takes_given_normals_and_orientation(thick):
     normals = -thick.normals  # inward: the output follows the caller's signs
     result = pssd_fast.denoise(thick.points, normals)
@@ -743,6 +765,7 @@ def test_coarse_to_fine_takes_given_normals_and_orientation(thick):
     np.testing.assert_array_equal(up.points, outward.points)
 
 
+@pytest.mark.usefixtures("coarse_default")
 def test_coarse_to_fine_reports_its_stages(thick):
     seen = []
     pssd_fast.denoise(thick.points, progress=lambda *args: seen.append(args[:3]))
@@ -758,7 +781,7 @@ def test_fast_widens_its_cells_where_the_noise_is_small():
     cells = fast.stats["auto_k"]["coarse"]
     assert cells["mean_points"] >= 3.0 and fast.stats["n_iterations"] == 2
     # The default keeps the input there: too few points a cell.
-    assert pssd_fast.denoise(cloud.points).stats["auto_k"].get("coarse") is None
+    assert pssd_fast.denoise(cloud.points).stats["auto_k"]["coarse"] is None
     before = cloud.surface_distance(cloud.points).mean()
     assert cloud.surface_distance(fast.points).mean() < 0.8 * before
 

@@ -20,15 +20,17 @@ from ..kernels.order import morton_codes
 #: ``(points per cell, k)`` and held at the end values outside them; ``surface_k``: cell means
 #: each input point is fitted to; ``min_points``: the mean number of points a cell must hold;
 #: ``grow``: with fewer, False gives up the cells (the input is iterated on), True widens them
-#: until they hold that many; ``rebuild_from``: from this many points per cell on, the cell
+#: until they hold that many; ``min_ratio``: the noise probe's ``sigma / r`` from which the
+#: cells are used at all (:func:`.aware.choose_k`; its ``k`` is capped at 160 from 0.304 on);
+#: ``rebuild_from``: from this many points per cell on, the cell
 #: means' neighbours are queried anew in every iteration (``rebuild_graph=None``), else the
 #: first iteration's are refreshed. Chosen on the CAD part at 0.1 to 10 million points and
 #: 0.25% to 1% noise (docs/DECISIONS.md, "Scan sizes").
 COARSE = {
     "default": {"cell": 1.5, "k": ((4.0, 96), (13.0, 128)), "surface_k": 16, "min_points": 3.0,
-                "grow": False, "rebuild_from": float("inf")},
+                "grow": False, "min_ratio": 0.5, "rebuild_from": float("inf")},
     "fast": {"cell": 1.5, "k": ((4.0, 64), (13.0, 96)), "surface_k": 16, "min_points": 3.0,
-             "grow": True, "rebuild_from": 13.0},
+             "grow": True, "min_ratio": 0.0, "rebuild_from": 13.0},
 }
 
 _CELL_BITS = 21  # per axis, as the Morton codes of :func:`pssd_fast.graph.morton_order`
@@ -71,7 +73,8 @@ def coarsen(points, normals, noise, preset):
     """The coarse cloud of the ``preset``'s cells (:data:`COARSE`), of edge ``cell * noise``
     (widened until they hold ``min_points`` points on average where ``grow``), as
     :class:`Cells`; None when the cells hold too few points (and do not grow), when there would
-    be no more cells than the iterations' ``k``, or more cells than the grid's codes allow."""
+    be no more cells than the iterations' ``k``, or more cells than the grid's codes allow.
+    The caller checks ``min_ratio``."""
     setting = COARSE[preset]
     n = points.shape[0]
     edge = setting["cell"] * noise
