@@ -230,8 +230,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     the fit's RMS residual) and ``s_i`` (the paper's voting) for the result; the moves use
     neither.
 
-    Coarse to fine (``k=None``; "default" where grid cells of 1.5 times the noise hold at least
-    3 points on average, "fast" always, its cells widened to 3 points): the iterations run on
+    Coarse to fine (``k=None``; "default" where the probe's noise is at least half its list
+    radius and grid cells of 1.5 times the noise hold at least 3 points on average, "fast"
+    always, its cells widened to 3 points): the iterations run on
     the cell means, each neighbour's fit weight times the points its cell holds; the denoised
     means are averaged again over the same grid, and every input point is projected along the
     normal of its nearest mean onto the feature-aware quadratic of its 16 nearest means. Its
