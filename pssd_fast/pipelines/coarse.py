@@ -2,9 +2,10 @@
 (docs/ALGORITHM.md, "Coarse to fine"; docs/DECISIONS.md, "Scan sizes").
 
 The points are averaged over grid cells whose edge follows the estimated noise, the feature-aware
-iterations denoise those cell means with a fixed ``k``, and every input point is then projected
-onto the denoised cell means by a feature-aware fit of its nearest ones. The cost of the
-iterations follows the noise (the number of cells), not the number of points.
+iterations denoise those cell means (each weighted in the fits by the points it holds), the
+denoised means are averaged again over the same grid, and every input point is then projected
+onto them by a feature-aware fit of its nearest ones. The cost of the iterations follows the
+noise (the number of cells), not the number of points.
 """
 from typing import NamedTuple, Optional
 
@@ -139,7 +140,10 @@ def collapse(cells, points, normals, fields):
     of them would no longer span the surface around a point. One mean per cell of the denoised
     surface does.
     """
-    order, starts = group_cells(points, cells.edge)
+    grouped = group_cells(points, cells.edge)
+    if grouped is None:  # the denoised means span more cells than the codes hold: keep them
+        return points, normals, fields
+    order, starts = grouped
     mass = cells.counts.astype(np.float64)
     means, mean_normals = cell_means(points, normals, order, starts, mass)
     total = np.add.reduceat(mass[order], starts[:-1])
