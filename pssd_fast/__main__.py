@@ -21,8 +21,9 @@ def main(argv=None):
     parser.add_argument("--iterations", type=int, default=None,
                         help="iterations (preset: 4 default, 2 fast, 2 paper)")
     parser.add_argument("--preset", choices=tuple(PRESETS), default="default",
-                        help="default: feature-aware, k from the noise; fast: the same with "
-                             "k=48; paper: the paper's method (k=25, lambda=0.5)")
+                        help="default: feature-aware, k from the noise; fast: the same on "
+                             "cell means, 2 iterations; paper: the paper's method (k=25, "
+                             "lambda=0.5)")
     parser.add_argument("--k", type=int, default=None, help="neighbours per point (preset)")
     parser.add_argument("--lam", type=float, default=None,
                         help="weight lambda (preset 'paper' only)")

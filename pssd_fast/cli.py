@@ -223,8 +223,9 @@ def _add_common(parser):
                         help="iterations (preset: 4 default, 2 fast, 2 paper)")
     parser.add_argument("--preset", choices=("default", "fast", "paper"), default="default",
                         help="default: feature-aware fit, k from the estimated noise, 4 "
-                             "iterations; fast: the same with k=48, 2 iterations; paper: the "
-                             "paper's method (k=25, lam=0.5, 2 iterations)")
+                             "iterations (on cell means where the noise spans many point "
+                             "spacings); fast: the same always on cell means, 2 iterations; "
+                             "paper: the paper's method (k=25, lam=0.5, 2 iterations)")
     parser.add_argument("--k", type=int, default=None, help="neighbours per point (preset)")
     parser.add_argument("--lam", type=float, default=None,
                         help="lambda, weight of the likelihood term (preset)")

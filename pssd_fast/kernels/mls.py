@@ -306,8 +306,9 @@ def aware_fit(points, normals, mass, indptr, indices, sigma_n, height, rms, degr
     -----
     Frame: origin ``p_i``, axis ``n_i``, tangent coordinates scaled by the list radius ``r_i``.
     Weights: ``exp(-|p_j - p_i|^2 / r_i^2)`` times the normal-agreement weight (times
-    ``mass[j]``), the point itself included with weight 1 (``mass[i]``). Neighbours whose normal disagrees with ``n_i`` (the other side of a
-    crease) hardly count, so points near a sharp edge are fitted to their own face. The
+    ``mass[j]``), the point itself included with weight 1 (``mass[i]``). Neighbours whose
+    normal disagrees with ``n_i`` (the other side of a crease) hardly count, so points near a
+    sharp edge are fitted to their own face. The
     quadratic's normal equations are factored with the same pivot test as :func:`mls_fit`; a
     leading block that fails falls back to the plane (first three monomials), then to the
     weighted mean height.

@@ -33,8 +33,9 @@ def step(points, nrm, graph, lam, params, clock, last=True, mass=None):
     ``n*_i`` with each neighbour weighted by distance and normal agreement (``sigma_n``), and
     the projection ``p_i + g_i(0, 0) n*_i``; ``mass`` (or None) multiplies each neighbour's
     weight in the fit (the points a cell mean stands for). The move uses neither the likelihood
-    nor the feature intensity; the last iteration still computes both (from the fit's RMS residual, and by the
-    paper's voting at the paper's constants) so that every preset returns them.
+    nor the feature intensity; the last iteration still computes both (from the fit's RMS
+    residual, and by the paper's voting at the paper's constants) so that every preset returns
+    them.
     """
     filtered = clock.run("filter", core.filter_normals, points, nrm, graph)
     height, rms, degree = clock.run("mls", core.aware_fit, points, filtered, graph,
@@ -87,8 +88,9 @@ def choose_k(points, given, probe_points=PROBE_POINTS, probe_k=AUTO_K["probe_k"]
     anchors = np.log(np.array(AUTO_K["anchors"], dtype=float))
     k = int(round(np.exp(np.interp(np.log(max(ratio, 1e-12)), anchors[:, 0], anchors[:, 1]))))
     k = max(min(k, n - 1), min(10, n - 1))
-    scales = {"k": k, "probe_k": probe, "probe_points": -(-n // stride), "noise": sigma,
-              "probe_radius": radius, "ratio": ratio, "seconds": time.perf_counter() - started}
+    scales = {"k": k, "probe_k": probe, "probe_points": -(-n // stride), "probe_stride": stride,
+              "noise": sigma, "probe_radius": radius, "ratio": ratio,
+              "seconds": time.perf_counter() - started}
     return check_k(k, n), scales, graph if stride == 1 else None
 
 
@@ -103,7 +105,7 @@ def noise_sigma(points, given, scales):
     lists would bend with the surface).
     """
     n = points.shape[0]
-    stride = -(-n // scales["probe_points"])
+    stride = scales["probe_stride"]
     ratio = scales["ratio"] / np.sqrt(stride)  # noise over the sample's own list radius
     if ratio <= NOISE_PROBE["ratio"]:
         return scales["noise"]
