@@ -126,8 +126,8 @@ def aware_fit(points, nrm, graph, sigma_n, mass=None):
     rms = np.empty(n)
     degree = np.empty(n, np.int8)
     mass = np.empty(0) if mass is None else mass
-    kernels.mls.aware_fit(points, nrm, mass, graph.indptr, graph.indices, sigma_n, height, rms,
-                          degree)
+    kernels.mls.aware_fit(points, points, nrm, mass, graph.indptr, graph.indices, sigma_n,
+                          height, rms, degree)
     return height, rms, degree
 
 
@@ -138,8 +138,8 @@ def surface_fit(points, surface, nrm, lists, sigma_n):
     height = np.empty(n)
     rms = np.empty(n)
     degree = np.empty(n, np.int8)
-    kernels.mls.surface_fit(points, surface, nrm, lists.indptr, lists.indices, sigma_n, height,
-                            rms, degree)
+    kernels.mls.aware_fit(points, surface, nrm, np.empty(0), lists.indptr, lists.indices,
+                          sigma_n, height, rms, degree)
     return height, rms, degree
 
 

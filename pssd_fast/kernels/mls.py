@@ -277,25 +277,33 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
 
 
 @parallel_kernel
-def aware_fit(points, normals, mass, indptr, indices, sigma_n, height, rms, degree):
-    """Feature-aware local quadratic in each point's own normal frame (the default pipeline).
+def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, height, rms, degree):
+    """Feature-aware local quadratic of each point's listed ``surface`` points, in the frame of
+    the point and the normal of its first (nearest) listed one: the iterations of the default
+    pipeline (``surface`` is ``points``, each list starting with the point itself, so the frame
+    is ``p_i`` and ``n_i``) and the last step of the coarse to fine route (``surface``: the
+    denoised cell means; docs/ALGORITHM.md).
 
     Parameters
     ----------
     points : (n, 3) float64
-    normals : (n, 3) float64
-        Unit normals ``n*_i`` (the filtered normals); only ``|n_i . n_j|`` is used, so signs
-        need not agree.
-    mass : (n,) float64 or (0,)
-        A factor on each point's weight (the number of input points a cell mean stands for,
-        in the coarse-to-fine default); no entries: every factor is 1.
-    indptr, indices : CSR neighbour graph (each list contains the point itself)
+        Where to fit: the origin of each frame.
+    surface : (m, 3) float64
+        The points fitted.
+    normals : (m, 3) float64
+        Unit normals of ``surface`` (the filtered normals ``n*_j``); only ``|n_i . n_j|`` is
+        used, so signs need not agree.
+    mass : (m,) float64 or (0,)
+        A factor on each surface point's weight (the number of input points a cell mean stands
+        for, in the coarse-to-fine route); no entries: every factor is 1.
+    indptr, indices : CSR lists of ``surface`` rows for each of ``points``, nearest first
     sigma_n : float
         Width of the normal-agreement weight ``exp(-((1 - |n_i . n_j|) / sigma_n)^2)``; 0 or
         less turns it off (weights by distance only).
     height : (n,) float64
-        Output: ``g(0, 0)``, the height of the fitted surface above ``p_i`` along ``n_i``, so
-        that ``p_i + height_i n_i`` is the projection of ``p_i`` along its normal.
+        Output: ``g(0, 0)``, the height of the fitted surface above ``p_i`` along the frame's
+        axis ``n``, so that ``p_i + height_i n`` is the projection of ``p_i`` along it (0 for an
+        empty list).
     rms : (n,) float64
         Output: weighted root-mean-square residual of the list about the fit.
     degree : (n,) int8
@@ -304,56 +312,13 @@ def aware_fit(points, normals, mass, indptr, indices, sigma_n, height, rms, degr
 
     Notes
     -----
-    Frame: origin ``p_i``, axis ``n_i``, tangent coordinates scaled by the list radius ``r_i``.
+    Frame: origin ``p_i``, axis ``n``, tangent coordinates scaled by the list radius ``r_i``.
     Weights: ``exp(-|p_j - p_i|^2 / r_i^2)`` times the normal-agreement weight (times
-    ``mass[j]``), the point itself included with weight 1 (``mass[i]``). Neighbours whose
-    normal disagrees with ``n_i`` (the other side of a crease) hardly count, so points near a
-    sharp edge are fitted to their own face. The
-    quadratic's normal equations are factored with the same pivot test as :func:`mls_fit`; a
-    leading block that fails falls back to the plane (first three monomials), then to the
-    weighted mean height.
-    """
-    n = points.shape[0]
-    longest = max_degree(indptr)
-    inv_sigma_n = 1.0 / sigma_n if sigma_n > 0.0 else 0.0
-    for c in prange((n + CHUNK - 1) // CHUNK):
-        wts = np.empty(longest)
-        xs = np.empty(longest)
-        zs = np.empty(longest)
-        a = np.empty((6, 6))
-        b = np.empty(6)
-        phi = np.empty((10, longest))
-        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            height[i], rms[i], degree[i] = _frame_fit(
-                points[i, 0], points[i, 1], points[i, 2], normals[i, 0], normals[i, 1],
-                normals[i, 2], points, normals, mass, indices, indptr[i],
-                indptr[i + 1] - indptr[i], inv_sigma_n, wts, xs, zs, a, b, phi)
-
-
-@parallel_kernel
-def surface_fit(points, surface, normals, indptr, indices, sigma_n, height, rms, degree):
-    """Feature-aware quadratic of a denoised ``surface`` around each of ``points`` (the last step
-    of the coarse-to-fine default, docs/ALGORITHM.md).
-
-    Parameters
-    ----------
-    points : (n, 3) float64
-        Where to fit: the origin of each frame.
-    surface : (m, 3) float64
-        Points of the surface to fit.
-    normals : (m, 3) float64
-        Unit normals of ``surface``.
-    indptr, indices : CSR lists of ``surface`` rows for each of ``points``, nearest first
-    sigma_n : float
-        Width of the normal-agreement weight, as in :func:`aware_fit`; 0 or less turns it off.
-    height, rms, degree : (n,) float64, float64, int8
-        Outputs as in :func:`aware_fit`.
-
-    Notes
-    -----
-    As :func:`aware_fit`, except that the frame's axis is the normal of the nearest listed
-    surface point and the point itself is not among the fitted ones: ``p_i + height_i n`` is the
-    projection of ``p_i`` onto the surface along that normal.
+    ``mass[j]``); a point listed in its own list counts with weight 1 (``mass[i]``). Neighbours
+    whose normal disagrees with ``n`` (the other side of a crease) hardly count, so points near
+    a sharp edge are fitted to their own face. The quadratic's normal equations are factored
+    with the same pivot test as :func:`mls_fit`; a leading block that fails falls back to the
+    plane (first three monomials), then to the weighted mean height.
     """
     n = points.shape[0]
     longest = max_degree(indptr)
@@ -374,5 +339,5 @@ def surface_fit(points, surface, normals, indptr, indices, sigma_n, height, rms,
             first = indices[start]
             height[i], rms[i], degree[i] = _frame_fit(
                 points[i, 0], points[i, 1], points[i, 2], normals[first, 0],
-                normals[first, 1], normals[first, 2], surface, normals, np.empty(0), indices,
-                start, count, inv_sigma_n, wts, xs, zs, a, b, phi)
+                normals[first, 1], normals[first, 2], surface, normals, mass, indices, start,
+                count, inv_sigma_n, wts, xs, zs, a, b, phi)
