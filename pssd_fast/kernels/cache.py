@@ -30,6 +30,7 @@ from pathlib import Path
 
 import llvmlite
 import numba
+import numpy as np
 
 #: Environment variable naming the folder under which compiled kernels are cached.
 CACHE_ENV = "PSSD_FAST_CACHE_DIR"
@@ -113,6 +114,16 @@ def compile_kernel(func, **options):
         numba.config.CACHE_DIR = previous
 
 
+def _type_key(value):
+    """What decides the numba type of a kernel argument: an array's dtype, dimensions, layout
+    and writability; any other value's Python type (the kernels take int, float and bool)."""
+    if isinstance(value, np.ndarray):
+        flags = value.flags
+        return (value.dtype.str, value.ndim, flags.c_contiguous, flags.f_contiguous,
+                flags.writeable, flags.aligned)
+    return type(value)
+
+
 class Kernel:
     """A numba dispatcher whose signatures are compiled in a child process (see module notes).
 
@@ -138,11 +149,14 @@ class Kernel:
 
     def __call__(self, *args):
         if CACHE_DIR is not None:
-            types = tuple(numba.typeof(a) for a in args)
-            if types not in self._ready:
+            # A cheap key first: numba.typeof of every argument costs about 15 us each, a
+            # few milliseconds a run on a small cloud.
+            key = tuple(_type_key(a) for a in args)
+            if key not in self._ready:
+                types = tuple(numba.typeof(a) for a in args)
                 with self._lock:
                     self._build(types)
-                self._ready.add(types)
+                self._ready.add(key)
         return self.dispatcher(*args)
 
     def _build(self, types):

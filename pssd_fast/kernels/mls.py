@@ -224,8 +224,9 @@ def mls_fit(points, normals, indptr, indices, h, proj, resid, degree, curvature)
 def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, count,
                inv_sigma_n, wts, xs, zs, a, b, phi):
     """Weighted quadratic over the listed ``points`` in the frame of origin ``(px, py, pz)`` and
-    unit axis ``(nx, ny, nz)``: the height ``g(0, 0)``, the weighted RMS residual and the number
-    of coefficients fitted (see :func:`aware_fit`)."""
+    unit axis ``(nx, ny, nz)``: the height ``g(0, 0)``, the weighted RMS residual, the number
+    of coefficients fitted (see :func:`aware_fit`) and the inverse of the list radius that
+    scales the tangent coordinates; ``b`` holds the coefficients."""
     ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
     radius2 = 0.0
     for t in range(count):
@@ -273,11 +274,12 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
     for t in range(count):
         se += wts[t] * xs[t] * xs[t]
         sw += wts[t]
-    return b[0], math.sqrt(se / sw) if sw > 0.0 else 0.0, m
+    return b[0], math.sqrt(se / sw) if sw > 0.0 else 0.0, m, inv_r
 
 
 @parallel_kernel
-def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, height, rms, degree):
+def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, height, rms, degree,
+              coef):
     """Feature-aware local quadratic of each point's listed ``surface`` points, in the frame of
     the point and the normal of its first (nearest) listed one: the iterations of the default
     pipeline (``surface`` is ``points``, each list starting with the point itself, so the frame
@@ -309,6 +311,9 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, height, 
     degree : (n,) int8
         Output: number of coefficients fitted: 6 (quadratic), 3 (plane fallback), 1 (weighted
         mean height) or 0 (no fit, ``height = 0``).
+    coef : (n, 7) float64 or (0, 7)
+        Output, if it has rows: the six coefficients of ``g`` (monomials ``1, y, x, xy, y^2,
+        x^2``; those not fitted are 0) and ``1 / r_i``, for :func:`evaluate_fits`.
 
     Notes
     -----
@@ -335,9 +340,75 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, height, 
             count = indptr[i + 1] - start
             if count == 0:
                 height[i], rms[i], degree[i] = 0.0, 0.0, 0
+                if coef.shape[0] > 0:
+                    coef[i, :] = 0.0
                 continue
             first = indices[start]
-            height[i], rms[i], degree[i] = _frame_fit(
+            height[i], rms[i], degree[i], inv_r = _frame_fit(
                 points[i, 0], points[i, 1], points[i, 2], normals[first, 0],
                 normals[first, 1], normals[first, 2], surface, normals, mass, indices, start,
                 count, inv_sigma_n, wts, xs, zs, a, b, phi)
+            if coef.shape[0] > 0:
+                coef[i, :6] = b
+                coef[i, 6] = inv_r
+
+
+@parallel_kernel
+def evaluate_fits(points, origins, normals, coef, nearest, distance, moved, held):
+    """Move each point onto the fitted surfaces of its nearest origins, along their axes, by the
+    inverse-distance-weighted mean of those steps.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    origins : (m, 3) float64
+        Frame origins of the fits of :func:`aware_fit` (its ``points``).
+    normals : (m, 3) float64
+        Unit axes of those frames.
+    coef : (m, 7) float64
+        The fits' coefficients and inverse list radii (``coef`` of :func:`aware_fit`); a fit of
+        no coefficients is the plane through its origin.
+    nearest : (n, b) int64
+        Rows of ``origins`` whose fits each point moves onto.
+    distance : (n, b) float64
+        Distance from the point to each of those origins; the weight of a fit is its inverse.
+    moved : (n, 3) float64
+        Output: ``p_i`` plus the weighted mean of the steps ``(g_j(x, y) - z) n_j``, with
+        ``(x, y, z)`` the point in the frame of origin ``j``; steps that are not finite are
+        left out.
+    held : (n,) bool
+        Output: whether no step was finite, so that the point stayed where it was.
+    """
+    n = points.shape[0]
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            sx = 0.0
+            sy = 0.0
+            sz = 0.0
+            sw = 0.0
+            for t in range(nearest.shape[1]):
+                j = nearest[i, t]
+                nx, ny, nz = normals[j, 0], normals[j, 1], normals[j, 2]
+                ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
+                dx = points[i, 0] - origins[j, 0]
+                dy = points[i, 1] - origins[j, 1]
+                dz = points[i, 2] - origins[j, 2]
+                x = (dx * ux + dy * uy + dz * uz) * coef[j, 6]
+                y = (dx * vx + dy * vy + dz * vz) * coef[j, 6]
+                z = dx * nx + dy * ny + dz * nz
+                step = (coef[j, 0] + coef[j, 1] * y + coef[j, 2] * x + coef[j, 3] * x * y
+                        + coef[j, 4] * y * y + coef[j, 5] * x * x - z)
+                if not (math.isfinite(step * nx) and math.isfinite(step * ny)
+                        and math.isfinite(step * nz)):
+                    continue
+                w = 1.0 / max(distance[i, t], 1e-300)
+                sx += w * step * nx
+                sy += w * step * ny
+                sz += w * step * nz
+                sw += w
+            held[i] = not sw > 0.0
+            if held[i]:
+                sw = 1.0
+            moved[i, 0] = points[i, 0] + sx / sw
+            moved[i, 1] = points[i, 1] + sy / sw
+            moved[i, 2] = points[i, 2] + sz / sw

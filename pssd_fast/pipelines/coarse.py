@@ -4,34 +4,35 @@
 The points are averaged over grid cells whose edge follows the estimated noise, the feature-aware
 iterations denoise those cell means (each weighted in the fits by the points it holds), the
 denoised means are averaged again over the same grid, and every input point is then projected
-onto them by a feature-aware fit of its nearest ones. The cost of the iterations follows the
+onto the feature-aware fit of the denoised means around its nearest one. The cost of the iterations follows the
 noise (the number of cells), not the number of points.
 """
 from typing import NamedTuple, Optional
 
 import numpy as np
+from pykdtree.kdtree import KDTree
 
 from .. import core, kernels
-from ..graph import cross_lists
+from ..graph import QUERY_ENTRIES, bounds, knn_graph
 from ..kernels.order import morton_codes
 
 #: Settings of each preset. ``cell``: cell edge over the noise's standard deviation
 #: (:func:`.aware.noise_sigma`); ``k``: neighbours of the iterations on the cell means,
 #: interpolated linearly in ``log(points per cell)`` between the anchors
 #: ``(points per cell, k)`` and held at the end values outside them; ``surface_k``: cell means
-#: each input point is fitted to; ``min_points``: the mean number of points a cell must hold;
+#: in the fit around each denoised mean that the input points are projected onto; ``min_points``: the mean number of points a cell must hold;
 #: ``grow``: with fewer, False gives up the cells (the input is iterated on), True widens them
 #: until they hold that many; ``min_ratio``: the noise probe's ``sigma / r`` from which the
 #: cells are used at all (:func:`.aware.choose_k`; its ``k`` is capped at 160 from 0.304 on);
 #: ``rebuild_from``: from this many points per cell on, the cell
 #: means' neighbours are queried anew in every iteration (``rebuild_graph=None``), else the
-#: first iteration's are refreshed. Chosen on the CAD part at 0.1 to 10 million points and
+#: first iteration's are refreshed. Chosen on the CAD part at 30,000 to 10 million points and
 #: 0.25% to 1% noise (docs/DECISIONS.md, "Scan sizes").
 COARSE = {
     "default": {"cell": 1.5, "k": ((4.0, 96), (13.0, 128)), "surface_k": 16, "min_points": 3.0,
                 "grow": False, "min_ratio": 0.5, "rebuild_from": float("inf")},
-    "fast": {"cell": 1.5, "k": ((4.0, 64), (13.0, 96)), "surface_k": 16, "min_points": 3.0,
-             "grow": True, "min_ratio": 0.0, "rebuild_from": 13.0},
+    "fast": {"cell": 1.5, "k": ((3.5, 48), (5.0, 70), (13.0, 96)), "surface_k": 16,
+             "min_points": 3.0, "grow": True, "min_ratio": 0.0, "rebuild_from": 13.0},
 }
 
 _CELL_BITS = 21  # per axis, as the Morton codes of :func:`pssd_fast.graph.morton_order`
@@ -52,7 +53,7 @@ class Cells(NamedTuple):
     k : int
         Neighbours of the iterations on the cell means (:data:`COARSE`).
     surface_k : int
-        Cell means each input point is fitted to.
+        Cell means in the fit around each denoised mean (:func:`refine`).
     rebuild_graph : bool
         Whether the iterations query the cell means' neighbours anew (unless the caller says).
     """
@@ -104,8 +105,8 @@ def group_cells(points, edge):
     the Morton curve of their grid coordinates; None if the grid needs more than 21 bits an
     axis."""
     n = points.shape[0]
-    low = points.min(axis=0)
-    extent = float((points.max(axis=0) - low).max())
+    low, high = bounds(points)
+    extent = float((high - low).max())
     if not edge > 0.0 or extent / edge >= 2**_CELL_BITS - 1:
         return None
     codes = np.empty(n, np.uint64)
@@ -154,29 +155,56 @@ def collapse(cells, points, normals, fields):
 def refine(points, surface, normals, surface_k, sigma_n, clock):
     """Project each of ``points`` onto the denoised cell means ``surface`` (unit ``normals``).
 
-    Each point's ``surface_k`` nearest cell means are fitted by the feature-aware quadratic in
-    the frame of the point and the nearest mean's normal, and the point moves to the fitted
-    surface along that normal.
+    The feature-aware quadratic of each cell mean's ``surface_k`` nearest means is fitted once,
+    in the frame of the mean and its normal. Each point then moves onto the quadratics of its
+    :data:`BLEND` nearest means, each along its mean's normal, by the mean of those steps
+    weighted by the inverse distance to the means. One fit per mean, not per point: the fits
+    cost what the iterations on the means cost, whatever the number of points; the blend
+    leaves no seams where the nearest mean changes.
 
     Returns
     -------
     moved : (n, 3) float64
     out_normals : (n, 3) float64
-        The normal each point moved along.
+        The normal of each point's nearest mean.
     nearest : (n,) int64
         Row of ``surface`` nearest to each point (the source of its per-point fields).
     record : dict
-        ``held_points``, ``mean_residual`` and ``fit_degree`` of the fits, as an iteration's.
+        ``held_points``, ``mean_residual`` and ``fit_degree`` of the nearest means' fits, as an
+        iteration's.
     """
     k = min(surface_k, surface.shape[0])
-    lists = clock.run("surface_neighbors", cross_lists, points, surface, k)
-    height, rms, degree = clock.run("surface_fit", core.surface_fit, points, surface, normals,
-                                    lists, sigma_n)
-    nearest = lists.indices[lists.indptr[:-1]].astype(np.int64)
-    out_normals = normals[nearest]
-    moved, held = clock.run("surface_update", core.project, points, out_normals, height)
-    counts = np.bincount(degree, minlength=7)
-    record = {"held_points": int(held.sum()), "mean_residual": float(rms.mean()),
+    lists = clock.run("surface_neighbors", knn_graph, surface, k, False)
+    coef, rms, degree = clock.run("surface_fit", core.surface_fits, surface, normals, lists,
+                                  sigma_n)
+    moved, held, nearest = clock.run("surface_update", _onto_fits, points, surface, normals,
+                                     coef)
+    counts = np.bincount(degree[nearest], minlength=7)
+    record = {"held_points": int(held.sum()), "mean_residual": float(rms[nearest].mean()),
               "fit_degree": {name: int(counts[code])
                              for name, code in core.AWARE_FIT_DEGREES.items()}}
-    return moved, out_normals, nearest, record
+    return moved, normals[nearest], nearest, record
+
+
+#: Nearest cell means whose fits each input point moves onto (docs/DECISIONS.md, "Scan sizes").
+BLEND = 3
+
+
+def _onto_fits(points, surface, normals, coef):
+    """:func:`refine`'s last step, in chunks whose query results stay small: the moved points,
+    those held, the nearest mean of each."""
+    n = points.shape[0]
+    count = min(BLEND, surface.shape[0])
+    tree = KDTree(surface)
+    moved = np.empty_like(points)
+    held = np.empty(n, np.bool_)
+    nearest = np.empty(n, np.int64)
+    chunk = max(1, QUERY_ENTRIES // count)
+    for start in range(0, n, chunk):
+        stop = min(n, start + chunk)
+        distance, rows = tree.query(points[start:stop], k=count)
+        rows = rows.reshape(-1, count).astype(np.int64)
+        moved[start:stop], held[start:stop] = core.evaluate_fits(
+            points[start:stop], surface, normals, coef, rows, distance.reshape(-1, count))
+        nearest[start:stop] = rows[:, 0]
+    return moved, held, nearest
