@@ -102,3 +102,19 @@ def test_kernel_wrapper_exposes_the_dispatcher():
     assert normals.pca_normals.py_func.__name__ == "pca_normals"
     assert normals.pca_normals.__doc__.startswith("Unit normals by PCA")
     assert cache.CACHE_DIR.name == f"kernels-{cache.source_key()}"
+
+
+def test_the_type_key_tells_apart_what_numba_types_tell_apart():
+    import numba
+    import numpy as np
+
+    readonly = np.zeros((4, 3))
+    readonly.flags.writeable = False
+    values = [np.zeros((4, 3)), np.zeros((4, 3), order="F"), np.zeros((4, 6))[:, ::2],
+              np.zeros((4, 3), np.float32), np.zeros(4), readonly, 1, 1.0, True, np.int64(1)]
+    keys = [cache._type_key(v) for v in values]
+    types = [numba.typeof(v) for v in values]
+    # Each key stands for one type (a key may be finer: 1 and np.int64(1) are both int64).
+    assert len(set(zip(keys, types))) == len(set(keys)) == len(values)
+    assert len(set(types)) == len(values) - 1
+    assert cache._type_key(np.ones((9, 3))) == keys[0] and cache._type_key(7) == keys[6]
