@@ -142,6 +142,13 @@ def _parser():
     den.add_argument("--remove-outliers", action="store_true",
                      help="drop the points whose outlier score exceeds 1 before denoising "
                           "(the score is written as outlier_score either way)")
+    den.add_argument("--tile-points", type=int, default=None, metavar="N",
+                     help="run in tiles of at most N points on Dask (pip install "
+                          "'pssd_fast[dask]'), with the same result; presets default and fast, "
+                          "where they work on cell means")
+    den.add_argument("--scheduler", default=None, metavar="WHERE",
+                     help="where the tiles run: threads (default), processes, sync, or a Dask "
+                          "scheduler's address")
     den.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
     _add_verbosity(den)
     den.set_defaults(run=_denoise)
@@ -285,8 +292,13 @@ def _run_denoise(points, normals, args, method_params, say=None, **options):
     progress = _Progress(STAGE_COUNT[args.method], not args.quiet)
     started = time.perf_counter()
     try:
-        result = denoise(points, normals, method=args.method, progress=progress,
-                         **_common_options(args), **options, **method_params)
+        if getattr(args, "tile_points", None) is not None:
+            result = _run_tiled(points, normals, args, method_params, progress, **options)
+        else:
+            if getattr(args, "scheduler", None) is not None:
+                raise CommandError("--scheduler runs the tiles of --tile-points; give both")
+            result = denoise(points, normals, method=args.method, progress=progress,
+                             **_common_options(args), **options, **method_params)
     finally:
         progress.close()
     seconds = time.perf_counter() - started
@@ -299,8 +311,8 @@ def _run_denoise(points, normals, args, method_params, say=None, **options):
         cells = None if probe is None else probe["coarse"]
         if cells:
             chosen = (f"{chosen}; on {cells['cells']:,} cell means of {cells['mean_points']:.1f} "
-                      f"points each (cell edge {cells['cell_edge']:.4g}), each point then fitted "
-                      f"to its {cells['surface_k']} nearest denoised means")
+                      f"points each (cell edge {cells['cell_edge']:.4g}), each point then moved "
+                      f"onto the fits of its nearest denoised means")
         threads = result.stats["n_jobs"]
         print(f"k = {result.stats['k']}{chosen}; {threads} thread{'s' * (threads != 1)}",
               file=say or sys.stdout)
@@ -391,6 +403,26 @@ def _added_fields(args, result, out, had_normals):
                                f".ply, .las or text)")
     fields = {n: np.asarray(have[n], dtype=np.float32) for n in names if n != "normals"}
     return fields, "normals" in names or had_normals
+
+
+def _run_tiled(points, normals, args, method_params, progress, orient, remove_outliers):
+    """``--tile-points``: :func:`pssd_fast.tiled.denoise` with the options it shares."""
+    from . import tiled
+
+    unused = [name for name, given in (
+        ("--method", args.method != "robust"), ("--k", args.k is not None),
+        ("--lam", args.lam is not None), ("--rebuild-graph", args.rebuild_graph is not None),
+        ("--remove-outliers", remove_outliers),
+        *((f"--{dest.replace('_', '-')}", True) for dest in method_params if dest != "sigma_n"))
+        if given]
+    if args.preset == "paper":
+        unused.append("--preset paper")
+    if unused:
+        raise CommandError(f"--tile-points runs the coarse-to-fine route of the presets default "
+                           f"and fast; it does not take {', '.join(unused)}")
+    return tiled.denoise(points, normals, tile_points=args.tile_points, client=args.scheduler,
+                         preset=args.preset, iterations=args.iterations, orient=orient,
+                         n_jobs=args.n_jobs, progress=progress, **method_params)
 
 
 def _denoise(args):

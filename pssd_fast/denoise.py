@@ -234,8 +234,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     radius and grid cells of 1.5 times the noise hold at least 3 points on average, "fast"
     always, its cells widened to 3 points): the iterations run on
     the cell means, each neighbour's fit weight times the points its cell holds; the denoised
-    means are averaged again over the same grid, and every input point is projected along the
-    normal of its nearest mean onto the feature-aware quadratic of its 16 nearest means. Its
+    means are averaged again over the same grid and each is fitted by the feature-aware
+    quadratic of its 16 nearest, and every input point moves onto the fits of its 3 nearest
+    means (by their inverse-distance-weighted steps along their normals). Its
     cost follows the number of cells (the noise), not ``n``; ``stats["auto_k"]["coarse"]``
     describes it (docs/ALGORITHM.md, "Coarse to fine").
 
@@ -303,7 +304,6 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
     step = STEPS[pipeline if method == "robust" else method]
-    records = []
     scale = probe = cells = None
     with threads(n_jobs) as n_threads:
         if auto:
@@ -322,37 +322,11 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
                 k = min(setting.get("without_cells_k") or k, n - 1)
                 if probe is not None and k > scale["probe_k"]:
                     probe = None  # too short to serve: freed before the longer lists are built
-        # A cell mean weighs as many points as it stands for in the fits.
-        weighting = {} if cells is None else {"mass": cells.counts.astype(np.float64)}
         if rebuild_graph is None:
             rebuild_graph = setting["rebuild_graph"] if cells is None else cells.rebuild_graph
-        out_normals = graph = None
-        for iteration in range(iterations):
-            clock = Clock(report, iteration, iterations)
-            if probe is not None:
-                # The probe's lists, cut to k, are this iteration's: no second query.
-                graph = clock.run("neighbors", truncate_graph, probe, current, k)
-            elif graph is None or rebuild_graph:
-                graph = None  # the last lists go before the new ones are built, not after
-                graph = clock.run("neighbors", knn_graph, current, k, False)
-            else:
-                graph = clock.run("neighbors", refresh_graph, graph, current)
-            probe = None  # its lists (4 bytes x 96 a point) are not kept past their use
-            if given is not None:
-                nrm, degenerate = clock.run("normals", _given_normals, given)
-            else:
-                first = orient if out_normals is None else None
-                nrm, degenerate = clock.run("normals", inputs.estimated_normals, current, graph,
-                                            out_normals, first, centre)
-            moved, out_normals, extra, record = step(current, nrm, graph, lam, params, clock,
-                                                     iteration == iterations - 1, **weighting)
-            record["degenerate_normals"] = int(degenerate.sum())
-            record["mean_step"] = float(np.linalg.norm(moved - current, axis=1).mean())
-            records.append(record)
-            current = moved
-            if not params["keep_normals"]:
-                given = None
-        graph = None
+        current, out_normals, extra, records = iterate(
+            current, given, step, k, iterations, rebuild_graph, probe, lam, params, orient,
+            centre, report, None if cells is None else cells.counts)
         if cells is not None:
             clock = Clock(report, iterations - 1, iterations)
             surface, surface_normals, extra = coarse.collapse(cells, current, out_normals, extra)
@@ -366,8 +340,6 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
                                "surface_points": int(surface.shape[0]),
                                "surface_k": cells.surface_k, **fit}
 
-    shift = _to_caller_order(current, order)
-    out = shift + centre
     stats = {
         "method": method,
         "n_points": n,
@@ -388,19 +360,70 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         "iterations": records,
         "total_seconds": time.perf_counter() - started,
     }
+    # A copy (in the input's dtype): the caller may change the input before the access.
+    outliers = (pts.astype(dtype), n_jobs) if score is None else score.astype(dtype, copy=False)
+    return result(pts, dtype, order, centre, current, out_normals, extra, kept, outliers, stats)
+
+
+def result(pts, dtype, order, centre, current, out_normals, extra, kept, outliers, stats):
+    """The :class:`DenoiseResult` of a run on ``pts`` (the input rows denoised, in the caller's
+    order) whose outputs ``current``, ``out_normals`` and ``extra`` are in Morton ``order``,
+    relative to ``centre``; ``outliers``: the scores or what computes them."""
+    shift = _to_caller_order(current, order)
     lik, feat = (None, None) if extra is None else (
         _to_caller_order(x, order).astype(dtype, copy=False) for x in extra)
     return DenoiseResult(
-        points=out.astype(dtype, copy=False),
+        points=(shift + centre).astype(dtype, copy=False),
         normals=_to_caller_order(out_normals, order).astype(dtype, copy=False),
         likelihood=lik,
         feature_intensity=feat,
         displacement=np.linalg.norm(shift - (pts - centre), axis=1).astype(dtype, copy=False),
-        # A copy (in the input's dtype): the caller may change the input before the access.
-        _outliers=(pts.astype(dtype), n_jobs) if score is None else score.astype(dtype, copy=False),
+        _outliers=outliers,
         kept=kept,
         stats=stats,
     )
+
+
+def iterate(current, given, step, k, iterations, rebuild_graph, probe, lam, params, orient,
+            centre, report, counts=None):
+    """The ``iterations`` of a pipeline ``step`` on ``current`` (Morton order, relative to
+    ``centre``), as :func:`denoise` runs them once its parameters are resolved.
+
+    ``probe``: the noise probe's lists, which serve the first iteration (or None); ``counts``:
+    the points each of ``current`` stands for (the cell means of the coarse-to-fine route), a
+    factor on its weight in the fits, or None. Returns the moved points, the last iteration's
+    normals and ``(likelihood, feature intensity)`` (or None), and one record per iteration.
+    """
+    # A cell mean weighs as many points as it stands for in the fits.
+    weighting = {} if counts is None else {"mass": counts.astype(np.float64)}
+    records = []
+    out_normals = graph = extra = None
+    for iteration in range(iterations):
+        clock = Clock(report, iteration, iterations)
+        if probe is not None:
+            # The probe's lists, cut to k, are this iteration's: no second query.
+            graph = clock.run("neighbors", truncate_graph, probe, current, k)
+        elif graph is None or rebuild_graph:
+            graph = None  # the last lists go before the new ones are built, not after
+            graph = clock.run("neighbors", knn_graph, current, k, False)
+        else:
+            graph = clock.run("neighbors", refresh_graph, graph, current)
+        probe = None  # its lists (4 bytes x 96 a point) are not kept past their use
+        if given is not None:
+            nrm, degenerate = clock.run("normals", _given_normals, given)
+        else:
+            first = orient if out_normals is None else None
+            nrm, degenerate = clock.run("normals", inputs.estimated_normals, current, graph,
+                                        out_normals, first, centre)
+        moved, out_normals, extra, record = step(current, nrm, graph, lam, params, clock,
+                                                 iteration == iterations - 1, **weighting)
+        record["degenerate_normals"] = int(degenerate.sum())
+        record["mean_step"] = float(np.linalg.norm(moved - current, axis=1).mean())
+        records.append(record)
+        current = moved
+        if not params["keep_normals"]:
+            given = None
+    return current, out_normals, extra, records
 
 
 def _to_caller_order(values, order):

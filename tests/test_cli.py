@@ -563,6 +563,47 @@ def test_verbose_tells_the_coarse_to_fine_route(tmp_path):
     assert status == 0, err
     cells = pssd_fast.denoise(thick.points, preset="fast").stats["auto_k"]["coarse"]
     assert (f"on {cells['cells']:,} cell means of {cells['mean_points']:.1f} points each (cell "
-            f"edge {cells['cell_edge']:.4g}), each point then fitted to its 16 nearest denoised "
-            "means") in stdout
+            f"edge {cells['cell_edge']:.4g}), each point then moved onto the fits of its nearest "
+            "denoised means") in stdout
     assert "iteration 2: neighbors" in stdout and "surface_fit" in stdout
+
+
+def test_tile_points_give_the_in_core_file(tmp_path):
+    pytest.importorskip("dask")
+    thick = datasets.cad_part(n_points=20000, noise=0.03, seed=3)
+    path = tmp_path / "thick.xyz"
+    np.savetxt(path, thick.points)
+    assert pssd("denoise", path, tmp_path / "in_core.ply", "--preset", "fast")[0] == 0
+    status, _, err = pssd("denoise", path, tmp_path / "tiled.ply", "--preset", "fast",
+                          "--tile-points", "2000", "--scheduler", "sync")
+    assert status == 0, err
+    from pssd_fast import io
+
+    in_core = io.read(tmp_path / "in_core.ply")
+    tiled = io.read(tmp_path / "tiled.ply")
+    np.testing.assert_array_equal(tiled.points, in_core.points)
+    np.testing.assert_array_equal(tiled.normals, in_core.normals)
+    for name in in_core.fields:
+        np.testing.assert_array_equal(tiled.fields[name], in_core.fields[name])
+
+
+@pytest.mark.parametrize("extra, match", [
+    (("--k", "30"), "does not take --k"),
+    (("--preset", "paper"), "does not take --preset paper"),
+    (("--method", "mls"), "does not take --method"),
+    (("--remove-outliers",), "does not take --remove-outliers"),
+    (("--keep-normals",), "does not take --keep-normals"),
+])
+def test_tile_points_name_what_they_do_not_take(tmp_path, small, extra, match):
+    path = tmp_path / "small.xyz"
+    np.savetxt(path, small)
+    status, _, err = pssd("denoise", path, tmp_path / "out.xyz", "--tile-points", "1000",
+                          *extra)
+    assert status == 1 and match in err
+
+
+def test_scheduler_needs_tile_points(tmp_path, small):
+    path = tmp_path / "small.xyz"
+    np.savetxt(path, small)
+    status, _, err = pssd("denoise", path, tmp_path / "out.xyz", "--scheduler", "threads")
+    assert status == 1 and "--scheduler runs the tiles of --tile-points" in err

@@ -72,11 +72,23 @@ _GROW_ROUNDS = 8
 
 
 def coarsen(points, normals, noise, preset):
-    """The coarse cloud of the ``preset``'s cells (:data:`COARSE`), of edge ``cell * noise``
-    (widened until they hold ``min_points`` points on average where ``grow``), as
-    :class:`Cells`; None when the cells hold too few points (and do not grow), when there would
-    be no more cells than the iterations' ``k``, or more cells than the grid's codes allow.
-    The caller checks ``min_ratio``."""
+    """The coarse cloud of the ``preset``'s cells (:func:`layout`), as :class:`Cells`; None
+    where :func:`layout` finds none. The caller checks ``min_ratio``."""
+    found = layout(points, noise, preset)
+    if found is None:
+        return None
+    order, starts, edge, k, rebuild_graph = found
+    means, mean_normals = cell_means(points, normals, order, starts)
+    return Cells(means, mean_normals, np.diff(starts), edge, k, COARSE[preset]["surface_k"],
+                 rebuild_graph)
+
+
+def layout(points, noise, preset):
+    """The ``preset``'s cells (:data:`COARSE`), of edge ``cell * noise`` (widened until they
+    hold ``min_points`` points on average where ``grow``): ``(order, starts, edge, k,
+    rebuild_graph)`` as :func:`group_cells` and :class:`Cells` give them; None when the cells
+    hold too few points (and do not grow), when there would be no more cells than the
+    iterations' ``k``, or more cells than the grid's codes allow."""
     setting = COARSE[preset]
     n = points.shape[0]
     edge = setting["cell"] * noise
@@ -94,9 +106,7 @@ def coarsen(points, normals, noise, preset):
     k = int(round(np.exp(np.interp(np.log(n / m), anchors[:, 0], anchors[:, 1]))))
     if n < setting["min_points"] * m or m <= k:
         return None
-    means, mean_normals = cell_means(points, normals, order, starts)
-    return Cells(means, mean_normals, np.diff(starts), edge, k, setting["surface_k"],
-                 n >= setting["rebuild_from"] * m)
+    return order, starts, edge, k, n >= setting["rebuild_from"] * m
 
 
 def group_cells(points, edge):
@@ -156,11 +166,11 @@ def refine(points, surface, normals, surface_k, sigma_n, clock):
     """Project each of ``points`` onto the denoised cell means ``surface`` (unit ``normals``).
 
     The feature-aware quadratic of each cell mean's ``surface_k`` nearest means is fitted once,
-    in the frame of the mean and its normal. Each point then moves onto the quadratics of its
-    :data:`BLEND` nearest means, each along its mean's normal, by the mean of those steps
-    weighted by the inverse distance to the means. One fit per mean, not per point: the fits
-    cost what the iterations on the means cost, whatever the number of points; the blend
-    leaves no seams where the nearest mean changes.
+    in the frame of the mean and its normal (:func:`fit_surface`). Each point then moves onto
+    the quadratics of its :data:`BLEND` nearest means, each along its mean's normal, by the
+    mean of those steps weighted by the inverse distance to the means (:func:`onto_fits`). One
+    fit per mean, not per point: the fits cost what the iterations on the means cost, whatever
+    the number of points; the blend leaves no seams where the nearest mean changes.
 
     Returns
     -------
@@ -173,26 +183,35 @@ def refine(points, surface, normals, surface_k, sigma_n, clock):
         ``held_points``, ``mean_residual`` and ``fit_degree`` of the nearest means' fits, as an
         iteration's.
     """
+    coef, rms, degree = fit_surface(surface, normals, surface_k, sigma_n, clock)
+    moved, held, nearest = clock.run("surface_update", onto_fits, points, surface, normals,
+                                     coef)
+    return moved, normals[nearest], nearest, fit_record(held, nearest, rms, degree)
+
+
+def fit_surface(surface, normals, surface_k, sigma_n, clock):
+    """:func:`refine`'s fits: coefficients, RMS residual and degree of the feature-aware
+    quadratic of each cell mean's ``surface_k`` nearest means (``core.surface_fits``)."""
     k = min(surface_k, surface.shape[0])
     lists = clock.run("surface_neighbors", knn_graph, surface, k, False)
-    coef, rms, degree = clock.run("surface_fit", core.surface_fits, surface, normals, lists,
-                                  sigma_n)
-    moved, held, nearest = clock.run("surface_update", _onto_fits, points, surface, normals,
-                                     coef)
+    return clock.run("surface_fit", core.surface_fits, surface, normals, lists, sigma_n)
+
+
+def fit_record(held, nearest, rms, degree):
+    """``held_points``, ``mean_residual`` and ``fit_degree`` of the points' nearest fits."""
     counts = np.bincount(degree[nearest], minlength=7)
-    record = {"held_points": int(held.sum()), "mean_residual": float(rms[nearest].mean()),
-              "fit_degree": {name: int(counts[code])
-                             for name, code in core.AWARE_FIT_DEGREES.items()}}
-    return moved, normals[nearest], nearest, record
+    return {"held_points": int(held.sum()), "mean_residual": float(rms[nearest].mean()),
+            "fit_degree": {name: int(counts[code])
+                           for name, code in core.AWARE_FIT_DEGREES.items()}}
 
 
 #: Nearest cell means whose fits each input point moves onto (docs/DECISIONS.md, "Scan sizes").
 BLEND = 3
 
 
-def _onto_fits(points, surface, normals, coef):
-    """:func:`refine`'s last step, in chunks whose query results stay small: the moved points,
-    those held, the nearest mean of each."""
+def onto_fits(points, surface, normals, coef):
+    """:func:`refine`'s last step, in chunks whose query results stay small: the points moved
+    onto the fits ``coef`` of :func:`fit_surface`, those held, the nearest mean of each."""
     n = points.shape[0]
     count = min(BLEND, surface.shape[0])
     tree = KDTree(surface)
