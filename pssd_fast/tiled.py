@@ -13,10 +13,15 @@ fits. The result is bit-identical to :func:`pssd_fast.denoise`.
 Dask is an optional dependency: ``pip install "pssd_fast[dask]"``.
 """
 import importlib
+import os
+import shutil
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
+from . import core, ondisk
 from ._threads import threads
 from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_orient, check_size,
@@ -71,16 +76,8 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     ImportError
         Without Dask.
     """
-    check_choice(preset, "preset", tuple(coarse.COARSE))
-    tile_points = check_int(tile_points, "tile_points", minimum=1)
-    sigma_n = check_float(sigma_n, "sigma_n", positive=True)
-    if not (client is None or client in LOCAL_SCHEDULERS or isinstance(client, str)
-            or hasattr(client, "submit")):
-        raise TypeError(f"client must be None, one of {LOCAL_SCHEDULERS}, a scheduler address "
-                        f"or a distributed.Client; got {client!r}")
-    setting = PRESETS[preset]
-    iterations = check_int(setting["iterations"] if iterations is None else iterations,
-                           "iterations", minimum=1)
+    setting, tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
+                                                          iterations, client)
     report = reporter(progress)
     pts, dtype = as_points(points)
     n = pts.shape[0]
@@ -100,16 +97,11 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     params = {**PARAMS, "sigma_n": sigma_n}
     with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
         k, scale, _ = aware.choose_k(current, given, *setting["probe"])
-        found = None
+        found = sigma = None
         if scale["ratio"] >= coarse.COARSE[preset]["min_ratio"]:
             sigma = aware.noise_sigma(current, given, scale)
             found = coarse.layout(current, sigma, preset)
-        if found is None:
-            raise ValueError(
-                f"preset {preset!r} iterates on the points of this cloud (noise ratio "
-                f"{scale['ratio']:.2f}, coarse-to-fine route from "
-                f"{coarse.COARSE[preset]['min_ratio']}): it does not tile; run "
-                f"pssd_fast.denoise")
+        _check_found(found, preset, scale)
         rows, starts, edge, k, rebuild_graph = found
         tiles = _tiles(starts, tile_points)
         parts = [rows[starts[c0]:starts[c1]] for c0, c1 in tiles]
@@ -154,6 +146,174 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     return result(pts, dtype, order, centre, current, surface_normals[nearest],
                   tuple(x[nearest] for x in extra), np.arange(n), (pts.astype(dtype), n_jobs),
                   stats)
+
+
+def denoise_file(source, destination, *, tile_points=2_000_000, client=None, preset="default",
+                 iterations=None, sigma_n=0.05, n_jobs=None, progress=None, scratch=None,
+                 overwrite=False):
+    """Denoise the points of an ``.npy`` file into another, out of core, tile by tile on Dask.
+
+    The input is read in chunks (memory-mapped); the points are binned into tile files in a
+    scratch folder, each task reads one tile, and the output is written in the input's row
+    order. Memory follows ``tile_points`` and the number of grid cells (the noise), not the
+    number of points. The denoised points are those of :func:`denoise`, bit for bit.
+
+    Parameters
+    ----------
+    source : path-like
+        An ``.npy`` file of a real ``(n, 3)`` array.
+    destination : path-like
+        The ``.npy`` file written: the denoised ``(n, 3)`` points in the input's rows, float32
+        for float32 input and float64 otherwise. It appears only when complete.
+    tile_points, client, preset, iterations, sigma_n, n_jobs, progress
+        As in :func:`denoise`; progress also hears of the passes over the file (``buckets``,
+        ``tiles``) and of the output (``write``).
+    scratch : path-like, optional
+        Where the scratch folder goes (default: beside ``destination``); with a cluster, a
+        folder every worker reads and writes. It is removed on success, on failure and on
+        interrupt.
+    overwrite : bool
+        Replace an existing ``destination``.
+
+    Returns
+    -------
+    dict
+        The run's ``stats``, as :func:`denoise` gives them.
+
+    Raises
+    ------
+    ValueError
+        For a cloud the preset iterates on its points (see :func:`denoise`), bad input, or
+        other formats (LAS/LAZ and Zarr are not read out of core yet).
+    FileExistsError
+        ``destination`` exists and ``overwrite`` is False.
+    """
+    source, destination = Path(source), Path(destination)
+    for path in (source, destination):
+        if path.suffix.lower() != ".npy":
+            raise ValueError(f"denoise_file reads and writes .npy files; got {path.name} "
+                             f"(other formats: pssd_fast.io.read, then denoise)")
+    setting, tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
+                                                          iterations, client)
+    if destination.exists() and not overwrite:
+        raise FileExistsError(f"{destination} exists; pass overwrite=True to replace it")
+    if destination.resolve() == source.resolve():
+        raise ValueError(f"the output {destination} would overwrite the input")
+    array = ondisk.NpyFile(source)
+    dtype = np.dtype(np.float32) if array.dtype == np.float32 else np.dtype(np.float64)
+    report = reporter(progress)
+    started = time.perf_counter()
+    folder = Path(tempfile.mkdtemp(prefix="pssd_tiles_", dir=scratch or destination.parent))
+    # Beside the destination, so that the last rename stays on one file system.
+    output = destination.with_name(f".{destination.name}.{os.getpid()}.partial.npy")
+    params = {**PARAMS, "sigma_n": sigma_n}
+    try:
+        with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
+            first = Clock(report, 0, iterations)
+            cloud = first.run("buckets", ondisk.Buckets, array, folder, tile_points)
+            k, scale, _ = aware.choose_k(cloud, None, *setting["probe"])
+            found = sigma = None
+            if scale["ratio"] >= coarse.COARSE[preset]["min_ratio"]:
+                sigma = aware.noise_sigma(cloud, None, scale)
+                found = cloud.layout(sigma, preset)
+            _check_found(found, preset, scale)
+            codes, counts, edge, k, rebuild_graph = found
+            starts = np.concatenate(([0], np.cumsum(counts)))
+            tiles = _tiles(starts, tile_points)
+            paths = first.run("tiles", cloud.tiles, folder,
+                              codes[[c0 for c0, _ in tiles]], edge)
+            sums = runner.map("tile_cells", 1, iterations, _file_cells,
+                              [(path, cloud.centre) for path in paths])
+            cells = coarse.Cells(np.concatenate(sums), None, counts, edge, k,
+                                 coarse.COARSE[preset]["surface_k"], rebuild_graph)
+            means, out_normals, extra, records = iterate(
+                cells.points, None, STEPS["aware"], k, iterations, rebuild_graph, None, None,
+                params, None, cloud.centre, report, cells.counts)
+            surface, surface_normals, extra = coarse.collapse(cells, means, out_normals, extra)
+            clock = Clock(report, iterations - 1, iterations)
+            coef, rms, degree = coarse.fit_surface(surface, surface_normals, cells.surface_k,
+                                                   sigma_n, clock)
+            parts = [folder / f"part_{i}.bin" for i in range(len(paths))]
+            fits = runner.map("tile_update", iterations, iterations, _file_update, [
+                (path, part, cloud.centre, surface, surface_normals, coef, rms, degree)
+                for path, part in zip(paths, parts)])
+            clock.run("write", ondisk.write_rows, output, parts, cloud.shape[0], dtype)
+            os.replace(output, destination)
+        records[0]["times"].update(first.times)
+        records[-1]["times"].update(clock.times)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+        output.unlink(missing_ok=True)
+    n = cloud.shape[0]
+    counts_by_degree = np.sum([f[2] for f in fits], axis=0)
+    scale["coarse"] = {
+        "noise": sigma, "cell_edge": edge, "cells": int(counts.shape[0]),
+        "mean_points": float(counts.mean()), "surface_points": int(surface.shape[0]),
+        "surface_k": cells.surface_k, "held_points": int(sum(f[0] for f in fits)),
+        "mean_residual": float(sum(f[1] for f in fits) / n),
+        "fit_degree": {name: int(counts_by_degree[code])
+                       for name, code in core.AWARE_FIT_DEGREES.items()}}
+    return {
+        "method": "robust", "n_points": n, "k": k, "lam": None, "preset": preset,
+        "pipeline": "aware", "auto_k": scale, "noise": scale["noise"],
+        "rebuild_graph": bool(rebuild_graph), "orient": None, "outliers": None,
+        "n_iterations": iterations, "params": params, "n_jobs": n_threads,
+        "iterations": records,
+        "tiles": {"count": len(tiles), "most_points": int(max(b - a for a, b in (
+            (starts[c0], starts[c1]) for c0, c1 in tiles))), "scheduler": runner.name},
+        "total_seconds": time.perf_counter() - started,
+    }
+
+
+def _settings(preset, tile_points, sigma_n, iterations, client):
+    """The arguments both entry points share, checked: the preset's settings, ``tile_points``,
+    ``sigma_n`` and the iterations."""
+    check_choice(preset, "preset", tuple(coarse.COARSE))
+    if not (client is None or isinstance(client, str) or hasattr(client, "submit")):
+        raise TypeError(f"client must be None, one of {LOCAL_SCHEDULERS}, a scheduler address "
+                        f"or a distributed.Client; got {client!r}")
+    setting = PRESETS[preset]
+    return (setting, check_int(tile_points, "tile_points", minimum=1),
+            check_float(sigma_n, "sigma_n", positive=True),
+            check_int(setting["iterations"] if iterations is None else iterations,
+                      "iterations", minimum=1))
+
+
+def _check_found(found, preset, scale):
+    """The error for a cloud the preset iterates on its points."""
+    if found is None:
+        raise ValueError(
+            f"preset {preset!r} iterates on the points of this cloud (noise ratio "
+            f"{scale['ratio']:.2f}, coarse-to-fine route from "
+            f"{coarse.COARSE[preset]['min_ratio']}): it does not tile; run pssd_fast.denoise")
+
+
+def _file_cells(path, centre, n_jobs):
+    """The cell means of a tile file."""
+    with threads(n_jobs):
+        _, codes, points = ondisk.read_tile(path, centre)
+        order = np.argsort(codes, kind="stable")
+        sorted_codes = codes[order]
+        starts = np.flatnonzero(np.concatenate(([True], sorted_codes[1:] != sorted_codes[:-1],
+                                                [True])))
+        return coarse.cell_means(points, None, order, starts)[0]
+
+
+def _file_update(path, part, centre, surface, normals, coef, rms, degree, n_jobs):
+    """A tile file's points moved onto the fits, saved to ``part`` (rows and coordinates);
+    returns the held points, the sum of the nearest fits' residuals and their degrees."""
+    with threads(n_jobs):
+        rows, _, points = ondisk.read_tile(path, centre)
+        moved, held, nearest = coarse.onto_fits(points, surface, normals, coef)
+        records = np.empty(rows.shape[0], ondisk.PART)
+        records["row"] = rows
+        records["xyz"] = moved + centre
+        # A task run again after a lost worker finds no half-written part.
+        temporary = part.with_suffix(".partial")
+        records.tofile(temporary)
+        os.replace(temporary, part)
+        return (int(held.sum()), float(rms[nearest].sum()),
+                np.bincount(degree[nearest], minlength=7))
 
 
 def _tiles(starts, tile_points):

@@ -123,3 +123,109 @@ def test_a_cloud_iterated_on_its_points_is_refused():
 def test_bad_arguments_are_named(kwargs, error, match):
     with pytest.raises(error, match=match):
         tiled.denoise(np.zeros((100, 3)), **kwargs)
+
+
+@pytest.fixture
+def small_chunks(monkeypatch):
+    """Chunks, buckets and tiles of a few thousand points: every pass crosses boundaries."""
+    from pssd_fast import ondisk
+
+    monkeypatch.setattr(ondisk, "CHUNK_POINTS", 6_000)
+
+
+@pytest.mark.usefixtures("small_chunks")
+@pytest.mark.parametrize("preset, dtype", [("default", np.float64), ("fast", np.float32)])
+def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dtype):
+    points = datasets.cad_part(n_points=60_000, noise=0.02, seed=8).points.astype(dtype)
+    source, out, scratch = tmp_path / "in.npy", tmp_path / "out.npy", tmp_path / "scratch"
+    np.save(source, points)
+    scratch.mkdir()
+    expected = pssd_fast.denoise(points, preset=preset)
+    stats = tiled.denoise_file(source, out, tile_points=5_000, preset=preset, client="sync",
+                               scratch=scratch)
+    got = np.load(out)
+    assert got.dtype == dtype and stats["tiles"]["count"] >= 8
+    np.testing.assert_array_equal(got, expected.points)
+    assert stats["k"] == expected.stats["k"]
+    assert stats["auto_k"]["coarse"] == expected.stats["auto_k"]["coarse"]
+    assert list(scratch.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == [
+        "in.npy", "out.npy", "scratch"]
+
+
+def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path):
+    """A worker killed while the tiles run: Dask runs its tasks again, the result stands."""
+    import os
+    import signal
+
+    distributed = pytest.importorskip("distributed")
+    points = datasets.cad_part(n_points=100_000, noise=0.02, seed=9).points
+    source, out = tmp_path / "in.npy", tmp_path / "out.npy"
+    np.save(source, points)
+    expected = pssd_fast.denoise(points)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        victim = next(iter(client.run(os.getpid).values()))
+        killed = []
+
+        def kill_once(iteration, iterations, stage, seconds):
+            if stage.startswith("tile_update") and not killed:
+                os.kill(victim, signal.SIGKILL)
+                killed.append(stage)
+
+        tiled.denoise_file(source, out, tile_points=5_000, client=client, progress=kill_once)
+    assert killed
+    np.testing.assert_array_equal(np.load(out), expected.points)
+
+
+def test_a_failing_tile_leaves_no_output_and_no_scratch(tmp_path, monkeypatch):
+    from pssd_fast.pipelines import coarse
+
+    np.save(tmp_path / "in.npy", datasets.cad_part(n_points=30_000, noise=0.02, seed=8).points)
+
+    def fail(*args):
+        raise RuntimeError("a tile failed")
+
+    monkeypatch.setattr(coarse, "onto_fits", fail)
+    with pytest.raises(RuntimeError, match="a tile failed"):
+        tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy", tile_points=5_000,
+                           client="sync")
+    assert [p.name for p in tmp_path.iterdir()] == ["in.npy"]
+
+
+@pytest.mark.parametrize("name, write, error, match", [
+    ("in.xyz", None, ValueError, "reads and writes .npy"),
+    ("in.npy", np.array([[0.0, 0.0, np.nan]] * 50), ValueError, "row 0"),
+    ("in.npy", np.zeros((50, 3), np.complex128), TypeError, "real numbers"),
+    ("in.npy", np.zeros((50, 2)), ValueError, r"shape \(n, 3\)"),
+])
+def test_bad_files_are_named(tmp_path, name, write, error, match):
+    source = tmp_path / name
+    if write is not None:
+        np.save(source, write)
+    with pytest.raises(error, match=match):
+        tiled.denoise_file(source, tmp_path / "out.npy")
+    assert not (tmp_path / "out.npy").exists()
+
+
+def test_an_existing_output_is_kept_unless_overwritten(tmp_path):
+    np.save(tmp_path / "in.npy", np.zeros((50, 3)))
+    (tmp_path / "out.npy").write_bytes(b"keep")
+    with pytest.raises(FileExistsError):
+        tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy")
+    with pytest.raises(ValueError, match="overwrite the input"):
+        tiled.denoise_file(tmp_path / "in.npy", tmp_path / "in.npy", overwrite=True)
+    assert (tmp_path / "out.npy").read_bytes() == b"keep"
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    ({"tile_points": 0}, ValueError, "tile_points"),
+    ({"client": 3}, TypeError, "client"),
+    ({"preset": "paper"}, ValueError, "preset"),
+    ({"iterations": 0}, ValueError, "iterations"),
+])
+def test_bad_file_arguments_are_named(tmp_path, kwargs, error, match):
+    np.save(tmp_path / "in.npy", np.zeros((50, 3)))
+    with pytest.raises(error, match=match):
+        tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy", **kwargs)
+    assert [p.name for p in tmp_path.iterdir()] == ["in.npy"]

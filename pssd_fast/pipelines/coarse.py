@@ -89,15 +89,28 @@ def layout(points, noise, preset):
     rebuild_graph)`` as :func:`group_cells` and :class:`Cells` give them; None when the cells
     hold too few points (and do not grow), when there would be no more cells than the
     iterations' ``k``, or more cells than the grid's codes allow."""
+    def group(edge):
+        grouped = group_cells(points, edge)
+        return None if grouped is None else (grouped[1].shape[0] - 1, grouped)
+
+    found = widen(points.shape[0], noise, preset, group)
+    if found is None:
+        return None
+    (order, starts), edge, k, rebuild_graph = found
+    return order, starts, edge, k, rebuild_graph
+
+
+def widen(n, noise, preset, group):
+    """:func:`layout`'s choices for ``n`` points, whatever groups them: ``group(edge)`` gives
+    the number of cells of that edge and the grouping, or None where the grid's codes do not
+    suffice. Returns ``(grouping, edge, k, rebuild_graph)`` or None."""
     setting = COARSE[preset]
-    n = points.shape[0]
     edge = setting["cell"] * noise
     for _ in range(_GROW_ROUNDS):
-        grouped = group_cells(points, edge)
+        grouped = group(edge)
         if grouped is None:
             return None
-        order, starts = grouped
-        m = starts.shape[0] - 1
+        m, grouping = grouped
         if n >= setting["min_points"] * m or not setting["grow"]:
             break
         # Points per cell grow about as the square of the edge on a surface.
@@ -106,7 +119,7 @@ def layout(points, noise, preset):
     k = int(round(np.exp(np.interp(np.log(n / m), anchors[:, 0], anchors[:, 1]))))
     if n < setting["min_points"] * m or m <= k:
         return None
-    return order, starts, edge, k, n >= setting["rebuild_from"] * m
+    return grouping, edge, k, n >= setting["rebuild_from"] * m
 
 
 def group_cells(points, edge):
@@ -114,17 +127,26 @@ def group_cells(points, edge):
     ``c`` holding rows ``order[starts[c]:starts[c + 1]]`` in increasing order, the cells along
     the Morton curve of their grid coordinates; None if the grid needs more than 21 bits an
     axis."""
-    n = points.shape[0]
     low, high = bounds(points)
-    extent = float((high - low).max())
-    if not edge > 0.0 or extent / edge >= 2**_CELL_BITS - 1:
+    codes = cell_codes(points, low, high, edge)
+    if codes is None:
         return None
-    codes = np.empty(n, np.uint64)
-    morton_codes(points, low, 1.0 / edge, codes)
+    n = points.shape[0]
     order = np.argsort(codes, kind="stable")
     codes = codes[order]
     starts = np.flatnonzero(np.concatenate(([True], codes[1:] != codes[:-1])))
     return order, np.concatenate((starts, [n]))
+
+
+def cell_codes(points, low, high, edge):
+    """Morton code of the grid cell of edge ``edge`` (corner ``low``) of each of ``points``;
+    None if a grid reaching ``high`` needs more than 21 bits an axis."""
+    extent = float((high - low).max())
+    if not edge > 0.0 or extent / edge >= 2**_CELL_BITS - 1:
+        return None
+    codes = np.empty(points.shape[0], np.uint64)
+    morton_codes(points, low, 1.0 / edge, codes)
+    return codes
 
 
 def cell_means(points, normals, order, starts, mass=None):

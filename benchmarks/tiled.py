@@ -1,0 +1,137 @@
+"""Tiled, out-of-core runs on a Dask LocalCluster against the in-core run: time and memory.
+
+Usage::
+
+    python -m benchmarks.tiled                     # 2M and 20M points, tiles of 2M, 1 and 2 workers
+    python -m benchmarks.tiled --points 2000000 --tile-points 1000000 --workers 2
+
+The input is the generated CAD part (seed 0, noise 0.5% of the diagonal) saved as ``.npy``.
+Each cell runs in a fresh process: the in-core cell loads the file and calls
+``pssd_fast.denoise``; a tiled cell starts a ``LocalCluster`` of that many worker processes
+(one thread each for two workers, both cores for one) and calls
+``pssd_fast.tiled.denoise_file``, then reads the driver's and each worker's peak resident size
+(``ru_maxrss``). The tiled output is compared with the in-core one of the same size, bit for bit.
+Writes ``benchmarks/results/tiled.md`` and ``.json``.
+"""
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .stages import RESULTS, machine, write_results
+
+NOISE = 0.005
+
+
+def child(kind, source, out, tile_points, workers):
+    """Measure one cell in this process; print the result as one JSON line."""
+    import pssd_fast
+
+    pssd_fast.warmup()
+    if kind == "in-core":
+        started = time.perf_counter()
+        points = np.load(source)
+        result = pssd_fast.denoise(points)
+        np.save(out, result.points)
+        seconds = time.perf_counter() - started
+        peaks = []
+        stats = result.stats
+    else:
+        import distributed
+
+        from pssd_fast import tiled
+
+        cores = os.cpu_count() or 1
+        threads = max(1, cores // workers)
+        with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                      dashboard_address=None) as cluster, \
+                distributed.Client(cluster) as client:
+            client.run(pssd_fast.warmup)
+            started = time.perf_counter()
+            stats = tiled.denoise_file(source, out, tile_points=tile_points, client=client,
+                                       n_jobs=threads)
+            seconds = time.perf_counter() - started
+            peaks = list(client.run(
+                lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024).values())
+    print(json.dumps({"seconds": seconds, "driver_peak": resource.getrusage(
+        resource.RUSAGE_SELF).ru_maxrss * 1024, "worker_peaks": peaks, "k": stats["k"],
+        "cells": stats["auto_k"]["coarse"]["cells"], "tiles": stats.get("tiles")}))
+
+
+def measure(kind, source, out, tile_points, workers):
+    done = subprocess.run([sys.executable, "-m", "benchmarks.tiled", "--child", kind,
+                           str(source), str(out), "--tile-points", str(tile_points),
+                           "--workers", str(workers)],
+                          capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def table(cells):
+    lines = ["| points | run | tile points | workers | tiles | time (s) | driver peak (MB) | "
+             "worker peaks (MB) | same as in-core |", "|---|---|---|---|---|---|---|---|---|"]
+    for c in cells:
+        tiles = "-" if c["tiles"] is None else str(c["tiles"]["count"])
+        workers = ", ".join(f"{p / 1e6:.0f}" for p in c["worker_peaks"]) or "-"
+        lines.append(f"| {c['points']:,} | {c['kind']} | "
+                     f"{'-' if c['kind'] == 'in-core' else format(c['tile_points'], ',')} | "
+                     f"{c['workers'] or '-'} | {tiles} | {c['seconds']:.1f} | "
+                     f"{c['driver_peak'] / 1e6:.0f} | {workers} | {c['same']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--points", type=int, nargs="+", default=[2_000_000, 20_000_000])
+    parser.add_argument("--tile-points", type=int, nargs="+", default=[2_000_000])
+    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--out", default="tiled", help="file stem in benchmarks/results/")
+    parser.add_argument("--child", nargs=3, metavar=("KIND", "IN", "OUT"),
+                        help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        kind, source, out = args.child
+        child(kind, source, out, args.tile_points[0], args.workers[0])
+        return
+
+    from pssd_fast import datasets
+
+    cells = []
+    with tempfile.TemporaryDirectory() as scratch:
+        for n in args.points:
+            source = Path(scratch) / f"cad_{n}.npy"
+            np.save(source, datasets.cad_part(n_points=n, noise=NOISE, seed=0).points)
+            reference = Path(scratch) / "in_core.npy"
+            runs = [("in-core", 0, 0)] + [("tiled", t, w) for t in args.tile_points
+                                          for w in args.workers]
+            for kind, tile_points, workers in runs:
+                out = reference if kind == "in-core" else Path(scratch) / "tiled.npy"
+                cell = {"points": n, "kind": kind, "tile_points": tile_points,
+                        "workers": workers,
+                        **measure(kind, source, out, tile_points or 1, workers or 1)}
+                cell["same"] = "-" if kind == "in-core" else str(bool(
+                    np.array_equal(np.load(out, mmap_mode="r"), np.load(reference,
+                                                                         mmap_mode="r"))))
+                cells.append(cell)
+                print(f"{n:>12,} {kind:>8} tiles of {tile_points:,}, {workers} workers: "
+                      f"{cell['seconds']:.1f} s, driver {cell['driver_peak'] / 1e6:.0f} MB, "
+                      f"workers {[round(p / 1e6) for p in cell['worker_peaks']]} MB, same "
+                      f"{cell['same']}", flush=True)
+                if kind != "in-core":
+                    out.unlink()
+            source.unlink()
+            reference.unlink()
+    text = (f"Machine: {machine()}\n\nInput: the generated CAD part, seed 0, noise "
+            f"{NOISE:.1%} of the diagonal, as .npy; one process per cell.\n\n" + table(cells))
+    print(text)
+    write_results(RESULTS, args.out, text, {"cells": cells})
+
+
+if __name__ == "__main__":
+    main()

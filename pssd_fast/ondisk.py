@@ -1,0 +1,243 @@
+"""A cloud on disk, for tiled runs: the plan of :func:`pssd_fast.denoise` computed from chunks,
+and the points binned into tile files (docs/ALGORITHM.md, "Tiled runs").
+
+Each pass reads the input in chunks of :data:`CHUNK_POINTS`, so the memory it needs follows
+the chunk and the tile sizes, not the cloud's. The passes:
+
+1. bounds of the points (the centre and the Morton scale of ``denoise``);
+2. a histogram of the top bits of each point's Morton code, then the points binned into
+   *buckets*, consecutive ranges of codes holding at most ``tile_points`` points each, and
+   each bucket sorted: their concatenation is ``denoise``'s Morton order, so the noise probe
+   reads its evenly spread sample (every ``s``-th point of that order) by rank;
+3. per grid edge tried, the cells the points fall in, counted bucket by bucket;
+4. the points binned again, into *tiles* of whole cells, in Morton order.
+"""
+from pathlib import Path
+
+import numpy as np
+
+from ._validation import check_size
+from .graph import _MORTON_BITS, bounds
+from .kernels.order import morton_codes
+from .pipelines import coarse
+
+#: Points read from the input at a time.
+CHUNK_POINTS = 1 << 20
+#: Histogram bins of the Morton codes' top bits (7 per axis).
+_PREFIX_BITS = 21
+#: A point in a bucket or tile file: its row in the input, its Morton code, its coordinates.
+RECORD = np.dtype([("row", np.int64), ("code", np.uint64), ("xyz", np.float64, 3)])
+
+
+class NpyFile:
+    """An ``.npy`` file of a real ``(n, 3)`` array, read by rows with plain reads (a memory map
+    would keep every page read resident in the process)."""
+
+    def __init__(self, path):
+        self.path = path
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                           (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+            if read_header is None:
+                raise ValueError(f"{path}: unsupported .npy format version {version}")
+            self.shape, fortran, self.dtype = read_header(fh)
+            self.offset = fh.tell()
+        if self.dtype.kind not in "fiu":
+            raise TypeError(f"{path}: points must hold real numbers; got dtype {self.dtype}")
+        if len(self.shape) != 2 or self.shape[1] != 3:
+            raise ValueError(f"{path}: points must have shape (n, 3); got {self.shape}")
+        if fortran:
+            raise ValueError(f"{path}: a Fortran-ordered array; save it C-ordered")
+
+    def __getitem__(self, rows):
+        start, stop = rows.start or 0, min(rows.stop, self.shape[0])
+        with open(self.path, "rb") as fh:
+            fh.seek(self.offset + start * 3 * self.dtype.itemsize)
+            data = np.fromfile(fh, self.dtype, 3 * (stop - start))
+        return data.reshape(-1, 3)
+
+
+def chunks(array):
+    """``(start, points)`` over ``array`` (n, 3) of real numbers, each chunk as float64 and
+    checked for NaN and Inf."""
+    for start in range(0, array.shape[0], CHUNK_POINTS):
+        points = np.ascontiguousarray(array[start:start + CHUNK_POINTS], dtype=np.float64)
+        bad = ~np.isfinite(points).all(axis=1)
+        if bad.any():
+            first = start + int(np.flatnonzero(bad)[0])
+            raise ValueError(f"points contain NaN or Inf in {int(bad.sum())} row(s) from row "
+                             f"{start} on; the first is row {first}; drop or repair those rows")
+        yield start, points
+
+
+class Buckets:
+    """The cloud in ``denoise``'s Morton order, relative to its centre, as files of consecutive
+    ranks: ``shape`` and ``[::step]`` as a ``(n, 3)`` array offers them (what the noise probe
+    reads), and :meth:`each` for the rest."""
+
+    def __init__(self, array, folder, tile_points):
+        n = array.shape[0]
+        check_size(n)
+        self.shape = (n, 3)
+        low = np.full(3, np.inf)
+        high = np.full(3, -np.inf)
+        for _, points in chunks(array):
+            lo, hi = bounds(points)
+            low, high = np.minimum(low, lo), np.maximum(high, hi)
+        self.centre = 0.5 * (low + high)
+        # Bounds of the points relative to the centre: the same rounding, so the same bits.
+        self.low, self.high = low - self.centre, high - self.centre
+        extent = float((high - low).max())
+        scale = (2**_MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
+        shift = np.uint64(3 * _MORTON_BITS - _PREFIX_BITS)
+        histogram = np.zeros(1 << _PREFIX_BITS, np.int64)
+        for _, points in chunks(array):
+            prefix = (_codes(points, low, scale) >> shift).astype(np.int64)
+            histogram += np.bincount(prefix, minlength=1 << _PREFIX_BITS)
+        # Consecutive bins, at most tile_points points a bucket (a fuller bin alone).
+        bucket_of_bin = np.zeros(1 << _PREFIX_BITS, np.int64)
+        filled = 0
+        bucket = 0
+        for b in np.flatnonzero(histogram):
+            if filled and filled + histogram[b] > tile_points:
+                bucket += 1
+                filled = 0
+            bucket_of_bin[b] = bucket
+            filled += histogram[b]
+        self.paths = [folder / f"bucket_{i}.bin" for i in range(bucket + 1)]
+        writers = [open(path, "wb") for path in self.paths]
+        try:
+            for start, points in chunks(array):
+                codes = _codes(points, low, scale)
+                rows = np.arange(start, start + points.shape[0])
+                _scatter(writers, bucket_of_bin[codes >> shift], rows, codes, points)
+        finally:
+            for writer in writers:
+                writer.close()
+        counts = []
+        for path in self.paths:
+            records = np.fromfile(path, RECORD)
+            # Rows were appended in input order: a stable sort by code is denoise's order.
+            records[np.argsort(records["code"], kind="stable")].tofile(path)
+            counts.append(records.shape[0])
+        self.starts = np.concatenate(([0], np.cumsum(counts)))
+
+    def each(self):
+        """The records of each bucket in turn (input row, Morton code, coordinates), in
+        Morton order."""
+        for path in self.paths:
+            yield np.fromfile(path, RECORD)
+
+    def __getitem__(self, key):
+        if not isinstance(key, slice) or key.start is not None or key.stop is not None:
+            raise TypeError("only [::step] is read from the buckets")
+        ranks = np.arange(0, self.shape[0], key.step or 1)
+        out = np.empty((ranks.shape[0], 3))
+        for i, path in enumerate(self.paths):
+            lo, hi = np.searchsorted(ranks, self.starts[i:i + 2])
+            if hi > lo:
+                records = np.fromfile(path, RECORD)
+                out[lo:hi] = records["xyz"][ranks[lo:hi] - self.starts[i]] - self.centre
+        return out
+
+    def layout(self, noise, preset):
+        """:func:`pssd_fast.pipelines.coarse.layout` of the whole cloud: ``(codes, counts,
+        edge, k, rebuild_graph)``, the occupied cells' codes in Morton order and their points;
+        or None."""
+        def group(edge):
+            found = []
+            for records in self.each():
+                codes = coarse.cell_codes(records["xyz"] - self.centre, self.low, self.high,
+                                          edge)
+                if codes is None:
+                    return None
+                found.append(np.unique(codes, return_counts=True))
+            codes, where = np.unique(np.concatenate([f[0] for f in found]),
+                                     return_inverse=True)
+            counts = np.bincount(where, np.concatenate([f[1] for f in found]))
+            return codes.shape[0], (codes, counts.astype(np.int64))
+
+        found = coarse.widen(self.shape[0], noise, preset, group)
+        if found is None:
+            return None
+        (codes, counts), edge, k, rebuild_graph = found
+        return codes, counts, edge, k, rebuild_graph
+
+    def tiles(self, folder, first_codes, edge):
+        """The points binned into tile files by the first cell code of each tile (Morton
+        order kept within a tile, each record's code now its cell's); their paths."""
+        paths = [folder / f"tile_{i}.bin" for i in range(first_codes.shape[0])]
+        writers = [open(path, "wb") for path in paths]
+        try:
+            for records in self.each():
+                codes = coarse.cell_codes(records["xyz"] - self.centre, self.low, self.high,
+                                          edge)
+                tile = np.searchsorted(first_codes, codes, side="right") - 1
+                _scatter(writers, tile, records["row"], codes, records["xyz"])
+        finally:
+            for writer in writers:
+                writer.close()
+        return paths
+
+
+def _codes(points, low, scale):
+    codes = np.empty(points.shape[0], np.uint64)
+    morton_codes(points, low, scale, codes)
+    return codes
+
+
+def _scatter(writers, target, rows, codes, points):
+    """Append each point's record to the file of its ``target``, in the points' order."""
+    records = np.empty(rows.shape[0], RECORD)
+    records["row"] = rows
+    records["code"] = codes
+    records["xyz"] = points
+    _append(writers, target, records)
+
+
+def _append(writers, target, records):
+    """Append each of ``records`` to the file of its ``target``, keeping their order."""
+    order = np.argsort(target, kind="stable")
+    target = target[order]
+    records = records[order]
+    edges = np.flatnonzero(np.concatenate(([True], target[1:] != target[:-1], [True])))
+    for a, b in zip(edges[:-1], edges[1:]):
+        records[a:b].tofile(writers[target[a]])
+
+
+def read_tile(path, centre):
+    """A tile file's input rows, cell codes, and points relative to ``centre``."""
+    records = np.fromfile(path, RECORD)
+    return records["row"], records["code"], records["xyz"] - centre
+
+
+def write_rows(path, parts, n, dtype):
+    """The records of the ``parts`` files (input row, coordinates; any order) into a new
+    ``.npy`` file of ``(n, 3)`` ``dtype``, in row order, with bounded memory: the records are
+    first binned by blocks of :data:`CHUNK_POINTS` rows, then each block is written whole."""
+    folder = Path(parts[0]).parent
+    blocks = [folder / f"rows_{i}.bin" for i in range(-(-n // CHUNK_POINTS))]
+    writers = [open(block, "wb") for block in blocks]
+    try:
+        for part in parts:
+            records = np.fromfile(part, PART)
+            _append(writers, records["row"] // CHUNK_POINTS, records)
+    finally:
+        for writer in writers:
+            writer.close()
+    header = np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=(n, 3))
+    offset = header.offset
+    del header
+    with open(path, "r+b") as fh:
+        for i, block in enumerate(blocks):
+            records = np.fromfile(block, PART)
+            start = i * CHUNK_POINTS
+            out = np.empty((min(n, start + CHUNK_POINTS) - start, 3), dtype)
+            out[records["row"] - start] = records["xyz"]
+            fh.seek(offset + start * 3 * dtype.itemsize)
+            out.tofile(fh)
+
+
+#: A denoised point: its row in the input and its coordinates.
+PART = np.dtype([("row", np.int64), ("xyz", np.float64, 3)])
