@@ -65,6 +65,14 @@ def child(kind, source, out, tile_points, workers):
         "cells": stats["auto_k"]["coarse"]["cells"], "tiles": stats.get("tiles")}))
 
 
+def generate(n, path):
+    """The input, written by a process of its own: a child's peak resident size starts at its
+    parent's (Linux keeps ``ru_maxrss`` across fork and exec), so this process stays small."""
+    subprocess.run([sys.executable, "-c", "import sys, numpy as np; from pssd_fast import "
+                    "datasets; np.save(sys.argv[2], datasets.cad_part(n_points=int(sys.argv[1]), "
+                    f"noise={NOISE}, seed=0).points)", str(n), str(path)], check=True)
+
+
 def measure(kind, source, out, tile_points, workers):
     done = subprocess.run([sys.executable, "-m", "benchmarks.tiled", "--child", kind,
                            str(source), str(out), "--tile-points", str(tile_points),
@@ -100,13 +108,11 @@ def main(argv=None):
         child(kind, source, out, args.tile_points[0], args.workers[0])
         return
 
-    from pssd_fast import datasets
-
     cells = []
     with tempfile.TemporaryDirectory() as scratch:
         for n in args.points:
             source = Path(scratch) / f"cad_{n}.npy"
-            np.save(source, datasets.cad_part(n_points=n, noise=NOISE, seed=0).points)
+            generate(n, source)
             reference = Path(scratch) / "in_core.npy"
             runs = [("in-core", 0, 0)] + [("tiled", t, w) for t in args.tile_points
                                           for w in args.workers]

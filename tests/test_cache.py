@@ -32,9 +32,9 @@ print("compiled here:", compiled_here)
 """
 
 
-def _child(script, cache_dir, *args, env=None):
+def _child(script, cache_dir, *args, env=None, cwd=None):
     env = dict(os.environ if env is None else env, PSSD_FAST_CACHE_DIR=str(cache_dir))
-    return subprocess.run([sys.executable, "-c", script, *map(str, args)], env=env,
+    return subprocess.run([sys.executable, "-c", script, *map(str, args)], env=env, cwd=cwd,
                           capture_output=True, text=True, check=True)
 
 
@@ -45,6 +45,28 @@ def test_empty_and_warm_cache_give_identical_bytes(tmp_path):
     # The calling process only ever loads kernels: children compiled them into the cache.
     assert "compiled here: 0" in cold.stdout and "compiled here: 0" in warm.stdout
     assert len(list((tmp_path / "cache").glob(f"kernels-{cache.source_key()}/built/*"))) >= 9
+
+
+def test_a_copy_of_the_package_sharing_the_cache_gives_identical_bytes(tmp_path):
+    """Another checkout or install of the same source finds the same cache folder, but numba
+    serves a kernel only to the file it was compiled from, as it was then: the copy, and the
+    copy with a rewritten kernel file, still load their kernels instead of compiling them."""
+    import pssd_fast
+
+    cache_dir = tmp_path / "cache"
+    _child(CHILD, cache_dir, tmp_path / "original.bin")
+    copy = tmp_path / "copy"
+    shutil.copytree(os.path.dirname(pssd_fast.__file__), copy / "pssd_fast",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    env = dict(os.environ, PYTHONPATH=str(copy))
+    where = "import pssd_fast; print('from', pssd_fast.__file__)\n"
+    for run in ("copied", "rewritten"):
+        if run == "rewritten":
+            kernel = copy / "pssd_fast" / "kernels" / "mls.py"
+            os.utime(kernel, ns=(kernel.stat().st_atime_ns, kernel.stat().st_mtime_ns + 10**9))
+        done = _child(where + CHILD, cache_dir, tmp_path / f"{run}.bin", env=env, cwd=tmp_path)
+        assert f"from {copy}" in done.stdout and "compiled here: 0" in done.stdout, run
+        assert (tmp_path / f"{run}.bin").read_bytes() == (tmp_path / "original.bin").read_bytes()
 
 
 def test_the_key_changes_with_any_kernel_source(tmp_path, monkeypatch):

@@ -161,7 +161,13 @@ class Kernel:
 
     def _build(self, types):
         name = f"{self.__module__}.{self.__name__}"
-        marker = CACHE_DIR / "built" / hashlib.sha1(f"{name}{types}".encode()).hexdigest()
+        # Numba's cache serves a kernel only to the file it was compiled from, at that file's
+        # modification time and size: a copy of the package elsewhere (another checkout or
+        # install) or a rewritten file misses it, and must compile in a child too.
+        source = self.dispatcher.py_func.__code__.co_filename
+        stamp = os.stat(source)
+        built = f"{name}{types}{source}{stamp.st_mtime}{stamp.st_size}"
+        marker = CACHE_DIR / "built" / hashlib.sha1(built.encode()).hexdigest()
         if marker.exists() or Kernel._child_failed:
             return
         request = pickle.dumps((self.__module__, self.__name__, types, str(marker)))
