@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from .scaling import _resident_bytes
-from .stages import RESULTS, knn_query_seconds, machine, write_results
+from .stages import RESULTS, knn_query_seconds, machine, write_cad_part, write_results
 
 UNIT = 1e-4
 
@@ -169,8 +169,6 @@ def main(argv=None):
         child(args.child, args.noise, preset, iterations or None)
         return
 
-    from pssd_fast import datasets
-
     cells = []
     kept = []
     if args.keep:
@@ -181,7 +179,7 @@ def main(argv=None):
             for noise in args.noises:
                 path = Path(scratch) / f"cloud_{n}_{noise}.npy"
                 if any(preset not in args.keep for preset in args.presets):
-                    np.save(path, datasets.cad_part(n_points=n, noise=noise, seed=0).points)
+                    write_cad_part(n, noise, path)
                 for preset in args.presets:
                     reused = [c for c in kept if (c["points"], c["noise"], c["preset"]) ==
                               (n, noise, preset)]

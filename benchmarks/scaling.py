@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .stages import STAGES, RESULTS, knn_query_seconds, machine, write_results
+from .stages import STAGES, RESULTS, knn_query_seconds, machine, write_cad_part, write_results
 
 THREADS = (1, 2, 4, 8, 16)
 
@@ -172,13 +172,11 @@ def main(argv=None):
         child(args.child, args.k, args.method, args.preset, args.repeats)
         return
 
-    from pssd_fast import datasets
-
     cells = []
     with tempfile.TemporaryDirectory() as scratch:
         for n in args.sizes:
             path = Path(scratch) / f"cloud_{n}.npy"
-            np.save(path, datasets.cad_part(n_points=n, noise=args.noise, seed=0).points)
+            write_cad_part(n, args.noise, path)
             for threads in args.threads:
                 cell = {"points": n, "threads": threads,
                         **measure(path, threads, args.k, args.method, args.preset,

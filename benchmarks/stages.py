@@ -13,6 +13,8 @@ import argparse
 import json
 import os
 import platform
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -25,6 +27,16 @@ from pssd_fast import datasets
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STAGES = ("neighbors", "normals", "mls", "likelihood", "feature", "filter", "update")
+
+
+def write_cad_part(n_points, noise, path):
+    """The generated CAD part (seed 0) saved to ``path`` by a process of its own: a child's peak
+    resident size starts at its parent's (Linux keeps ``ru_maxrss`` across fork and exec), so
+    the process that starts the measured children must stay small."""
+    subprocess.run([sys.executable, "-c", "import sys, numpy as np; from pssd_fast import "
+                    "datasets; np.save(sys.argv[3], datasets.cad_part(n_points=int(sys.argv[1]), "
+                    "noise=float(sys.argv[2]), seed=0).points)", str(n_points), repr(noise),
+                    str(path)], check=True)
 
 
 def knn_query_seconds(points, k):

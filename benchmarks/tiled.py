@@ -10,7 +10,9 @@ Each cell runs in a fresh process: the in-core cell loads the file and calls
 ``pssd_fast.denoise``; a tiled cell starts a ``LocalCluster`` of that many worker processes
 (one thread each for two workers, both cores for one) and calls
 ``pssd_fast.tiled.denoise_file``, then reads the driver's and each worker's peak resident size
-(``ru_maxrss``). The tiled output is compared with the in-core one of the same size, bit for bit.
+(``ru_maxrss``) and the time of its passes over the file in the calling process (binning into
+buckets and tiles, writing the output). The tiled output is compared with the in-core one of the
+same size, bit for bit.
 Writes ``benchmarks/results/tiled.md`` and ``.json``.
 """
 import argparse
@@ -25,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .stages import RESULTS, machine, write_results
+from .stages import RESULTS, machine, write_cad_part, write_results
 
 NOISE = 0.005
 
@@ -60,17 +62,21 @@ def child(kind, source, out, tile_points, workers):
             seconds = time.perf_counter() - started
             peaks = list(client.run(
                 lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024).values())
+    passes = sum(record["times"].get(stage, 0.0) for record in stats["iterations"]
+                 for stage in ("buckets", "tiles", "write"))
     print(json.dumps({"seconds": seconds, "driver_peak": resource.getrusage(
         resource.RUSAGE_SELF).ru_maxrss * 1024, "worker_peaks": peaks, "k": stats["k"],
-        "cells": stats["auto_k"]["coarse"]["cells"], "tiles": stats.get("tiles")}))
+        "cells": stats["auto_k"]["coarse"]["cells"], "tiles": stats.get("tiles"),
+        "file_passes": passes}))
 
 
-def generate(n, path):
-    """The input, written by a process of its own: a child's peak resident size starts at its
-    parent's (Linux keeps ``ru_maxrss`` across fork and exec), so this process stays small."""
-    subprocess.run([sys.executable, "-c", "import sys, numpy as np; from pssd_fast import "
-                    "datasets; np.save(sys.argv[2], datasets.cad_part(n_points=int(sys.argv[1]), "
-                    f"noise={NOISE}, seed=0).points)", str(n), str(path)], check=True)
+def same(a, b):
+    """Whether two ``.npy`` files hold the same array, "True" or "False", read by a process of
+    its own (see ``write_cad_part``: this process must stay small)."""
+    done = subprocess.run([sys.executable, "-c", "import sys, numpy as np; print(np.array_equal("
+                           "np.load(sys.argv[1]), np.load(sys.argv[2])))", str(a), str(b)],
+                          capture_output=True, text=True, check=True)
+    return done.stdout.strip()
 
 
 def measure(kind, source, out, tile_points, workers):
@@ -82,14 +88,16 @@ def measure(kind, source, out, tile_points, workers):
 
 
 def table(cells):
-    lines = ["| points | run | tile points | workers | tiles | time (s) | driver peak (MB) | "
-             "worker peaks (MB) | same as in-core |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| points | run | tile points | workers | tiles | time (s) | passes over the file "
+             "(s) | driver peak (MB) | worker peaks (MB) | same as in-core |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for c in cells:
         tiles = "-" if c["tiles"] is None else str(c["tiles"]["count"])
         workers = ", ".join(f"{p / 1e6:.0f}" for p in c["worker_peaks"]) or "-"
         lines.append(f"| {c['points']:,} | {c['kind']} | "
                      f"{'-' if c['kind'] == 'in-core' else format(c['tile_points'], ',')} | "
                      f"{c['workers'] or '-'} | {tiles} | {c['seconds']:.1f} | "
+                     f"{'-' if c['kind'] == 'in-core' else format(c['file_passes'], '.1f')} | "
                      f"{c['driver_peak'] / 1e6:.0f} | {workers} | {c['same']} |")
     return "\n".join(lines) + "\n"
 
@@ -112,7 +120,7 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as scratch:
         for n in args.points:
             source = Path(scratch) / f"cad_{n}.npy"
-            generate(n, source)
+            write_cad_part(n, NOISE, source)
             reference = Path(scratch) / "in_core.npy"
             runs = [("in-core", 0, 0)] + [("tiled", t, w) for t in args.tile_points
                                           for w in args.workers]
@@ -121,9 +129,7 @@ def main(argv=None):
                 cell = {"points": n, "kind": kind, "tile_points": tile_points,
                         "workers": workers,
                         **measure(kind, source, out, tile_points or 1, workers or 1)}
-                cell["same"] = "-" if kind == "in-core" else str(bool(
-                    np.array_equal(np.load(out, mmap_mode="r"), np.load(reference,
-                                                                         mmap_mode="r"))))
+                cell["same"] = "-" if kind == "in-core" else same(out, reference)
                 cells.append(cell)
                 print(f"{n:>12,} {kind:>8} tiles of {tile_points:,}, {workers} workers: "
                       f"{cell['seconds']:.1f} s, driver {cell['driver_peak'] / 1e6:.0f} MB, "

@@ -16,8 +16,9 @@ import os
 
 # pykdtree and numba's kernels each bring their own OpenMP (libgomp) thread pool. An idle pool
 # spins for 300,000 rounds before it sleeps, holding the cores the other pool's next call
-# needs: a quarter of a run at 30,000 points (docs/DECISIONS.md, "Two thread pools"). Each
-# pool reads this when it loads; a wait policy the caller chose is left as it is.
+# needs: a quarter of a run at 30,000 points (docs/DECISIONS.md, "Scan sizes: one fit per
+# surface point, and two thread pools"). Each pool reads this when it loads; a wait policy the
+# caller chose is left as it is.
 if "OMP_WAIT_POLICY" not in os.environ:
     os.environ.setdefault("GOMP_SPINCOUNT", "10000")
 

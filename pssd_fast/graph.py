@@ -211,27 +211,6 @@ def _grid_cell(points, k, extent):
     return cell
 
 
-class CrossLists(NamedTuple):
-    """Lists of rows of another cloud, in CSR form (see :func:`cross_lists`)."""
-
-    indptr: np.ndarray
-    indices: np.ndarray
-
-
-def cross_lists(points, data, k):
-    """The ``k`` rows of ``data`` nearest to each of ``points``, nearest first, as
-    :class:`CrossLists`; chunked like :func:`knn_graph` so the peak is the lists themselves."""
-    n = points.shape[0]
-    tree = KDTree(data)
-    indices = np.empty((n, k), np.int32 if data.shape[0] < 2**31 else np.int64)
-    chunk = max(1, QUERY_ENTRIES // k)
-    for start in range(0, n, chunk):
-        stop = min(n, start + chunk)
-        _, rows = tree.query(points[start:stop], k=k)
-        indices[start:stop] = rows.reshape(-1, k)
-    return CrossLists(np.arange(0, n * k + 1, k, dtype=np.int64), indices.reshape(-1))
-
-
 def refresh_graph(graph, points):
     """``graph``'s lists re-sorted by the distances between the current ``points`` (in place),
     as a :class:`ListScales`: the next iteration keeps its neighbours but not stale orders or

@@ -3,9 +3,9 @@
 
 The points are averaged over grid cells whose edge follows the estimated noise, the feature-aware
 iterations denoise those cell means (each weighted in the fits by the points it holds), the
-denoised means are averaged again over the same grid, and every input point is then projected
-onto the feature-aware fit of the denoised means around its nearest one. The cost of the iterations follows the
-noise (the number of cells), not the number of points.
+denoised means are averaged again over the same grid and each is fitted once, and every input
+point then moves onto the fits of its nearest denoised means. The cost of the iterations follows
+the noise (the number of cells), not the number of points.
 """
 from typing import NamedTuple, Optional
 
@@ -20,14 +20,14 @@ from ..kernels.order import morton_codes
 #: (:func:`.aware.noise_sigma`); ``k``: neighbours of the iterations on the cell means,
 #: interpolated linearly in ``log(points per cell)`` between the anchors
 #: ``(points per cell, k)`` and held at the end values outside them; ``surface_k``: cell means
-#: in the fit around each denoised mean that the input points are projected onto; ``min_points``: the mean number of points a cell must hold;
-#: ``grow``: with fewer, False gives up the cells (the input is iterated on), True widens them
-#: until they hold that many; ``min_ratio``: the noise probe's ``sigma / r`` from which the
-#: cells are used at all (:func:`.aware.choose_k`; its ``k`` is capped at 160 from 0.304 on);
-#: ``rebuild_from``: from this many points per cell on, the cell
-#: means' neighbours are queried anew in every iteration (``rebuild_graph=None``), else the
-#: first iteration's are refreshed. Chosen on the CAD part at 30,000 to 10 million points and
-#: 0.25% to 1% noise (docs/DECISIONS.md, "Scan sizes").
+#: in the fit around each denoised mean that the input points are moved onto; ``min_points``:
+#: the mean number of points a cell must hold; ``grow``: with fewer, False gives up the cells
+#: (the input is iterated on), True widens them until they hold that many; ``min_ratio``: the
+#: noise probe's ``sigma / r`` from which the cells are used at all (:func:`.aware.choose_k`;
+#: its ``k`` is capped at 160 from 0.304 on); ``rebuild_from``: from this many points per cell
+#: on, the cell means' neighbours are queried anew in every iteration (``rebuild_graph=None``),
+#: else the first iteration's are refreshed. Chosen on the CAD part at 30,000 to 10 million
+#: points and 0.25% to 1% noise (docs/DECISIONS.md, "Scan sizes").
 COARSE = {
     "default": {"cell": 1.5, "k": ((4.0, 96), (13.0, 128)), "surface_k": 16, "min_points": 3.0,
                 "grow": False, "min_ratio": 0.5, "rebuild_from": float("inf")},
