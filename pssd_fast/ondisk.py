@@ -55,6 +55,9 @@ class NpyFile:
         with open(self.path, "rb") as fh:
             fh.seek(self.offset + start * 3 * self.dtype.itemsize)
             data = np.fromfile(fh, self.dtype, 3 * (stop - start))
+        if data.shape[0] != 3 * (stop - start):
+            raise ValueError(f"{self.path}: truncated; its header claims {self.shape[0]:,} "
+                             f"rows, but row {start + data.shape[0] // 3:,} is missing")
         return data.reshape(-1, 3)
 
 

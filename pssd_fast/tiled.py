@@ -153,10 +153,10 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
                  overwrite=False):
     """Denoise the points of an ``.npy`` file into another, out of core, tile by tile on Dask.
 
-    The input is read in chunks (memory-mapped); the points are binned into tile files in a
-    scratch folder, each task reads one tile, and the output is written in the input's row
-    order. Memory follows ``tile_points`` and the number of grid cells (the noise), not the
-    number of points. The denoised points are those of :func:`denoise`, bit for bit.
+    The input is read in chunks; the points are binned into tile files in a scratch folder,
+    each task reads one tile, and the output is written in the input's row order. Memory
+    follows ``tile_points`` and the number of grid cells (the noise), not the number of points.
+    The denoised points are those of :func:`pssd_fast.denoise`, bit for bit.
 
     Parameters
     ----------

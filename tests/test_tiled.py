@@ -208,6 +208,15 @@ def test_bad_files_are_named(tmp_path, name, write, error, match):
     assert not (tmp_path / "out.npy").exists()
 
 
+def test_a_truncated_file_is_named(tmp_path):
+    source = tmp_path / "in.npy"
+    np.save(source, np.zeros((50, 3)))
+    source.write_bytes(source.read_bytes()[:-100])
+    with pytest.raises(ValueError, match="truncated"):
+        tiled.denoise_file(source, tmp_path / "out.npy")
+    assert [p.name for p in tmp_path.iterdir()] == ["in.npy"]
+
+
 def test_an_existing_output_is_kept_unless_overwritten(tmp_path):
     np.save(tmp_path / "in.npy", np.zeros((50, 3)))
     (tmp_path / "out.npy").write_bytes(b"keep")
