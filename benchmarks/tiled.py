@@ -4,10 +4,12 @@ Usage::
 
     python -m benchmarks.tiled                     # 2M and 20M points, tiles of 2M, 1 and 2 workers
     python -m benchmarks.tiled --points 2000000 --tile-points 1000000 --workers 2
+    python -m benchmarks.tiled --format laz --out tiled_laz
 
-The input is the generated CAD part (seed 0, noise 0.5% of the diagonal) saved as ``.npy``.
-Each cell runs in a fresh process: the in-core cell loads the file and calls
-``pssd_fast.denoise``; a tiled cell starts a ``LocalCluster`` of that many worker processes
+The input is the generated CAD part (seed 0, noise 0.5% of the diagonal) saved as ``.npy``, or
+(``--format laz``) scaled to 100 m and saved as LAZ. Each cell runs in a fresh process: the
+in-core cell reads the file, calls ``pssd_fast.denoise`` and writes the result as ``pssd
+denoise --fields none`` would; a tiled cell starts a ``LocalCluster`` of that many worker processes
 (one thread each for two workers, both cores for one) and calls
 ``pssd_fast.tiled.denoise_file``, then reads the driver's and each worker's peak resident size
 (``ru_maxrss``) and the time of its passes over the file in the calling process (binning into
@@ -38,10 +40,15 @@ def child(kind, source, out, tile_points, workers):
 
     pssd_fast.warmup()
     if kind == "in-core":
+        from pssd_fast import io
+
         started = time.perf_counter()
-        points = np.load(source)
-        result = pssd_fast.denoise(points)
-        np.save(out, result.points)
+        cloud = io.read(source)
+        result = pssd_fast.denoise(cloud.points)
+        if source.endswith(".npy"):
+            np.save(out, result.points)
+        else:
+            io.write(out, cloud, points=result.points)
         seconds = time.perf_counter() - started
         peaks = []
         stats = result.stats
@@ -71,12 +78,27 @@ def child(kind, source, out, tile_points, workers):
 
 
 def same(a, b):
-    """Whether two ``.npy`` files hold the same array, "True" or "False", read by a process of
-    its own (see ``write_cad_part``: this process must stay small)."""
-    done = subprocess.run([sys.executable, "-c", "import sys, numpy as np; print(np.array_equal("
-                           "np.load(sys.argv[1]), np.load(sys.argv[2])))", str(a), str(b)],
-                          capture_output=True, text=True, check=True)
+    """Whether two files hold the same points (``.npy``: the arrays; LAS/LAZ: the point
+    records), "True" or "False", read by a process of its own (see ``write_cad_part``: this
+    process must stay small)."""
+    done = subprocess.run([sys.executable, "-c", "import sys, numpy as np, laspy\n"
+                           "def load(p):\n"
+                           "    return np.load(p) if p.endswith('.npy') else "
+                           "laspy.read(p).points.array\n"
+                           "print(np.array_equal(load(sys.argv[1]), load(sys.argv[2])))",
+                           str(a), str(b)], capture_output=True, text=True, check=True)
     return done.stdout.strip()
+
+
+def as_laz(source):
+    """``source`` (an ``.npy`` file) rewritten as LAZ beside it, by a process of its own; its
+    path."""
+    laz = source.with_suffix(".laz")
+    subprocess.run([sys.executable, "-c", "import sys, numpy as np; from pssd_fast import io; "
+                    "io.write(sys.argv[2], io.PointCloud(points=np.load(sys.argv[1]) * 100))",
+                    str(source), str(laz)], check=True)
+    source.unlink()
+    return laz
 
 
 def measure(kind, source, out, tile_points, workers):
@@ -107,6 +129,8 @@ def main(argv=None):
     parser.add_argument("--points", type=int, nargs="+", default=[2_000_000, 20_000_000])
     parser.add_argument("--tile-points", type=int, nargs="+", default=[2_000_000])
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--format", choices=("npy", "laz"), default="npy",
+                        help="the input's format (LAZ: the part scaled to 100 m, new LAS 1.4)")
     parser.add_argument("--out", default="tiled", help="file stem in benchmarks/results/")
     parser.add_argument("--child", nargs=3, metavar=("KIND", "IN", "OUT"),
                         help=argparse.SUPPRESS)
@@ -121,11 +145,13 @@ def main(argv=None):
         for n in args.points:
             source = Path(scratch) / f"cad_{n}.npy"
             write_cad_part(n, NOISE, source)
-            reference = Path(scratch) / "in_core.npy"
+            if args.format == "laz":
+                source = as_laz(source)
+            reference = Path(scratch) / f"in_core{source.suffix}"
             runs = [("in-core", 0, 0)] + [("tiled", t, w) for t in args.tile_points
                                           for w in args.workers]
             for kind, tile_points, workers in runs:
-                out = reference if kind == "in-core" else Path(scratch) / "tiled.npy"
+                out = reference if kind == "in-core" else Path(scratch) / f"tiled{source.suffix}"
                 cell = {"points": n, "kind": kind, "tile_points": tile_points,
                         "workers": workers,
                         **measure(kind, source, out, tile_points or 1, workers or 1)}
@@ -140,7 +166,8 @@ def main(argv=None):
             source.unlink()
             reference.unlink()
     text = (f"Machine: {machine()}\n\nInput: the generated CAD part, seed 0, noise "
-            f"{NOISE:.1%} of the diagonal, as .npy; one process per cell.\n\n" + table(cells))
+            f"{NOISE:.1%} of the diagonal, as .{args.format}; one process per cell.\n\n"
+            + table(cells))
     print(text)
     write_results(RESULTS, args.out, text, {"cells": cells})
 

@@ -61,6 +61,55 @@ class NpyFile:
         return data.reshape(-1, 3)
 
 
+class LasFile:
+    """A LAS or LAZ file's coordinates (the integers times the scale plus the offset, as
+    :func:`pssd_fast.io.read` computes them), read by rows through laspy."""
+
+    def __init__(self, path):
+        from .io.las import _need_laspy
+
+        self.path = path
+        self.laspy = _need_laspy(Path(path).suffix.lower(), "Reading")
+        with self.laspy.open(path) as reader:
+            self.header = reader.header
+        self.shape = (self.header.point_count, 3)
+        self.dtype = np.dtype(np.float64)
+
+    def __getitem__(self, rows):
+        start, stop = rows.start or 0, min(rows.stop, self.shape[0])
+        with self.laspy.open(self.path) as reader:
+            reader.seek(start)
+            records = reader.read_points(stop - start).array
+        if records.shape[0] != stop - start:
+            raise ValueError(f"{self.path}: truncated; its header claims {self.shape[0]:,} "
+                             f"points, but point {start + records.shape[0]:,} is missing")
+        header = self.header
+        return np.column_stack([records[c] * s + o for c, s, o in
+                                zip("XYZ", header.scales, header.offsets, strict=True)])
+
+    def write(self, path, points):
+        """A copy of this file, with ``points`` (an ``(n, 3)`` array-like read by row
+        slices) quantised into its coordinates: every other byte of the records, the header,
+        the VLRs and the EVLRs as read (the point count and bounds as laspy writes them)."""
+        from .io.las import _quantise
+
+        compress = Path(path).suffix.lower() == ".laz"
+        backend = self.laspy.LazBackend.LazrsParallel if compress else None
+        with self.laspy.open(self.path) as reader, \
+                self.laspy.open(path, mode="w", header=reader.header, do_compress=compress,
+                                laz_backend=backend) as writer:
+            start = 0
+            for chunk in reader.chunk_iterator(CHUNK_POINTS):
+                stop = start + len(chunk)
+                quantised = _quantise(path, points[start:stop], self.header.scales,
+                                      self.header.offsets)
+                chunk.X, chunk.Y, chunk.Z = quantised.T
+                writer.write_points(chunk)
+                start = stop
+            if reader.evlrs:
+                writer.write_evlrs(reader.evlrs)
+
+
 def chunks(array):
     """``(start, points)`` over ``array`` (n, 3) of real numbers, each chunk as float64 and
     checked for NaN and Inf."""

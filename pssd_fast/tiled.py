@@ -34,6 +34,8 @@ from .progress import Clock, reporter
 
 #: Dask's local schedulers, by the names ``client`` takes for them.
 LOCAL_SCHEDULERS = ("threads", "processes", "sync")
+#: What :func:`denoise_file` reads and writes, by extension.
+FILE_KINDS = {".npy": "npy", ".las": "las", ".laz": "las"}
 #: The feature-aware pipeline's parameters other than ``sigma_n``, at their defaults.
 PARAMS = {"keep_normals": False}
 
@@ -151,7 +153,8 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
 def denoise_file(source, destination, *, tile_points=2_000_000, client=None, preset="default",
                  iterations=None, sigma_n=0.05, n_jobs=None, progress=None, scratch=None,
                  overwrite=False):
-    """Denoise the points of an ``.npy`` file into another, out of core, tile by tile on Dask.
+    """Denoise the points of an ``.npy`` or LAS/LAZ file into another, out of core, tile by
+    tile on Dask.
 
     The input is read in chunks; the points are binned into tile files in a scratch folder,
     each task reads one tile, and the output is written in the input's row order. Memory
@@ -161,10 +164,14 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     Parameters
     ----------
     source : path-like
-        An ``.npy`` file of a real ``(n, 3)`` array.
+        An ``.npy`` file of a real ``(n, 3)`` array, or a LAS/LAZ file (its ``nx``, ``ny``,
+        ``nz`` dimensions, if any, are not read).
     destination : path-like
-        The ``.npy`` file written: the denoised ``(n, 3)`` points in the input's rows, float32
-        for float32 input and float64 otherwise. It appears only when complete.
+        Written only when complete. For ``.npy`` input an ``.npy`` file: the denoised ``(n, 3)``
+        points in the input's rows, float32 for float32 input and float64 otherwise. For
+        LAS/LAZ input a ``.las``/``.laz`` file: the input with the denoised coordinates
+        (quantised as :func:`pssd_fast.io.write` quantises them), every other record byte, the
+        header, the VLRs and the EVLRs as read.
     tile_points, client, preset, iterations, sigma_n, n_jobs, progress
         As in :func:`denoise`; progress also hears of the passes over the file (``buckets``,
         ``tiles``) and of the output (``write``).
@@ -184,28 +191,30 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     ------
     ValueError
         For a cloud the preset iterates on its points (see :func:`denoise`), bad input, or
-        other formats (LAS/LAZ and Zarr are not read out of core yet).
+        other formats (Zarr is not read yet).
     FileExistsError
         ``destination`` exists and ``overwrite`` is False.
     """
     source, destination = Path(source), Path(destination)
-    for path in (source, destination):
-        if path.suffix.lower() != ".npy":
-            raise ValueError(f"denoise_file reads and writes .npy files; got {path.name} "
-                             f"(other formats: pssd_fast.io.read, then denoise)")
+    kinds = {path: FILE_KINDS.get(path.suffix.lower()) for path in (source, destination)}
+    if None in kinds.values() or len(set(kinds.values())) > 1:
+        raise ValueError(f"denoise_file reads .npy into .npy, or .las/.laz into .las/.laz; got "
+                         f"{source.name} and {destination.name} (other formats: "
+                         f"pssd_fast.io.read, then denoise)")
     setting, tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
                                                           iterations, client)
     if destination.exists() and not overwrite:
         raise FileExistsError(f"{destination} exists; pass overwrite=True to replace it")
     if destination.resolve() == source.resolve():
         raise ValueError(f"the output {destination} would overwrite the input")
-    array = ondisk.NpyFile(source)
+    array = ondisk.NpyFile(source) if kinds[source] == "npy" else ondisk.LasFile(source)
     dtype = np.dtype(np.float32) if array.dtype == np.float32 else np.dtype(np.float64)
     report = reporter(progress)
     started = time.perf_counter()
     folder = Path(tempfile.mkdtemp(prefix="pssd_tiles_", dir=scratch or destination.parent))
     # Beside the destination, so that the last rename stays on one file system.
-    output = destination.with_name(f".{destination.name}.{os.getpid()}.partial.npy")
+    output = destination.with_name(f".{destination.stem}.{os.getpid()}.partial"
+                                   f"{destination.suffix}")
     params = {**PARAMS, "sigma_n": sigma_n}
     try:
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
@@ -237,7 +246,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
             fits = runner.map("tile_update", iterations, iterations, _file_update, [
                 (path, part, cloud.centre, surface, surface_normals, coef, rms, degree)
                 for path, part in zip(paths, parts)])
-            clock.run("write", ondisk.write_rows, output, parts, cloud.shape[0], dtype)
+            clock.run("write", _write, array, output, parts, cloud.shape[0], dtype, folder)
             os.replace(output, destination)
         records[0]["times"].update(first.times)
         records[-1]["times"].update(clock.times)
@@ -263,6 +272,17 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
             (starts[c0], starts[c1]) for c0, c1 in tiles))), "scheduler": runner.name},
         "total_seconds": time.perf_counter() - started,
     }
+
+
+def _write(array, output, parts, n, dtype, folder):
+    """The parts' points in the input's rows: an ``.npy`` array, or a copy of the LAS/LAZ
+    input with those coordinates."""
+    if isinstance(array, ondisk.NpyFile):
+        ondisk.write_rows(output, parts, n, dtype)
+        return
+    rows = folder / "rows.npy"
+    ondisk.write_rows(rows, parts, n, dtype)
+    array.write(output, ondisk.NpyFile(rows))
 
 
 def _settings(preset, tile_points, sigma_n, iterations, client):

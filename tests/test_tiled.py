@@ -152,6 +152,46 @@ def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dty
         "in.npy", "out.npy", "scratch"]
 
 
+@pytest.mark.usefixtures("small_chunks")
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+def test_a_las_file_tiled_out_of_core_keeps_everything_but_the_coordinates(tmp_path, ext):
+    """Records, scale, offset, VLRs and EVLRs as read; the coordinates those of denoise,
+    quantised as the in-core writer quantises them."""
+    laspy = pytest.importorskip("laspy")
+    from pssd_fast import io
+
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = [0.0001, 0.0001, 0.0001]
+    header.offsets = [500_000.0, 4_000_000.0, 300.0]
+    header.vlrs.append(laspy.VLR("pssd_test", 7, "a VLR", b"kept"))
+    from laspy.vlrs.vlrlist import VLRList
+
+    header.evlrs = VLRList([laspy.VLR("pssd_test", 8, "an EVLR", b"kept too")])
+    points = datasets.cad_part(n_points=40_000, noise=0.02, seed=8).points * 100
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = (points + [500_123.0, 4_000_456.0, 310.0]).T
+    las.intensity = np.arange(len(points)) % 65535
+    las.gps_time = np.linspace(0.0, 1e5, len(points))
+    source = tmp_path / f"scan{ext}"
+    las.write(str(source))
+    read = io.read(source)
+    expected = tmp_path / f"in_core{ext}"
+    io.write(expected, read, points=pssd_fast.denoise(read.points).points)
+    stats = tiled.denoise_file(source, tmp_path / f"tiled{ext}", tile_points=5_000,
+                               client="sync")
+    assert stats["tiles"]["count"] >= 8
+    got, want, before = (laspy.read(str(tmp_path / name))
+                         for name in (f"tiled{ext}", f"in_core{ext}", f"scan{ext}"))
+    np.testing.assert_array_equal(got.points.array, want.points.array)
+    for name in ("intensity", "gps_time"):
+        np.testing.assert_array_equal(np.asarray(got[name]), np.asarray(before[name]))
+    np.testing.assert_array_equal(got.header.scales, before.header.scales)
+    np.testing.assert_array_equal(got.header.offsets, before.header.offsets)
+    assert [v.record_data for v in got.header.vlrs] == [b"kept"]
+    assert [v.record_data for v in got.evlrs] == [b"kept too"]
+    assert np.abs(np.asarray(got.X) - np.asarray(before.X)).mean() > 10  # moved
+
+
 def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path):
     """A worker killed while the tiles run: Dask runs its tasks again, the result stands."""
     import os
@@ -194,7 +234,7 @@ def test_a_failing_tile_leaves_no_output_and_no_scratch(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("name, write, error, match", [
-    ("in.xyz", None, ValueError, "reads and writes .npy"),
+    ("in.xyz", None, ValueError, "reads .npy into .npy"),
     ("in.npy", np.array([[0.0, 0.0, np.nan]] * 50), ValueError, "row 0"),
     ("in.npy", np.zeros((50, 3), np.complex128), TypeError, "real numbers"),
     ("in.npy", np.zeros((50, 2)), ValueError, r"shape \(n, 3\)"),
@@ -206,6 +246,12 @@ def test_bad_files_are_named(tmp_path, name, write, error, match):
     with pytest.raises(error, match=match):
         tiled.denoise_file(source, tmp_path / "out.npy")
     assert not (tmp_path / "out.npy").exists()
+
+
+def test_formats_do_not_mix(tmp_path):
+    np.save(tmp_path / "in.npy", np.zeros((50, 3)))
+    with pytest.raises(ValueError, match=r"\.las/\.laz into \.las/\.laz"):
+        tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.laz")
 
 
 def test_a_truncated_file_is_named(tmp_path):
