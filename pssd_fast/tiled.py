@@ -268,8 +268,9 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         "rebuild_graph": bool(rebuild_graph), "orient": None, "outliers": None,
         "n_iterations": iterations, "params": params, "n_jobs": n_threads,
         "iterations": records,
-        "tiles": {"count": len(tiles), "most_points": int(max(b - a for a, b in (
-            (starts[c0], starts[c1]) for c0, c1 in tiles))), "scheduler": runner.name},
+        "tiles": {"count": len(tiles),
+                  "most_points": int(max(starts[c1] - starts[c0] for c0, c1 in tiles)),
+                  "scheduler": runner.name},
         "total_seconds": time.perf_counter() - started,
     }
 
