@@ -334,11 +334,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
                 fine, surface, surface_normals, cells.surface_k, params["sigma_n"], clock)
             records[-1]["times"].update(clock.times)
             extra = tuple(x[nearest] for x in extra)
-            scale["coarse"] = {"noise": sigma, "cell_edge": cells.edge,
-                               "cells": int(cells.counts.shape[0]),
-                               "mean_points": float(cells.counts.mean()),
-                               "surface_points": int(surface.shape[0]),
-                               "surface_k": cells.surface_k, **fit}
+            scale["coarse"] = coarse.describe(sigma, cells.edge, cells.counts, surface,
+                                              cells.surface_k, fit)
 
     stats = {
         "method": method,

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import core, ondisk
+from . import ondisk
 from ._threads import threads
 from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_orient, check_size,
@@ -130,10 +130,8 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     nearest = np.empty(n, np.int64)
     nearest[every] = np.concatenate([m[2] for m in moved])
     records[-1]["times"].update(clock.times)
-    scale["coarse"] = {"noise": sigma, "cell_edge": edge, "cells": int(cells.counts.shape[0]),
-                       "mean_points": float(cells.counts.mean()),
-                       "surface_points": int(surface.shape[0]), "surface_k": cells.surface_k,
-                       **coarse.fit_record(held, nearest, rms, degree)}
+    scale["coarse"] = coarse.describe(sigma, edge, cells.counts, surface, cells.surface_k,
+                                      coarse.fit_record(held, nearest, rms, degree))
     stats = {
         "method": "robust", "n_points": n, "k": k, "lam": None, "preset": preset,
         "pipeline": "aware", "auto_k": scale, "noise": scale["noise"],
@@ -254,14 +252,9 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         shutil.rmtree(folder, ignore_errors=True)
         output.unlink(missing_ok=True)
     n = cloud.shape[0]
-    counts_by_degree = np.sum([f[2] for f in fits], axis=0)
-    scale["coarse"] = {
-        "noise": sigma, "cell_edge": edge, "cells": int(counts.shape[0]),
-        "mean_points": float(counts.mean()), "surface_points": int(surface.shape[0]),
-        "surface_k": cells.surface_k, "held_points": int(sum(f[0] for f in fits)),
-        "mean_residual": float(sum(f[1] for f in fits) / n),
-        "fit_degree": {name: int(counts_by_degree[code])
-                       for name, code in core.AWARE_FIT_DEGREES.items()}}
+    fit = coarse.fit_summary(sum(f[0] for f in fits), sum(f[1] for f in fits),
+                             np.sum([f[2] for f in fits], axis=0), n)
+    scale["coarse"] = coarse.describe(sigma, edge, counts, surface, cells.surface_k, fit)
     return {
         "method": "robust", "n_points": n, "k": k, "lam": None, "preset": preset,
         "pipeline": "aware", "auto_k": scale, "noise": scale["noise"],
@@ -313,11 +306,7 @@ def _file_cells(path, centre, n_jobs):
     """The cell means of a tile file."""
     with threads(n_jobs):
         _, codes, points = ondisk.read_tile(path, centre)
-        order = np.argsort(codes, kind="stable")
-        sorted_codes = codes[order]
-        starts = np.flatnonzero(np.concatenate(([True], sorted_codes[1:] != sorted_codes[:-1],
-                                                [True])))
-        return coarse.cell_means(points, None, order, starts)[0]
+        return coarse.cell_means(points, None, *coarse.group_codes(codes))[0]
 
 
 def _file_update(path, part, centre, surface, normals, coef, rms, degree, n_jobs):

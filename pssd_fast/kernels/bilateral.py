@@ -7,6 +7,7 @@ from numba import prange
 
 from .config import CHUNK, helper, parallel_kernel
 from .graph import max_degree
+from .linalg import store_unit
 
 # Below this spread (radians) all normals of a list agree and the filter leaves n_i unchanged.
 MIN_SPREAD = 1e-12
@@ -56,15 +57,7 @@ def _filter_point(i, points, normals, indptr, indices, dist2, angle, out):
         sx += wgt * nx
         sy += wgt * ny
         sz += wgt * nz
-    norm = math.sqrt(sx * sx + sy * sy + sz * sz)
-    if norm > 0.0:
-        out[i, 0] = sx / norm
-        out[i, 1] = sy / norm
-        out[i, 2] = sz / norm
-    else:
-        out[i, 0] = nix
-        out[i, 1] = niy
-        out[i, 2] = niz
+    store_unit(out, i, sx, sy, sz, nix, niy, niz)
 
 
 @parallel_kernel

@@ -1,10 +1,9 @@
 """Means of the points sharing a grid cell: the coarse cloud of the coarse-to-fine default
 (docs/ALGORITHM.md, "Coarse to fine")."""
-import math
-
 from numba import prange
 
 from .config import parallel_kernel
+from .linalg import store_unit
 
 
 @parallel_kernel
@@ -61,12 +60,4 @@ def cell_means(points, normals, mass, order, starts, out, out_normals):
                 sx += sign * normals[i, 0]
                 sy += sign * normals[i, 1]
                 sz += sign * normals[i, 2]
-            norm = math.sqrt(sx * sx + sy * sy + sz * sz)
-            if norm > 0.0:
-                out_normals[c, 0] = sx / norm
-                out_normals[c, 1] = sy / norm
-                out_normals[c, 2] = sz / norm
-            else:
-                out_normals[c, 0] = fx
-                out_normals[c, 1] = fy
-                out_normals[c, 2] = fz
+            store_unit(out_normals, c, sx, sy, sz, fx, fy, fz)

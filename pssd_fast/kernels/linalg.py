@@ -112,6 +112,21 @@ def sym3_eigh(a, w, v):
 
 
 @helper
+def store_unit(out, row, x, y, z, fx, fy, fz):
+    """Write ``(x, y, z)`` scaled to unit length into ``out[row]``, or ``(fx, fy, fz)`` where it
+    has no length (a sum of normals that cancelled)."""
+    norm = math.sqrt(x * x + y * y + z * z)
+    if norm > 0.0:
+        out[row, 0] = x / norm
+        out[row, 1] = y / norm
+        out[row, 2] = z / norm
+    else:
+        out[row, 0] = fx
+        out[row, 1] = fy
+        out[row, 2] = fz
+
+
+@helper
 def orthonormal_basis(nx, ny, nz):
     """Return two unit vectors ``u, v`` completing the unit vector ``n`` to a right-handed frame.
 

@@ -129,13 +129,15 @@ def group_cells(points, edge):
     axis."""
     low, high = bounds(points)
     codes = cell_codes(points, low, high, edge)
-    if codes is None:
-        return None
-    n = points.shape[0]
+    return None if codes is None else group_codes(codes)
+
+
+def group_codes(codes):
+    """``(order, starts)`` of :func:`group_cells` for the points' cell ``codes``."""
     order = np.argsort(codes, kind="stable")
     codes = codes[order]
     starts = np.flatnonzero(np.concatenate(([True], codes[1:] != codes[:-1])))
-    return order, np.concatenate((starts, [n]))
+    return order, np.concatenate((starts, [codes.shape[0]]))
 
 
 def cell_codes(points, low, high, edge):
@@ -221,10 +223,23 @@ def fit_surface(surface, normals, surface_k, sigma_n, clock):
 
 def fit_record(held, nearest, rms, degree):
     """``held_points``, ``mean_residual`` and ``fit_degree`` of the points' nearest fits."""
-    counts = np.bincount(degree[nearest], minlength=7)
-    return {"held_points": int(held.sum()), "mean_residual": float(rms[nearest].mean()),
-            "fit_degree": {name: int(counts[code])
+    return fit_summary(int(held.sum()), float(rms[nearest].sum()),
+                       np.bincount(degree[nearest], minlength=7), nearest.shape[0])
+
+
+def fit_summary(held_points, residual_sum, degree_counts, n):
+    """:func:`fit_record` from its sums over ``n`` points (those of several tiles added)."""
+    return {"held_points": held_points, "mean_residual": residual_sum / n,
+            "fit_degree": {name: int(degree_counts[code])
                            for name, code in core.AWARE_FIT_DEGREES.items()}}
+
+
+def describe(noise, edge, counts, surface, surface_k, fit):
+    """``stats["auto_k"]["coarse"]``: the noise, the cells' edge, number and mean points, the
+    surface points and their fits' ``surface_k``, and the ``fit`` of :func:`fit_record`."""
+    return {"noise": noise, "cell_edge": edge, "cells": int(counts.shape[0]),
+            "mean_points": float(counts.mean()), "surface_points": int(surface.shape[0]),
+            "surface_k": surface_k, **fit}
 
 
 #: Nearest cell means whose fits each input point moves onto (docs/DECISIONS.md, "Scan sizes").
