@@ -361,7 +361,8 @@ def _jobs(args):
         raise CommandError("'-' needs --format to name its format (e.g. --format xyz)")
     for inp, out in jobs:
         fmt = args.format if _is_stdio(out) else None
-        io.storable(out, [], format=fmt)  # an unknown format fails now, not after the work
+        if not (args.tile_points is not None and str(out).lower().endswith(".zarr")):
+            io.storable(out, [], format=fmt)  # an unknown format fails now, not after the work
         if _is_stdio(out):
             continue
         # Before the --force check: --force does not make replacing the input possible.
@@ -409,6 +410,14 @@ def _run_tiled(points, normals, args, method_params, progress, orient, remove_ou
     """``--tile-points``: :func:`pssd_fast.tiled.denoise` with the options it shares."""
     from . import tiled
 
+    _check_tiled(args, method_params, remove_outliers)
+    return tiled.denoise(points, normals, tile_points=args.tile_points, client=args.scheduler,
+                         preset=args.preset, iterations=args.iterations, orient=orient,
+                         n_jobs=args.n_jobs, progress=progress, **method_params)
+
+
+def _check_tiled(args, method_params, remove_outliers):
+    """Refuse the options that ``--tile-points`` does not take."""
     unused = [name for name, given in (
         ("--method", args.method != "robust"), ("--k", args.k is not None),
         ("--lam", args.lam is not None), ("--rebuild-graph", args.rebuild_graph is not None),
@@ -418,11 +427,65 @@ def _run_tiled(points, normals, args, method_params, progress, orient, remove_ou
     if args.preset == "paper":
         unused.append("--preset paper")
     if unused:
-        raise CommandError(f"--tile-points runs the coarse-to-fine route of the presets default "
-                           f"and fast; it does not take {', '.join(unused)}")
-    return tiled.denoise(points, normals, tile_points=args.tile_points, client=args.scheduler,
-                         preset=args.preset, iterations=args.iterations, orient=orient,
-                         n_jobs=args.n_jobs, progress=progress, **method_params)
+        raise CommandError(f"--tile-points runs the feature-aware pipeline of the presets "
+                           f"default and fast; it does not take {', '.join(unused)}")
+
+
+def _on_disk(args, inp, out):
+    """Whether ``--tile-points`` runs out of core (:func:`pssd_fast.tiled.denoise_file`): an
+    ``.npy`` (n, 3), Zarr or LAS/LAZ input without normals into a file of its kind, with
+    fields that such a run writes."""
+    from . import ondisk
+    from .io._common import NORMALS
+    from .tiled import FILE_KINDS
+
+    if args.tile_points is None or _is_stdio(inp) or _is_stdio(out):
+        return False
+    kind = FILE_KINDS.get(Path(inp).suffix.lower())
+    if kind is None or kind != FILE_KINDS.get(Path(out).suffix.lower()):
+        return False
+    names = [] if args.fields is None else [n.strip() for n in args.fields.split(",")
+                                            if n.strip() and n.strip() != "none"]
+    if kind == "zarr":
+        return True
+    if set(names) - set(ondisk.RESULT_FIELDS if kind == "las" else ()):
+        return False
+    try:
+        reader = ondisk.NpyFile(inp) if kind == "npy" else ondisk.LasFile(inp)
+    except (ValueError, TypeError, OSError):
+        return False  # the in-memory reader names the problem, or reads what this one cannot
+    return kind == "npy" or not set(NORMALS) & set(reader.header.point_format.dimension_names)
+
+
+def _denoise_on_disk(args, params, inp, out, say):
+    """``--tile-points`` out of core: :func:`pssd_fast.tiled.denoise_file`."""
+    from . import ondisk, tiled
+    from .tiled import FILE_KINDS
+
+    _check_tiled(args, params, args.remove_outliers)
+    las = FILE_KINDS[Path(inp).suffix.lower()] == "las"
+    default = ondisk.RESULT_FIELDS if las else ()
+    fields = default if args.fields is None else tuple(
+        n.strip() for n in args.fields.split(",") if n.strip() and n.strip() != "none")
+    if fields and not las:
+        raise CommandError(f"--fields: {out} cannot hold {', '.join(fields)} (use .las/.laz, "
+                           f"or .npz, .ply or text without --tile-points)")
+    orient = args.orient if args.orient is not None or not las else "up"
+    progress = _Progress(STAGE_COUNT[args.method], not args.quiet)
+    try:
+        stats = tiled.denoise_file(inp, out, tile_points=args.tile_points,
+                                   client=args.scheduler, preset=args.preset,
+                                   iterations=args.iterations, orient=orient, fields=fields,
+                                   n_jobs=args.n_jobs, progress=progress, overwrite=args.force,
+                                   **params)
+    finally:
+        progress.close()
+    if not args.quiet:
+        tiles = stats["tiles"]
+        print(f"{inp} -> {out}: {stats['n_points']:,} points, method {args.method}, "
+              f"{stats['n_iterations']} iterations, {stats['total_seconds']:.2f} s; "
+              f"{tiles['count']} tiles of at most {tiles['most_points']:,} points "
+              f"({'cells' if tiles['route'] == 'cells' else 'halos'}), out of core", file=say)
 
 
 def _denoise(args):
@@ -461,6 +524,9 @@ def _denoise(args):
 def _denoise_file(args, params, inp, out, say):
     from . import io
 
+    if _on_disk(args, inp, out):
+        _denoise_on_disk(args, params, inp, out, say)
+        return
     fmt = args.format
     cloud = io.read(inp, format=fmt if _is_stdio(inp) else None)
     orient = args.orient

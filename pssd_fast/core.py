@@ -164,9 +164,10 @@ def project(points, nrm, height):
     return points + step, held
 
 
-def sampling_likelihood(resid, form):
-    """Eq. (2) in the chosen ``form``, and the mean residual ``dbar`` it is relative to."""
-    dbar = float(np.mean(resid))
+def sampling_likelihood(resid, form, dbar=None):
+    """Eq. (2) in the chosen ``form``, and the mean residual ``dbar`` it is relative to (by
+    default the mean of ``resid``; a tile of a cloud takes the whole cloud's)."""
+    dbar = float(np.mean(resid)) if dbar is None else dbar
     out = np.empty_like(resid)
     kernels.likelihood.sampling_likelihood(resid, dbar, LIKELIHOOD_FORMS[form], out)
     return out, dbar

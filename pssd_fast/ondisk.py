@@ -12,6 +12,8 @@ the chunk and the tile sizes, not the cloud's. The passes:
 3. per grid edge tried, the cells the points fall in, counted bucket by bucket;
 4. the points binned again, into *tiles* of whole cells, in Morton order.
 """
+import copy
+import os
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +25,10 @@ from .pipelines import coarse
 
 #: Points read from the input at a time.
 CHUNK_POINTS = 1 << 20
+#: The fields a LAS/LAZ output gets, by the names ``pssd denoise --fields`` gives them.
+FIELDS = ("likelihood", "feature_intensity", "displacement")
+#: What a LAS/LAZ output of a tiled run may hold besides the points.
+RESULT_FIELDS = (*FIELDS, "normals")
 #: Histogram bins of the Morton codes' top bits (7 per axis).
 _PREFIX_BITS = 21
 #: A point in a bucket or tile file: its row in the input, its Morton code, its coordinates.
@@ -30,10 +36,10 @@ RECORD = np.dtype([("row", np.int64), ("code", np.uint64), ("xyz", np.float64, 3
 
 
 class NpyFile:
-    """An ``.npy`` file of a real ``(n, 3)`` array, read by rows with plain reads (a memory map
-    would keep every page read resident in the process)."""
+    """An ``.npy`` file of a real ``(n, columns)`` array, read by rows with plain reads (a
+    memory map would keep every page read resident in the process)."""
 
-    def __init__(self, path):
+    def __init__(self, path, columns=3):
         self.path = path
         with open(path, "rb") as fh:
             version = np.lib.format.read_magic(fh)
@@ -45,20 +51,22 @@ class NpyFile:
             self.offset = fh.tell()
         if self.dtype.kind not in "fiu":
             raise TypeError(f"{path}: points must hold real numbers; got dtype {self.dtype}")
-        if len(self.shape) != 2 or self.shape[1] != 3:
-            raise ValueError(f"{path}: points must have shape (n, 3); got {self.shape}")
+        if len(self.shape) != 2 or self.shape[1] != columns:
+            raise ValueError(f"{path}: points must have shape (n, {columns}); got "
+                             f"{self.shape}")
         if fortran:
             raise ValueError(f"{path}: a Fortran-ordered array; save it C-ordered")
 
     def __getitem__(self, rows):
         start, stop = rows.start or 0, min(rows.stop, self.shape[0])
+        width = self.shape[1]
         with open(self.path, "rb") as fh:
-            fh.seek(self.offset + start * 3 * self.dtype.itemsize)
-            data = np.fromfile(fh, self.dtype, 3 * (stop - start))
-        if data.shape[0] != 3 * (stop - start):
+            fh.seek(self.offset + start * width * self.dtype.itemsize)
+            data = np.fromfile(fh, self.dtype, width * (stop - start))
+        if data.shape[0] != width * (stop - start):
             raise ValueError(f"{self.path}: truncated; its header claims {self.shape[0]:,} "
-                             f"rows, but row {start + data.shape[0] // 3:,} is missing")
-        return data.reshape(-1, 3)
+                             f"rows, but row {start + data.shape[0] // width:,} is missing")
+        return data.reshape(-1, width)
 
 
 class LasFile:
@@ -87,27 +95,87 @@ class LasFile:
         return np.column_stack([records[c] * s + o for c, s, o in
                                 zip("XYZ", header.scales, header.offsets, strict=True)])
 
-    def write(self, path, points):
-        """A copy of this file, with ``points`` (an ``(n, 3)`` array-like read by row
-        slices) quantised into its coordinates: every other byte of the records, the header,
-        the VLRs and the EVLRs as read (the point count and bounds as laspy writes them)."""
-        from .io.las import _quantise
+    def write(self, path, table, fields=RESULT_FIELDS):
+        """A copy of this file with the columns of ``table`` (an ``(n, 9)`` array-like read
+        by row slices: :data:`TABLE`) in its records: the coordinates quantised into ``X``,
+        ``Y``, ``Z`` and, of ``fields``, the normals into ``nx``, ``ny``, ``nz`` and the
+        likelihood, feature intensity and displacement into dimensions of those names
+        (float32 extra bytes where the file has none), as :func:`pssd_fast.io.write` stores
+        them; every other byte of
+        the records, the header, the VLRs and the EVLRs as read (the point count, the bounds
+        and the extra-bytes VLR as laspy writes them)."""
+        from .io._common import NORMALS
+        from .io.las import _quantise, new_dims, put_values
 
         compress = Path(path).suffix.lower() == ".laz"
         backend = self.laspy.LazBackend.LazrsParallel if compress else None
-        with self.laspy.open(self.path) as reader, \
-                self.laspy.open(path, mode="w", header=reader.header, do_compress=compress,
-                                laz_backend=backend) as writer:
-            start = 0
-            for chunk in reader.chunk_iterator(CHUNK_POINTS):
-                stop = start + len(chunk)
-                quantised = _quantise(path, points[start:stop], self.header.scales,
-                                      self.header.offsets)
-                chunk.X, chunk.Y, chunk.Z = quantised.T
-                writer.write_points(chunk)
-                start = stop
-            if reader.evlrs:
-                writer.write_evlrs(reader.evlrs)
+        scalars = [name for name in FIELDS if name in fields]
+        normals = NORMALS if "normals" in fields else ()
+        names = (*scalars, *normals)  # the order pssd denoise adds them in
+        with self.laspy.open(self.path) as reader:
+            header = copy.deepcopy(reader.header)
+            existing = set(header.point_format.dimension_names)
+            new = new_dims(self.laspy, path, existing,
+                           {name: np.zeros(0, np.float32) for name in names})
+            if new:
+                header.add_extra_dims(new)
+            with self.laspy.open(path, mode="w", header=header, do_compress=compress,
+                                 laz_backend=backend) as writer:
+                start = 0
+                for chunk in reader.chunk_iterator(CHUNK_POINTS):
+                    stop = start + len(chunk)
+                    rows = table[start:stop]
+                    records = self.laspy.ScaleAwarePointRecord.zeros(len(chunk), header=header)
+                    for name in chunk.array.dtype.names:
+                        records.array[name] = chunk.array[name]
+                    records.X, records.Y, records.Z = _quantise(
+                        path, rows[:, :3], self.header.scales, self.header.offsets).T
+                    # The result's columns as pssd denoise hands them to the writer.
+                    put_values(path, records, existing, {
+                        **dict(zip(normals, rows[:, 3:6].T)),
+                        **{name: rows[:, 6 + FIELDS.index(name)].astype(np.float32)
+                           for name in scalars}})
+                    writer.write_points(records)
+                    start = stop
+                if reader.evlrs:
+                    writer.write_evlrs(reader.evlrs)
+
+
+class ZarrFile:
+    """A Zarr array of a real ``(n, 3)`` array, or a Zarr group holding one as ``points``,
+    read by rows (``pip install "pssd_fast[zarr]"``)."""
+
+    def __init__(self, path):
+        try:
+            import zarr
+        except ImportError as err:
+            raise ImportError("Zarr input needs zarr: pip install 'pssd_fast[zarr]'") from err
+        self.path = path
+        found = zarr.open(str(path), mode="r")
+        if not hasattr(found, "shape"):
+            if "points" not in found:
+                raise ValueError(f"{path}: a Zarr group without a 'points' array")
+            found = found["points"]
+        self.array = found
+        self.shape, self.dtype = found.shape, np.dtype(found.dtype)
+        if self.dtype.kind not in "fiu":
+            raise TypeError(f"{path}: points must hold real numbers; got dtype {self.dtype}")
+        if len(self.shape) != 2 or self.shape[1] != 3:
+            raise ValueError(f"{path}: points must have shape (n, 3); got {self.shape}")
+
+    def __getitem__(self, rows):
+        return np.asarray(self.array[rows])
+
+    def write(self, path, points):
+        """A new Zarr array at ``path`` of ``points`` (an ``(n, 3)`` array-like read by row
+        slices), with this one's chunks and the result's dtype."""
+        import zarr
+
+        out = zarr.open_array(str(path), mode="w", shape=points.shape, dtype=points.dtype,
+                              chunks=self.array.chunks)
+        step = max(CHUNK_POINTS // self.array.chunks[0], 1) * self.array.chunks[0]
+        for start in range(0, points.shape[0], step):
+            out[start:start + step] = points[start:start + step]
 
 
 def chunks(array):
@@ -233,6 +301,72 @@ class Buckets:
         return paths
 
 
+    def states(self, paths, spans):
+        """The points cut into the rank ranges ``spans``, a :data:`STATE` file each (at
+        ``paths``); returns each tile's :func:`pssd_fast.halo.boxes` and the points' sum,
+        row after row in rank order (the sum of ``mean(axis=0)``)."""
+        from .halo import boxes
+
+        pieces = []
+        total = None
+        rows, points = np.empty(0, np.int64), np.empty((0, 3))
+        for records in self.each():
+            start = records["xyz"] - self.centre
+            total = np.add.reduce(start if total is None else
+                                  np.concatenate((total[None], start)), axis=0)
+            rows = np.concatenate((rows, records["row"]))
+            points = np.concatenate((points, start))
+            while len(pieces) < len(spans):
+                a, b = spans[len(pieces)]
+                if rows.shape[0] < b - a:
+                    break
+                state = np.zeros(b - a, STATE)
+                state["row"] = rows[:b - a]
+                state["xyz"] = state["start"] = points[:b - a]
+                save(state, paths[len(pieces)])
+                pieces.append(boxes(points[:b - a]))
+                rows, points = rows[b - a:], points[b - a:]
+        return pieces, total
+
+
+def gather(own, sources, region):
+    """A tile's task's points: its own records (:data:`STATE`), then those of the ranges
+    ``sources`` (``[(path, [(start, stop), ...]), ...]``) inside the boxes ``region`` (all of
+    them where ``region`` is None)."""
+    from .halo import within
+
+    found = [own]
+    for path, ranges in sources:
+        with open(path, "rb") as fh:
+            for start, stop in ranges:
+                fh.seek(start * STATE.itemsize)
+                records = np.fromfile(fh, STATE, stop - start)
+                found.append(records if region is None else
+                             records[within(records["xyz"], region)])
+    return np.concatenate(found)
+
+
+def ranked(paths, spans, dtype, field=None):
+    """``read(start, stop)``: the values of ranks ``start..stop-1`` from the files ``paths``
+    of the rank ranges ``spans`` (records of ``dtype``, their ``field``)."""
+    starts = np.array([a for a, _ in spans])
+
+    def read(start, stop):
+        found = []
+        for i in range(np.searchsorted(starts, start, side="right") - 1, len(spans)):
+            a, b = spans[i]
+            if a >= stop:
+                break
+            lo, hi = max(start, a), min(stop, b)
+            with open(paths[i], "rb") as fh:
+                fh.seek((lo - a) * dtype.itemsize)
+                values = np.fromfile(fh, dtype, hi - lo)
+            found.append(values if field is None else values[field])
+        return np.concatenate(found)
+
+    return read
+
+
 def _codes(points, low, scale):
     codes = np.empty(points.shape[0], np.uint64)
     morton_codes(points, low, scale, codes)
@@ -264,10 +398,11 @@ def read_tile(path, centre):
     return records["row"], records["code"], records["xyz"] - centre
 
 
-def write_rows(path, parts, n, dtype):
-    """The records of the ``parts`` files (input row, coordinates; any order) into a new
-    ``.npy`` file of ``(n, 3)`` ``dtype``, in row order, with bounded memory: the records are
-    first binned by blocks of :data:`CHUNK_POINTS` rows, then each block is written whole."""
+def write_rows(path, parts, n, dtype, columns=("xyz",)):
+    """The records of the ``parts`` files (:data:`PART`, any order) into a new ``.npy`` file
+    of ``(n, c)`` ``dtype``, in row order: the fields ``columns`` side by side. Memory stays
+    bounded: the records are first binned by blocks of :data:`CHUNK_POINTS` rows, then each
+    block is written whole."""
     folder = Path(parts[0]).parent
     blocks = [folder / f"rows_{i}.bin" for i in range(-(-n // CHUNK_POINTS))]
     writers = [open(block, "wb") for block in blocks]
@@ -278,18 +413,53 @@ def write_rows(path, parts, n, dtype):
     finally:
         for writer in writers:
             writer.close()
-    header = np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=(n, 3))
+    width = columns_width(columns)
+    header = np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=(n, width))
     offset = header.offset
     del header
     with open(path, "r+b") as fh:
         for i, block in enumerate(blocks):
             records = np.fromfile(block, PART)
             start = i * CHUNK_POINTS
-            out = np.empty((min(n, start + CHUNK_POINTS) - start, 3), dtype)
-            out[records["row"] - start] = records["xyz"]
-            fh.seek(offset + start * 3 * dtype.itemsize)
+            out = np.empty((min(n, start + CHUNK_POINTS) - start, width), dtype)
+            out[records["row"] - start] = np.column_stack([records[c] for c in columns])
+            fh.seek(offset + start * width * dtype.itemsize)
             out.tofile(fh)
 
 
-#: A denoised point: its row in the input and its coordinates.
-PART = np.dtype([("row", np.int64), ("xyz", np.float64, 3)])
+def columns_width(columns):
+    """The columns the fields ``columns`` of :data:`PART` take side by side."""
+    return sum(PART[c].shape[0] if PART[c].shape else 1 for c in columns)
+
+
+def part_records(rows, points, normals, likelihood, feature, displacement):
+    """The :data:`PART` records of denoised points (coordinates as the output holds them)."""
+    records = np.empty(rows.shape[0], PART)
+    records["row"] = rows
+    records["xyz"] = points
+    records["nrm"] = normals
+    records["likelihood"] = likelihood
+    records["feature"] = feature
+    records["displacement"] = displacement
+    return records
+
+
+def save(records, path):
+    """``records`` to ``path`` through a temporary name: a task run again after a lost worker
+    never finds a half-written file."""
+    temporary = path.with_suffix(".partial")
+    records.tofile(temporary)
+    os.replace(temporary, path)
+
+
+#: A point between the iterations of a tiled run on its points: its input row, its
+#: coordinates now and at the start (relative to the centre), its normal.
+STATE = np.dtype([("row", np.int64), ("xyz", np.float64, 3), ("start", np.float64, 3),
+                  ("nrm", np.float64, 3)])
+#: A denoised point: its input row, coordinates, normal, likelihood, feature intensity and
+#: displacement (the columns of the result of ``denoise``, before its dtype).
+PART = np.dtype([("row", np.int64), ("xyz", np.float64, 3), ("nrm", np.float64, 3),
+                 ("likelihood", np.float64), ("feature", np.float64),
+                 ("displacement", np.float64)])
+#: The fields of :data:`PART` a LAS/LAZ output takes from it, in the order of its table.
+TABLE = ("xyz", "nrm", "likelihood", "feature", "displacement")

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import ondisk
+from . import core, halo, ondisk
 from ._threads import threads
 from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_orient, check_size,
@@ -35,7 +35,7 @@ from .progress import Clock, reporter
 #: Dask's local schedulers, by the names ``client`` takes for them.
 LOCAL_SCHEDULERS = ("threads", "processes", "sync")
 #: What :func:`denoise_file` reads and writes, by extension.
-FILE_KINDS = {".npy": "npy", ".las": "las", ".laz": "las"}
+FILE_KINDS = {".npy": "npy", ".zarr": "zarr", ".las": "las", ".laz": "las"}
 #: The feature-aware pipeline's parameters other than ``sigma_n``, at their defaults.
 PARAMS = {"keep_normals": False}
 
@@ -103,7 +103,23 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
         if scale["ratio"] >= coarse.COARSE[preset]["min_ratio"]:
             sigma = aware.noise_sigma(current, given, scale)
             found = coarse.layout(current, sigma, preset)
-        _check_found(found, preset, scale)
+        scale["coarse"] = None
+        if found is None:
+            _check_points_route(preset)
+            spans = halo.tiles(n, tile_points)
+            centroid = current.mean(axis=0)
+            current, out_normals, extra, records = halo.iterate(
+                current, given, k, iterations, sigma_n, spans,
+                halo.first_width(scale["probe_radius"], scale["probe_k"], k), runner)
+            if orient is not None:
+                # Propagation over the whole cloud's lists does not tile: one by one.
+                halo.orient_pointwise(current, out_normals, _relative(orient, centre), centroid)
+            tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
+                     "scheduler": runner.name, "route": "halo"}
+            return result(pts, dtype, order, centre, current, out_normals, extra, np.arange(n),
+                          (pts.astype(dtype), n_jobs),
+                          _stats(n, k, preset, scale, True, orient, iterations, params,
+                                 n_threads, records, tiled, started))
         rows, starts, edge, k, rebuild_graph = found
         tiles = _tiles(starts, tile_points)
         parts = [rows[starts[c0]:starts[c1]] for c0, c1 in tiles]
@@ -132,47 +148,60 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     records[-1]["times"].update(clock.times)
     scale["coarse"] = coarse.describe(sigma, edge, cells.counts, surface, cells.surface_k,
                                       coarse.fit_record(held, nearest, rms, degree))
-    stats = {
+    tiled = {"count": len(tiles), "most_points": int(max(len(p) for p in parts)),
+             "scheduler": runner.name, "route": "cells"}
+    return result(pts, dtype, order, centre, current, surface_normals[nearest],
+                  tuple(x[nearest] for x in extra), np.arange(n), (pts.astype(dtype), n_jobs),
+                  _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params,
+                         n_threads, records, tiled, started))
+
+
+def _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads, records,
+           tiled, started):
+    """A tiled run's ``stats``, as :func:`pssd_fast.denoise` gives them, with ``"tiles"``."""
+    return {
         "method": "robust", "n_points": n, "k": k, "lam": None, "preset": preset,
         "pipeline": "aware", "auto_k": scale, "noise": scale["noise"],
         "rebuild_graph": bool(rebuild_graph),
         "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
         "outliers": None, "n_iterations": iterations, "params": params, "n_jobs": n_threads,
-        "iterations": records,
-        "tiles": {"count": len(tiles), "most_points": int(max(len(p) for p in parts)),
-                  "scheduler": runner.name},
-        "total_seconds": time.perf_counter() - started,
+        "iterations": records, "tiles": tiled, "total_seconds": time.perf_counter() - started,
     }
-    return result(pts, dtype, order, centre, current, surface_normals[nearest],
-                  tuple(x[nearest] for x in extra), np.arange(n), (pts.astype(dtype), n_jobs),
-                  stats)
 
 
 def denoise_file(source, destination, *, tile_points=2_000_000, client=None, preset="default",
-                 iterations=None, sigma_n=0.05, n_jobs=None, progress=None, scratch=None,
-                 overwrite=False):
-    """Denoise the points of an ``.npy`` or LAS/LAZ file into another, out of core, tile by
-    tile on Dask.
+                 iterations=None, orient=None, sigma_n=0.05, fields=ondisk.RESULT_FIELDS,
+                 n_jobs=None, progress=None, scratch=None, overwrite=False):
+    """Denoise the points of an ``.npy``, Zarr or LAS/LAZ file into another, out of core, tile
+    by tile on Dask.
 
     The input is read in chunks; the points are binned into tile files in a scratch folder,
-    each task reads one tile, and the output is written in the input's row order. Memory
-    follows ``tile_points`` and the number of grid cells (the noise), not the number of points.
-    The denoised points are those of :func:`pssd_fast.denoise`, bit for bit.
+    each task reads one tile (and, on a cloud iterated on its points, the halo of the tile
+    from the others), and the output is written in the input's row order. Memory follows
+    ``tile_points`` (and, on the coarse-to-fine route, the number of grid cells), not the
+    number of points. The result is that of :func:`pssd_fast.denoise`, bit for bit.
 
     Parameters
     ----------
     source : path-like
-        An ``.npy`` file of a real ``(n, 3)`` array, or a LAS/LAZ file (its ``nx``, ``ny``,
-        ``nz`` dimensions, if any, are not read).
+        An ``.npy`` file of a real ``(n, 3)`` array, a Zarr array of that shape (or a Zarr
+        group holding one as ``points``; ``pip install "pssd_fast[zarr]"``), or a LAS/LAZ
+        file without normals (``nx``, ``ny``, ``nz``: ``pssd_fast.io.read`` them, then
+        :func:`denoise` in memory).
     destination : path-like
-        Written only when complete. For ``.npy`` input an ``.npy`` file: the denoised ``(n, 3)``
-        points in the input's rows, float32 for float32 input and float64 otherwise. For
-        LAS/LAZ input a ``.las``/``.laz`` file: the input with the denoised coordinates
-        (quantised as :func:`pssd_fast.io.write` quantises them), every other record byte, the
-        header, the VLRs and the EVLRs as read.
-    tile_points, client, preset, iterations, sigma_n, n_jobs, progress
+        Of the kind of ``source``, written only when complete: the denoised ``(n, 3)`` points
+        in the input's rows (``.npy``, or a Zarr array of the input's chunks), float32 for
+        float32 input and float64 otherwise; or a ``.las``/``.laz`` file: the input with the
+        denoised coordinates (quantised as :func:`pssd_fast.io.write` quantises them), the
+        ``fields`` asked for (as ``pssd denoise --fields`` writes them: ``nx``, ``ny``, ``nz``
+        for the normals, float32 extra bytes where new), every other record byte, the header,
+        the VLRs and the EVLRs as read.
+    tile_points, client, preset, iterations, orient, sigma_n, n_jobs, progress
         As in :func:`denoise`; progress also hears of the passes over the file (``buckets``,
         ``tiles``) and of the output (``write``).
+    fields : sequence of str
+        LAS/LAZ output: which of ``"likelihood"``, ``"feature_intensity"``,
+        ``"displacement"`` and ``"normals"`` to write (default all).
     scratch : path-like, optional
         Where the scratch folder goes (default: beside ``destination``); with a cluster, a
         folder every worker reads and writes. It is removed on success, on failure and on
@@ -188,24 +217,30 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     Raises
     ------
     ValueError
-        For a cloud the preset iterates on its points (see :func:`denoise`), bad input, or
-        other formats (Zarr is not read yet).
+        Bad input, unknown fields, other formats, or ``fast`` on a cloud it would iterate on
+        its points (see :func:`denoise`).
     FileExistsError
         ``destination`` exists and ``overwrite`` is False.
     """
     source, destination = Path(source), Path(destination)
     kinds = {path: FILE_KINDS.get(path.suffix.lower()) for path in (source, destination)}
     if None in kinds.values() or len(set(kinds.values())) > 1:
-        raise ValueError(f"denoise_file reads .npy into .npy, or .las/.laz into .las/.laz; got "
-                         f"{source.name} and {destination.name} (other formats: "
-                         f"pssd_fast.io.read, then denoise)")
+        raise ValueError(f"denoise_file reads .npy into .npy, Zarr into Zarr, or .las/.laz "
+                         f"into .las/.laz; got {source.name} and {destination.name} (other "
+                         f"formats: pssd_fast.io.read, then denoise)")
     setting, tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
                                                           iterations, client)
+    orient = None if orient is None else check_orient(orient)
+    unknown = sorted(set(fields) - set(ondisk.RESULT_FIELDS))
+    if unknown:
+        raise ValueError(f"unknown field(s) {', '.join(unknown)}; choose from "
+                         f"{', '.join(ondisk.RESULT_FIELDS)}")
     if destination.exists() and not overwrite:
         raise FileExistsError(f"{destination} exists; pass overwrite=True to replace it")
     if destination.resolve() == source.resolve():
         raise ValueError(f"the output {destination} would overwrite the input")
-    array = ondisk.NpyFile(source) if kinds[source] == "npy" else ondisk.LasFile(source)
+    array = {"npy": ondisk.NpyFile, "las": ondisk.LasFile, "zarr": ondisk.ZarrFile}[
+        kinds[source]](source)
     dtype = np.dtype(np.float32) if array.dtype == np.float32 else np.dtype(np.float64)
     report = reporter(progress)
     started = time.perf_counter()
@@ -218,65 +253,223 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
             first = Clock(report, 0, iterations)
             cloud = first.run("buckets", ondisk.Buckets, array, folder, tile_points)
+            n = cloud.shape[0]
             k, scale, _ = aware.choose_k(cloud, None, *setting["probe"])
             found = sigma = None
             if scale["ratio"] >= coarse.COARSE[preset]["min_ratio"]:
                 sigma = aware.noise_sigma(cloud, None, scale)
                 found = cloud.layout(sigma, preset)
-            _check_found(found, preset, scale)
-            codes, counts, edge, k, rebuild_graph = found
-            starts = np.concatenate(([0], np.cumsum(counts)))
-            tiles = _tiles(starts, tile_points)
-            paths = first.run("tiles", cloud.tiles, folder,
-                              codes[[c0 for c0, _ in tiles]], edge)
-            sums = runner.map("tile_cells", 1, iterations, _file_cells,
-                              [(path, cloud.centre) for path in paths])
-            cells = coarse.Cells(np.concatenate(sums), None, counts, edge, k,
-                                 coarse.COARSE[preset]["surface_k"], rebuild_graph)
-            means, out_normals, extra, records = iterate(
-                cells.points, None, STEPS["aware"], k, iterations, rebuild_graph, None, None,
-                params, None, cloud.centre, report, cells.counts)
-            surface, surface_normals, extra = coarse.collapse(cells, means, out_normals, extra)
+            scale["coarse"] = None
+            if found is None:
+                _check_points_route(preset)
+                rebuild_graph = True
+                spans = halo.tiles(n, tile_points)
+                parts, records = _file_points(cloud, spans, folder, runner, first, k,
+                                              iterations, sigma_n, halo.first_width(
+                                                  scale["probe_radius"], scale["probe_k"], k),
+                                              orient)
+                tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
+                         "route": "halo"}
+            else:
+                parts, records, k, rebuild_graph, tiled = _file_cells(
+                    cloud, found, folder, runner, first, report, k, iterations, sigma_n,
+                    tile_points, preset, params, sigma, scale, orient)
+            tiled["scheduler"] = runner.name
             clock = Clock(report, iterations - 1, iterations)
-            coef, rms, degree = coarse.fit_surface(surface, surface_normals, cells.surface_k,
-                                                   sigma_n, clock)
-            parts = [folder / f"part_{i}.bin" for i in range(len(paths))]
-            fits = runner.map("tile_update", iterations, iterations, _file_update, [
-                (path, part, cloud.centre, surface, surface_normals, coef, rms, degree)
-                for path, part in zip(paths, parts)])
-            clock.run("write", _write, array, output, parts, cloud.shape[0], dtype, folder)
-            os.replace(output, destination)
+            clock.run("write", _write, array, output, parts, n, dtype, folder, fields)
+            _replace(output, destination)
         records[0]["times"].update(first.times)
         records[-1]["times"].update(clock.times)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+        if output.is_dir():
+            shutil.rmtree(output, ignore_errors=True)
         output.unlink(missing_ok=True)
-    n = cloud.shape[0]
+    return _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads,
+                  records, tiled, started)
+
+
+def _file_cells(cloud, found, folder, runner, first, report, k, iterations, sigma_n,
+                tile_points, preset, params, sigma, scale, orient):
+    """The coarse-to-fine route of :func:`denoise_file`: the part files, the iterations'
+    records, ``k`` and ``rebuild_graph`` on the cells, and the tiles' description."""
+    codes, counts, edge, k, rebuild_graph = found
+    starts = np.concatenate(([0], np.cumsum(counts)))
+    tiles = _tiles(starts, tile_points)
+    paths = first.run("tiles", cloud.tiles, folder, codes[[c0 for c0, _ in tiles]], edge)
+    sums = runner.map("tile_cells", 1, iterations, _file_cells_task,
+                      [(path, cloud.centre) for path in paths])
+    cells = coarse.Cells(np.concatenate(sums), None, counts, edge, k,
+                         coarse.COARSE[preset]["surface_k"], rebuild_graph)
+    means, out_normals, extra, records = iterate(
+        cells.points, None, STEPS["aware"], k, iterations, rebuild_graph, None, None, params,
+        orient, cloud.centre, report, cells.counts)
+    surface, surface_normals, extra = coarse.collapse(cells, means, out_normals, extra)
+    clock = Clock(report, iterations - 1, iterations)
+    coef, rms, degree = coarse.fit_surface(surface, surface_normals, cells.surface_k, sigma_n,
+                                           clock)
+    records[-1]["times"].update(clock.times)
+    parts = [folder / f"part_{i}.bin" for i in range(len(paths))]
+    fits = runner.map("tile_update", iterations, iterations, _file_update, [
+        (path, part, cloud.centre, surface, surface_normals, coef, extra, rms, degree)
+        for path, part in zip(paths, parts)])
     fit = coarse.fit_summary(sum(f[0] for f in fits), sum(f[1] for f in fits),
-                             np.sum([f[2] for f in fits], axis=0), n)
+                             np.sum([f[2] for f in fits], axis=0), cloud.shape[0])
     scale["coarse"] = coarse.describe(sigma, edge, counts, surface, cells.surface_k, fit)
-    return {
-        "method": "robust", "n_points": n, "k": k, "lam": None, "preset": preset,
-        "pipeline": "aware", "auto_k": scale, "noise": scale["noise"],
-        "rebuild_graph": bool(rebuild_graph), "orient": None, "outliers": None,
-        "n_iterations": iterations, "params": params, "n_jobs": n_threads,
-        "iterations": records,
-        "tiles": {"count": len(tiles),
-                  "most_points": int(max(starts[c1] - starts[c0] for c0, c1 in tiles)),
-                  "scheduler": runner.name},
-        "total_seconds": time.perf_counter() - started,
-    }
+    tiled = {"count": len(tiles), "most_points": int(max(starts[c1] - starts[c0]
+                                                         for c0, c1 in tiles)),
+             "route": "cells"}
+    return parts, records, k, rebuild_graph, tiled
 
 
-def _write(array, output, parts, n, dtype, folder):
-    """The parts' points in the input's rows: an ``.npy`` array, or a copy of the LAS/LAZ
-    input with those coordinates."""
+def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, width, orient):
+    """The iterations of :func:`denoise_file` on the points, tiles with halos
+    (:mod:`pssd_fast.halo`), each tile's points in a state file between iterations: the part
+    files and the iterations' records."""
+    n = cloud.shape[0]
+    paths = [folder / f"state_0_{i}.bin" for i in range(len(spans))]
+    pieces, total = first.run("tiles", cloud.states, paths, spans)
+    centroid = total / n
+    widths = [width] * len(spans)
+    records = []
+    for t in range(iterations):
+        started = time.perf_counter()
+        last = t == iterations - 1
+        outputs = [folder / (f"part_{i}.bin" if last else f"state_{(t + 1) % 2}_{i}.bin")
+                   for i in range(len(spans))]
+
+        def sources(i, width):
+            region = halo.widened(pieces[i], width)
+            return _sources(i, region, pieces, paths, spans), (
+                None if halo.covers(region, _union(pieces)) else region)
+
+        radius = None
+        if last:
+            nearest = [folder / f"nearest_{i}.bin" for i in range(len(spans))]
+            halo.each_tile(runner, "tile_spacing", t, iterations, _file_spacing, widths,
+                           lambda i, width: (paths[i], *sources(i, width), k, nearest[i]))
+            radius = aware.region_radius(halo.pairwise_mean(
+                ondisk.ranked(nearest, spans, np.dtype(np.float64)), n))
+        out = halo.each_tile(runner, "tile_step", t, iterations, _file_step, widths,
+                             lambda i, width: (paths[i], *sources(i, width), t == 0,
+                                               centroid, k, sigma_n, radius, outputs[i],
+                                               cloud.centre))
+        pieces = [o.pop("boxes") for o in out]
+        records.append(halo.record(out, n, widths, started))
+        paths = outputs
+    dbar = halo.pairwise_mean(ondisk.ranked(paths, spans, ondisk.PART, "likelihood"), n)
+    runner.map("finish", iterations, iterations, _file_finish, [
+        (path, dbar, cloud.centre, _relative(orient, cloud.centre), centroid) for path in paths])
+    return paths, records
+
+
+def _union(pieces):
+    """The box around all the boxes of ``pieces``."""
+    every = np.concatenate(pieces)
+    return every[:, 0].min(axis=0), every[:, 1].max(axis=0)
+
+
+def _sources(i, region, pieces, paths, spans):
+    """What tile ``i``'s task reads besides its own file: ``(path, [(start, stop), ...])``
+    of each other tile's runs whose box meets the boxes ``region``."""
+    found = []
+    for j, (found_boxes, path, (a, b)) in enumerate(zip(pieces, paths, spans)):
+        if j == i:
+            continue
+        meets = ((found_boxes[:, None, 0] <= region[None, :, 1]).all(axis=2)
+                 & (found_boxes[:, None, 1] >= region[None, :, 0]).all(axis=2)).any(axis=1)
+        ends = halo.cuts(b - a)
+        hits = np.flatnonzero(meets)
+        if hits.size:
+            # Consecutive runs read as one range.
+            breaks = np.flatnonzero(np.diff(hits) > 1)
+            firsts = np.concatenate((hits[:1], hits[breaks + 1]))
+            lasts = np.concatenate((hits[breaks], hits[-1:]))
+            found.append((path, [(int(ends[f]), int(ends[l + 1]))
+                                 for f, l in zip(firsts, lasts)]))
+    return found
+
+
+def _file_spacing(own_path, sources, region, k, output, n_jobs):
+    """:func:`pssd_fast.halo.spacing` of a tile in its state file, saved to ``output``;
+    None when the halo is too thin."""
+    own = np.fromfile(own_path, ondisk.STATE)
+    points = ondisk.gather(own, sources, region)
+    nearest = halo.spacing(np.ascontiguousarray(points["xyz"]), own.shape[0], k, region, n_jobs)
+    if nearest is None:
+        return None
+    ondisk.save(nearest, output)
+    return True
+
+
+def _file_step(own_path, sources, region, first, centroid, k, sigma_n, radius, output, centre,
+               n_jobs):
+    """:func:`pssd_fast.halo.step` of a tile in its state file; the moved points saved to
+    ``output``, a state file, or on the last iteration (``radius`` given) a part file whose
+    likelihood column holds the residual for now. Returns the step's counts and the
+    :func:`~pssd_fast.halo.boxes` of the moved points, or None when the halo is too thin."""
+    own = np.fromfile(own_path, ondisk.STATE)
+    points = ondisk.gather(own, sources, region)
+    found = halo.step(np.ascontiguousarray(points["xyz"]),
+                      None if first else np.ascontiguousarray(points["nrm"]), False, centroid,
+                      own.shape[0], k, sigma_n, region, radius, n_jobs)
+    if found is None:
+        return None
+    moved, normals = found.pop("moved"), found.pop("normals")
+    rms, feature = found.pop("rms"), found.pop("feature")
+    if radius is None:
+        state = own.copy()
+        state["xyz"], state["nrm"] = moved, normals
+        ondisk.save(state, output)
+    else:
+        ondisk.save(ondisk.part_records(own["row"], moved + centre, normals, rms, feature,
+                                        np.linalg.norm(moved - own["start"], axis=1)), output)
+    found["boxes"] = halo.boxes(moved)
+    return found
+
+
+def _file_finish(part, dbar, centre, orient, centroid, n_jobs):
+    """A part file's residuals turned into likelihoods, relative to the cloud's ``dbar``, and
+    its normals turned to face ``orient`` one by one (see :func:`denoise`)."""
+    with threads(n_jobs):
+        records = np.fromfile(part, ondisk.PART)
+        records["likelihood"] = core.sampling_likelihood(records["likelihood"], "exp", dbar)[0]
+        if orient is not None:
+            halo.orient_pointwise(records["xyz"] - centre, records["nrm"], orient, centroid)
+        ondisk.save(records, part)
+
+
+def _replace(output, destination):
+    """``output`` renamed to ``destination``; a folder there (a Zarr store) is moved aside
+    first and removed after."""
+    if not destination.is_dir():
+        os.replace(output, destination)
+        return
+    old = destination.with_name(f".{destination.name}.{os.getpid()}.old")
+    os.replace(destination, old)
+    os.replace(output, destination)
+    shutil.rmtree(old)
+
+
+def _relative(orient, centre):
+    """``orient`` in the frame of points relative to ``centre`` (a name is kept)."""
+    return orient if orient is None or isinstance(orient, str) else orient - centre
+
+
+def _write(array, output, parts, n, dtype, folder, fields):
+    """The parts' points in the input's rows: an ``.npy`` or Zarr array, or a copy of the
+    LAS/LAZ input with those coordinates and the ``fields`` asked for."""
     if isinstance(array, ondisk.NpyFile):
         ondisk.write_rows(output, parts, n, dtype)
         return
-    rows = folder / "rows.npy"
-    ondisk.write_rows(rows, parts, n, dtype)
-    array.write(output, ondisk.NpyFile(rows))
+    table = folder / "rows.npy"
+    if isinstance(array, ondisk.ZarrFile):
+        ondisk.write_rows(table, parts, n, dtype)
+        array.write(output, ondisk.NpyFile(table))
+        return
+    ondisk.write_rows(table, parts, n, dtype, ondisk.TABLE)
+    array.write(output, ondisk.NpyFile(table, columns=ondisk.columns_width(ondisk.TABLE)),
+                fields)
 
 
 def _settings(preset, tile_points, sigma_n, iterations, client):
@@ -293,35 +486,32 @@ def _settings(preset, tile_points, sigma_n, iterations, client):
                       "iterations", minimum=1))
 
 
-def _check_found(found, preset, scale):
-    """The error for a cloud the preset iterates on its points."""
-    if found is None:
-        raise ValueError(
-            f"preset {preset!r} iterates on the points of this cloud (noise ratio "
-            f"{scale['ratio']:.2f}, coarse-to-fine route from "
-            f"{coarse.COARSE[preset]['min_ratio']}): it does not tile; run pssd_fast.denoise")
+def _check_points_route(preset):
+    """The error for ``fast`` on a cloud it iterates on its points: it keeps its first lists
+    through the iterations, which a tile's task of one iteration cannot."""
+    if not PRESETS[preset]["rebuild_graph"]:
+        raise ValueError(f"preset {preset!r} finds no grid cells in this cloud and would "
+                         f"iterate on its points with the first iteration's lists; tiled runs "
+                         f"query them anew in each iteration: use preset 'default'")
 
 
-def _file_cells(path, centre, n_jobs):
+def _file_cells_task(path, centre, n_jobs):
     """The cell means of a tile file."""
     with threads(n_jobs):
         _, codes, points = ondisk.read_tile(path, centre)
         return coarse.cell_means(points, None, *coarse.group_codes(codes))[0]
 
 
-def _file_update(path, part, centre, surface, normals, coef, rms, degree, n_jobs):
-    """A tile file's points moved onto the fits, saved to ``part`` (rows and coordinates);
-    returns the held points, the sum of the nearest fits' residuals and their degrees."""
+def _file_update(path, part, centre, surface, normals, coef, extra, rms, degree, n_jobs):
+    """A tile file's points moved onto the fits, saved to ``part`` with the normal, the
+    likelihood and the feature intensity of their nearest denoised mean; returns the held
+    points, the sum of the nearest fits' residuals and their degrees."""
     with threads(n_jobs):
         rows, _, points = ondisk.read_tile(path, centre)
         moved, held, nearest = coarse.onto_fits(points, surface, normals, coef)
-        records = np.empty(rows.shape[0], ondisk.PART)
-        records["row"] = rows
-        records["xyz"] = moved + centre
-        # A task run again after a lost worker finds no half-written part.
-        temporary = part.with_suffix(".partial")
-        records.tofile(temporary)
-        os.replace(temporary, part)
+        ondisk.save(ondisk.part_records(rows, moved + centre, normals[nearest],
+                                        extra[0][nearest], extra[1][nearest],
+                                        np.linalg.norm(moved - points, axis=1)), part)
         return (int(held.sum()), float(rms[nearest].sum()),
                 np.bincount(degree[nearest], minlength=7))
 

@@ -587,6 +587,47 @@ def test_tile_points_give_the_in_core_file(tmp_path):
         np.testing.assert_array_equal(tiled.fields[name], in_core.fields[name])
 
 
+@pytest.mark.parametrize("ext", [".npy", ".las"])
+def test_tile_points_on_npy_and_las_run_out_of_core_with_the_in_core_file(tmp_path, ext):
+    """Points, and for LAS the fields and normals asked for; the normals of LAS input face up
+    (one by one on a cloud iterated on its points, which the default is here)."""
+    pytest.importorskip("dask")
+    if ext == ".las":
+        pytest.importorskip("laspy")
+    from pssd_fast import io
+
+    cloud = datasets.cad_part(n_points=20000, noise=0.002, seed=3)
+    path = tmp_path / f"in{ext}"
+    io.write(path, io.PointCloud(cloud.points * 10, None, {}, "npy", None))
+    fields = ("--fields", "likelihood,displacement,normals") if ext == ".las" else ()
+    assert pssd("denoise", path, tmp_path / f"in_core{ext}", *fields)[0] == 0
+    status, out, err = pssd("denoise", path, tmp_path / f"tiled{ext}", *fields,
+                            "--tile-points", "3000", "--scheduler", "sync")
+    assert status == 0, err
+    assert "7 tiles of at most 2,944 points (halos), out of core" in out
+    in_core, tiled = (io.read(tmp_path / f"{name}{ext}") for name in ("in_core", "tiled"))
+    np.testing.assert_array_equal(tiled.points, in_core.points)
+    assert sorted(tiled.fields) == sorted(in_core.fields)
+    for name in in_core.fields:
+        np.testing.assert_array_equal(tiled.fields[name], in_core.fields[name])
+    if ext == ".las":
+        assert (tiled.normals[:, 2] >= 0).all()
+        np.testing.assert_array_equal(np.abs(tiled.normals), np.abs(in_core.normals))
+
+
+def test_tile_points_read_and_write_zarr(tmp_path):
+    pytest.importorskip("dask")
+    zarr = pytest.importorskip("zarr")
+    points = datasets.cad_part(n_points=20000, noise=0.002, seed=3).points
+    zarr.open_array(str(tmp_path / "in.zarr"), mode="w", shape=points.shape,
+                    dtype=points.dtype, chunks=(5000, 3))[:] = points
+    status, out, err = pssd("denoise", tmp_path / "in.zarr", tmp_path / "out.zarr",
+                            "--tile-points", "3000")
+    assert status == 0 and "out of core" in out, err
+    np.testing.assert_array_equal(zarr.open_array(str(tmp_path / "out.zarr"))[:],
+                                  pssd_fast.denoise(points).points)
+
+
 @pytest.mark.parametrize("extra, match", [
     (("--k", "30"), "does not take --k"),
     (("--preset", "paper"), "does not take --preset paper"),

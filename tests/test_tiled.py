@@ -108,10 +108,59 @@ def test_progress_hears_of_every_tile(noisy):
     assert updates[-1] == f"tile_update {len(updates)}/{len(updates)}"
 
 
-def test_a_cloud_iterated_on_its_points_is_refused():
-    cloud = datasets.cad_part(n_points=20_000, noise=0.002, seed=1)
-    with pytest.raises(ValueError, match="does not tile"):
-        tiled.denoise(cloud.points)
+@pytest.fixture(scope="module")
+def sparse():
+    """Noise well under the point spacing: the default iterates on the points."""
+    return datasets.cad_part(n_points=120_000, noise=0.002, seed=3).points
+
+
+@pytest.fixture(scope="module")
+def sparse_in_core(sparse):
+    return pssd_fast.denoise(sparse)
+
+
+def test_a_cloud_iterated_on_its_points_tiles_with_halos(sparse, sparse_in_core):
+    got = tiled.denoise(sparse, tile_points=15_000)
+    assert got.stats["tiles"]["route"] == "halo" and got.stats["tiles"]["count"] >= 8
+    _assert_same(got, sparse_in_core)
+    assert got.stats["iterations"][0]["fit_degree"] == \
+        sparse_in_core.stats["iterations"][0]["fit_degree"]
+
+
+def test_halos_too_thin_are_widened_until_exact(sparse, sparse_in_core, monkeypatch):
+    """A first width of a quarter list radius: every tile fails its check and runs again."""
+    from pssd_fast import halo
+
+    monkeypatch.setattr(halo, "FIRST_WIDTH", 0.25)
+    seen = []
+    got = tiled.denoise(sparse, tile_points=30_000, progress=lambda *a: seen.append(a[2]))
+    assert sum(s.startswith("tile_step") for s in seen) > 4 * got.stats["tiles"]["count"]
+    _assert_same(got, sparse_in_core)
+
+
+def test_halos_orient_each_normal_alone(sparse, sparse_in_core):
+    got = tiled.denoise(sparse, tile_points=30_000, orient="up")
+    np.testing.assert_array_equal(got.points, sparse_in_core.points)
+    assert (got.normals[:, 2] >= 0).all()
+    np.testing.assert_array_equal(np.abs(got.normals), np.abs(sparse_in_core.normals))
+
+
+def test_fast_without_cells_is_refused(monkeypatch):
+    from pssd_fast.pipelines import coarse
+
+    monkeypatch.setattr(coarse, "layout", lambda *args: None)
+    with pytest.raises(ValueError, match="use preset 'default'"):
+        tiled.denoise(datasets.cad_part(n_points=5_000, noise=0.02, seed=1).points,
+                      preset="fast")
+
+
+@pytest.mark.parametrize("n", [1, 7, 128, 129, 1000, 123_457])
+@pytest.mark.parametrize("block", [1, 100, 4096])
+def test_the_mean_read_by_ranges_is_numpys(n, block):
+    from pssd_fast.halo import pairwise_mean
+
+    values = np.random.default_rng(n).random(n) ** 3 * 1e3
+    assert pairwise_mean(lambda a, b: values[a:b], n, block) == float(np.mean(values))
 
 
 @pytest.mark.parametrize("kwargs, error, match", [
@@ -134,9 +183,11 @@ def small_chunks(monkeypatch):
 
 
 @pytest.mark.usefixtures("small_chunks")
-@pytest.mark.parametrize("preset, dtype", [("default", np.float64), ("fast", np.float32)])
-def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dtype):
-    points = datasets.cad_part(n_points=60_000, noise=0.02, seed=8).points.astype(dtype)
+@pytest.mark.parametrize("preset, dtype, noise", [("default", np.float64, 0.02),
+                                                  ("fast", np.float32, 0.02),
+                                                  ("default", np.float32, 0.002)])
+def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dtype, noise):
+    points = datasets.cad_part(n_points=60_000, noise=noise, seed=8).points.astype(dtype)
     source, out, scratch = tmp_path / "in.npy", tmp_path / "out.npy", tmp_path / "scratch"
     np.save(source, points)
     scratch.mkdir()
@@ -153,10 +204,11 @@ def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dty
 
 
 @pytest.mark.usefixtures("small_chunks")
-@pytest.mark.parametrize("ext", [".las", ".laz"])
-def test_a_las_file_tiled_out_of_core_keeps_everything_but_the_coordinates(tmp_path, ext):
-    """Records, scale, offset, VLRs and EVLRs as read; the coordinates those of denoise,
-    quantised as the in-core writer quantises them."""
+@pytest.mark.parametrize("ext, noise, route", [(".las", 0.02, "cells"), (".laz", 0.02, "cells"),
+                                               (".las", 0.001, "halo")])
+def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, ext, noise, route):
+    """Records, scale, offset, VLRs and EVLRs as read; the coordinates, normals, likelihood,
+    feature intensity and displacement those of denoise, as the in-core writer stores them."""
     laspy = pytest.importorskip("laspy")
     from pssd_fast import io
 
@@ -167,7 +219,7 @@ def test_a_las_file_tiled_out_of_core_keeps_everything_but_the_coordinates(tmp_p
     from laspy.vlrs.vlrlist import VLRList
 
     header.evlrs = VLRList([laspy.VLR("pssd_test", 8, "an EVLR", b"kept too")])
-    points = datasets.cad_part(n_points=40_000, noise=0.02, seed=8).points * 100
+    points = datasets.cad_part(n_points=40_000, noise=noise, seed=8).points * 100
     las = laspy.LasData(header)
     las.x, las.y, las.z = (points + [500_123.0, 4_000_456.0, 310.0]).T
     las.intensity = np.arange(len(points)) % 65535
@@ -176,10 +228,13 @@ def test_a_las_file_tiled_out_of_core_keeps_everything_but_the_coordinates(tmp_p
     las.write(str(source))
     read = io.read(source)
     expected = tmp_path / f"in_core{ext}"
-    io.write(expected, read, points=pssd_fast.denoise(read.points).points)
+    result = pssd_fast.denoise(read.points)
+    io.write(expected, read, points=result.points, normals=result.normals, fields={
+        name: getattr(result, name).astype(np.float32)
+        for name in ("likelihood", "feature_intensity", "displacement")})
     stats = tiled.denoise_file(source, tmp_path / f"tiled{ext}", tile_points=5_000,
                                client="sync")
-    assert stats["tiles"]["count"] >= 8
+    assert stats["tiles"]["count"] >= 8 and stats["tiles"]["route"] == route
     got, want, before = (laspy.read(str(tmp_path / name))
                          for name in (f"tiled{ext}", f"in_core{ext}", f"scan{ext}"))
     np.testing.assert_array_equal(got.points.array, want.points.array)
@@ -187,18 +242,39 @@ def test_a_las_file_tiled_out_of_core_keeps_everything_but_the_coordinates(tmp_p
         np.testing.assert_array_equal(np.asarray(got[name]), np.asarray(before[name]))
     np.testing.assert_array_equal(got.header.scales, before.header.scales)
     np.testing.assert_array_equal(got.header.offsets, before.header.offsets)
-    assert [v.record_data for v in got.header.vlrs] == [b"kept"]
+    assert [v.record_data for v in got.header.vlrs if v.user_id == "pssd_test"] == [b"kept"]
+    assert [type(v) for v in got.header.vlrs] == [type(v) for v in want.header.vlrs]
     assert [v.record_data for v in got.evlrs] == [b"kept too"]
     assert np.abs(np.asarray(got.X) - np.asarray(before.X)).mean() > 10  # moved
 
 
-def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path):
+@pytest.mark.usefixtures("small_chunks")
+def test_a_zarr_group_tiled_out_of_core_gives_the_in_core_points(tmp_path):
+    zarr = pytest.importorskip("zarr")
+    points = datasets.cad_part(n_points=40_000, noise=0.002, seed=4).points.astype(np.float32)
+    group = zarr.open_group(str(tmp_path / "in.zarr"), mode="w")
+    group.create_array("points", shape=points.shape, dtype=points.dtype, chunks=(4_096, 3))
+    group["points"][:] = points
+    (tmp_path / "out.zarr").mkdir()
+    with pytest.raises(FileExistsError):
+        tiled.denoise_file(tmp_path / "in.zarr", tmp_path / "out.zarr", tile_points=5_000)
+    stats = tiled.denoise_file(tmp_path / "in.zarr", tmp_path / "out.zarr", tile_points=5_000,
+                               overwrite=True)
+    got = zarr.open_array(str(tmp_path / "out.zarr"), mode="r")
+    assert stats["tiles"]["count"] >= 8 and got.chunks == (4_096, 3)
+    np.testing.assert_array_equal(got[:], pssd_fast.denoise(points).points)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.zarr", "out.zarr"]
+
+
+@pytest.mark.parametrize("n, noise, stage", [(100_000, 0.02, "tile_update"),
+                                             (40_000, 0.002, "tile_step")])
+def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path, n, noise, stage):
     """A worker killed while the tiles run: Dask runs its tasks again, the result stands."""
     import os
     import signal
 
     distributed = pytest.importorskip("distributed")
-    points = datasets.cad_part(n_points=100_000, noise=0.02, seed=9).points
+    points = datasets.cad_part(n_points=n, noise=noise, seed=9).points
     source, out = tmp_path / "in.npy", tmp_path / "out.npy"
     np.save(source, points)
     expected = pssd_fast.denoise(points)
@@ -208,10 +284,10 @@ def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path):
         victim = next(iter(client.run(os.getpid).values()))
         killed = []
 
-        def kill_once(iteration, iterations, stage, seconds):
-            if stage.startswith("tile_update") and not killed:
+        def kill_once(iteration, iterations, seen, seconds):
+            if seen.startswith(stage) and not killed:
                 os.kill(victim, signal.SIGKILL)
-                killed.append(stage)
+                killed.append(seen)
 
         tiled.denoise_file(source, out, tile_points=5_000, client=client, progress=kill_once)
     assert killed

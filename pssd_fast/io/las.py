@@ -158,6 +158,29 @@ def _extra_type(name, values):
     return np.uint8 if values.dtype.kind == "b" else values.dtype
 
 
+def new_dims(laspy, path, existing, values):
+    """The extra dimensions to add for the names of ``values`` not in ``existing``."""
+    new = [laspy.ExtraBytesParams(name, _extra_type(name, v), description="pssd_fast")
+           for name, v in values.items() if name not in existing]
+    long = [p.name for p in new if len(p.name.encode()) > 32]
+    if long:
+        raise PointCloudFileError(f"{path}: LAS extra dimension names are at most 32 bytes: "
+                                  f"{long}")
+    return new
+
+
+def put_values(path, records, existing, values):
+    """``values`` into the dimensions of ``records`` (LasData or a point record) by name."""
+    for name, v in values.items():
+        old = np.asarray(records[name])
+        if name in existing and np.array_equal(old, v):
+            continue  # untouched: leave the record bytes exactly as read
+        try:
+            records[name] = fit_dtype(name, v, old.dtype, "its LAS dimension")
+        except (ValueError, OverflowError) as exc:
+            raise PointCloudFileError(f"{path}: {' '.join(str(exc).split())}") from None
+
+
 def payload(path, ext, points, normals, fields, source):
     """Prepare a LAS file (LAZ, compressed by lazrs, for ``.laz``).
 
@@ -211,22 +234,10 @@ def payload(path, ext, points, normals, fields, source):
     if clash:
         raise PointCloudFileError(f"{path}: field names {sorted(clash)} are the LAS integer "
                                   f"coordinates")
-    new = [laspy.ExtraBytesParams(name, _extra_type(name, v), description="pssd_fast")
-           for name, v in values.items() if name not in existing]
-    long = [p.name for p in new if len(p.name.encode()) > 32]
-    if long:
-        raise PointCloudFileError(f"{path}: LAS extra dimension names are at most 32 bytes: "
-                                  f"{long}")
+    new = new_dims(laspy, path, existing, values)
     if new:
         las.add_extra_dims(new)
-    for name, v in values.items():
-        old = np.asarray(las[name])
-        if name in existing and np.array_equal(old, v):
-            continue  # untouched: leave the record bytes exactly as read
-        try:
-            las[name] = fit_dtype(name, v, old.dtype, "its LAS dimension")
-        except (ValueError, OverflowError) as exc:
-            raise PointCloudFileError(f"{path}: {' '.join(str(exc).split())}") from None
+    put_values(path, las, existing, values)
     compress = ext == ".laz"
     backend = laspy.LazBackend.LazrsParallel if compress else None
     return lambda fh: las.write(fh, do_compress=compress, laz_backend=backend)

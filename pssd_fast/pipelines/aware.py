@@ -37,24 +37,45 @@ def step(points, nrm, graph, lam, params, clock, last=True, mass=None):
     residual, and by the paper's voting at the paper's constants) so that every preset returns
     them.
     """
-    filtered = clock.run("filter", core.filter_normals, points, nrm, graph)
-    height, rms, degree = clock.run("mls", core.aware_fit, points, filtered, graph,
-                                    params["sigma_n"], mass)
-    moved, held = clock.run("update", core.project, points, filtered, height)
+    moved, filtered, rms, degree, held = fit_and_move(points, nrm, graph, params["sigma_n"],
+                                                      clock, mass)
     extra = None
     if last:
         lik, _ = clock.run("likelihood", core.sampling_likelihood, rms, "exp")
-        paper = core.FEATURE_DEFAULTS
-        feat, _ = clock.run("feature", core.feature_intensity, points, nrm, graph,
-                            paper["radius_factor"] * core.mean_spacing(graph),
-                            paper["delta"], paper["alpha"], paper["beta"])
+        feat = clock.run("feature", voted_feature, points, nrm, graph,
+                         region_radius(core.mean_spacing(graph)))
         extra = (lik, feat)
-    counts = np.bincount(degree, minlength=7)
-    record = {"times": clock.times, "held_points": int(held.sum()),
-              "mean_residual": float(rms.mean()),
-              "fit_degree": {name: int(counts[code])
-                             for name, code in core.AWARE_FIT_DEGREES.items()}}
-    return moved, filtered, extra, record
+    return moved, filtered, extra, step_record(clock.times, held.sum(), rms.sum(),
+                                               rms.shape[0], np.bincount(degree, minlength=7))
+
+
+def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None):
+    """The move of :func:`step`: the moved points, the filtered normals, the fit's RMS
+    residual and degree, and the points held in place (their step was not finite)."""
+    filtered = clock.run("filter", core.filter_normals, points, nrm, graph)
+    height, rms, degree = clock.run("mls", core.aware_fit, points, filtered, graph, sigma_n,
+                                    mass)
+    moved, held = clock.run("update", core.project, points, filtered, height)
+    return moved, filtered, rms, degree, held
+
+
+def region_radius(spacing):
+    """``R`` of the paper's voting, from the mean spacing ``|E|``, at the paper's constant."""
+    return core.FEATURE_DEFAULTS["radius_factor"] * spacing
+
+
+def voted_feature(points, nrm, graph, radius):
+    """Feature intensity by the paper's voting at the paper's thresholds over ``N_R``."""
+    paper = core.FEATURE_DEFAULTS
+    return core.feature_intensity(points, nrm, graph, radius, paper["delta"], paper["alpha"],
+                                  paper["beta"])[0]
+
+
+def step_record(times, held, rms_sum, n, degree_counts):
+    """An iteration's record for ``stats``, from its counts and sums."""
+    return {"times": times, "held_points": int(held), "mean_residual": float(rms_sum / n),
+            "fit_degree": {name: int(degree_counts[code])
+                           for name, code in core.AWARE_FIT_DEGREES.items()}}
 
 
 def choose_k(points, given, probe_points=PROBE_POINTS, probe_k=AUTO_K["probe_k"]):
