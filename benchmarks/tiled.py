@@ -5,8 +5,11 @@ Usage::
     python -m benchmarks.tiled                     # 2M and 20M points, tiles of 2M, 1 and 2 workers
     python -m benchmarks.tiled --points 2000000 --tile-points 1000000 --workers 2
     python -m benchmarks.tiled --format laz --out tiled_laz
+    python -m benchmarks.tiled --noise 0.001 --points 500000 2000000 --tile-points 500000 \
+        --out tiled_halo       # a cloud the default iterates on its points: tiles with halos
 
-The input is the generated CAD part (seed 0, noise 0.5% of the diagonal) saved as ``.npy``, or
+The input is the generated CAD part (seed 0, noise 0.5% of the diagonal or ``--noise``) saved
+as ``.npy``, or
 (``--format laz``) scaled to 100 m and saved as LAZ. Each cell runs in a fresh process: the
 in-core cell reads the file, calls ``pssd_fast.denoise`` and writes the result as ``pssd
 denoise --fields none`` would; a tiled cell starts a ``LocalCluster`` of that many worker processes
@@ -71,9 +74,11 @@ def child(kind, source, out, tile_points, workers):
                 lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024).values())
     passes = sum(record["times"].get(stage, 0.0) for record in stats["iterations"]
                  for stage in ("buckets", "tiles", "write"))
+    coarse = stats["auto_k"]["coarse"]
     print(json.dumps({"seconds": seconds, "driver_peak": resource.getrusage(
         resource.RUSAGE_SELF).ru_maxrss * 1024, "worker_peaks": peaks, "k": stats["k"],
-        "cells": stats["auto_k"]["coarse"]["cells"], "tiles": stats.get("tiles"),
+        "cells": coarse and coarse["cells"], "tiles": stats.get("tiles"),
+        "halo_widths": [r.get("halo_widths") for r in stats["iterations"]],
         "file_passes": passes}))
 
 
@@ -114,7 +119,7 @@ def table(cells):
              "(s) | driver peak (MB) | worker peaks (MB) | same as in-core |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for c in cells:
-        tiles = "-" if c["tiles"] is None else str(c["tiles"]["count"])
+        tiles = "-" if c["tiles"] is None else f"{c['tiles']['count']} ({c['tiles']['route']})"
         workers = ", ".join(f"{p / 1e6:.0f}" for p in c["worker_peaks"]) or "-"
         lines.append(f"| {c['points']:,} | {c['kind']} | "
                      f"{'-' if c['kind'] == 'in-core' else format(c['tile_points'], ',')} | "
@@ -131,6 +136,8 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--format", choices=("npy", "laz"), default="npy",
                         help="the input's format (LAZ: the part scaled to 100 m, new LAS 1.4)")
+    parser.add_argument("--noise", type=float, default=NOISE,
+                        help="noise of the part, a fraction of its diagonal")
     parser.add_argument("--out", default="tiled", help="file stem in benchmarks/results/")
     parser.add_argument("--child", nargs=3, metavar=("KIND", "IN", "OUT"),
                         help=argparse.SUPPRESS)
@@ -144,7 +151,7 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as scratch:
         for n in args.points:
             source = Path(scratch) / f"cad_{n}.npy"
-            write_cad_part(n, NOISE, source)
+            write_cad_part(n, args.noise, source)
             if args.format == "laz":
                 source = as_laz(source)
             reference = Path(scratch) / f"in_core{source.suffix}"
@@ -166,7 +173,7 @@ def main(argv=None):
             source.unlink()
             reference.unlink()
     text = (f"Machine: {machine()}\n\nInput: the generated CAD part, seed 0, noise "
-            f"{NOISE:.1%} of the diagonal, as .{args.format}; one process per cell.\n\n"
+            f"{args.noise:.1%} of the diagonal, as .{args.format}; one process per cell.\n\n"
             + table(cells))
     print(text)
     write_results(RESULTS, args.out, text, {"cells": cells})
