@@ -433,10 +433,9 @@ def _check_tiled(args, method_params, remove_outliers):
 
 def _on_disk(args, inp, out):
     """Whether ``--tile-points`` runs out of core (:func:`pssd_fast.tiled.denoise_file`): an
-    ``.npy`` (n, 3), Zarr or LAS/LAZ input without normals into a file of its kind, with
-    fields that such a run writes."""
+    ``.npy`` (n, 3), Zarr or LAS/LAZ input into a file of its kind, with fields that such a
+    run writes."""
     from . import ondisk
-    from .io._common import NORMALS
     from .tiled import FILE_KINDS
 
     if args.tile_points is None or _is_stdio(inp) or _is_stdio(out):
@@ -451,10 +450,10 @@ def _on_disk(args, inp, out):
     if set(names) - set(ondisk.RESULT_FIELDS if kind == "las" else ()):
         return False
     try:
-        reader = ondisk.NpyFile(inp) if kind == "npy" else ondisk.LasFile(inp)
+        ondisk.NpyFile(inp) if kind == "npy" else ondisk.LasFile(inp)
     except (ValueError, TypeError, OSError):
         return False  # the in-memory reader names the problem, or reads what this one cannot
-    return kind == "npy" or not set(NORMALS) & set(reader.header.point_format.dimension_names)
+    return True
 
 
 def _denoise_on_disk(args, params, inp, out, say):
@@ -470,7 +469,11 @@ def _denoise_on_disk(args, params, inp, out, say):
     if fields and not las:
         raise CommandError(f"--fields: {out} cannot hold {', '.join(fields)} (use .las/.laz, "
                            f"or .npz, .ply or text without --tile-points)")
-    orient = args.orient if args.orient is not None or not las else "up"
+    has_normals = las and ondisk.LasFile(inp).has_normals
+    if args.orient is not None and has_normals:
+        raise CommandError(f"--orient applies to estimated normals; {inp} has normals, whose "
+                           "signs are kept")
+    orient = "up" if args.orient is None and las and not has_normals else args.orient
     progress = _Progress(STAGE_COUNT[args.method], not args.quiet)
     try:
         stats = tiled.denoise_file(inp, out, tile_points=args.tile_points,

@@ -82,49 +82,59 @@ def _inside(points, low, high):
     return inside
 
 
-def _slack(points, region):
-    """A lower bound of each point's distance to the outside of the union of the boxes
-    ``region``: the largest of its distances to the outside of each box."""
-    slack = np.full(points.shape[0], -np.inf)
+def _exact(lists, points, region, rows):
+    """Whether the lists of ``rows`` (a mask) are exact: each point lies farther inside one of
+    the boxes ``region`` than its farthest neighbour, so every point within its reach is in
+    the task. Each box is tried on the points no box before it cleared."""
+    left = np.flatnonzero(rows)
     for low, high in region:
-        np.maximum(slack, np.minimum(points - low, high - points).min(axis=1), out=slack)
-    return slack
-
-
-def _exact(lists, slack, rows):
-    """Whether the lists of ``rows`` are exact: each reaches less far than the box's edge."""
-    return bool(np.all(lists.radius[rows] < slack[rows]))
+        near = points[left]
+        inside = np.minimum(near - low, high - near).min(axis=1)
+        left = left[lists.radius[left] >= inside]
+        if not left.size:
+            return True
+    return False
 
 
 def _closure(lists, rows):
-    """``rows`` and every point in their lists."""
+    """The mask of ``rows`` (a mask) and every point in their lists."""
     k = lists.indptr[1] - lists.indptr[0]
-    return np.unique(lists.indices.reshape(-1, k)[rows])
+    reach = rows.copy()
+    reach[lists.indices.reshape(-1, k)[rows].ravel()] = True
+    return reach
 
 
-def spacing(points, n_own, k, region, n_jobs):
+def spacing(points, n_own, n, k, region, n_jobs):
     """Distance from each of the first ``n_own`` ``points`` (the tile's own; the rest are its
-    halo, every point in the boxes ``region``, or None for the whole cloud) to its nearest
-    neighbour in the ``k``-lists of the iteration; None when the halo is too thin."""
+    halo, every point in the boxes ``region``; all ``n`` points of the cloud, or ``region``
+    None: no halo to check) to its nearest neighbour in the ``k``-lists of the iteration;
+    None when the halo is too thin."""
+    region = None if points.shape[0] == n else region
     if region is not None and points.shape[0] <= k:
         return None
     with threads(n_jobs):
         lists = knn_graph(points, k, False)
-        own = np.arange(n_own)
-        if region is not None and not _exact(lists, _slack(points, region), own):
+        if region is not None and not _exact(lists, points, region, _own(points, n_own)):
             return None
         return lists.nearest[:n_own].copy()
 
 
-def step(points, normals, given, centroid, n_own, k, sigma_n, region, radius, n_jobs):
+def _own(points, n_own):
+    """The mask of the first ``n_own`` of ``points``."""
+    mask = np.zeros(points.shape[0], np.bool_)
+    mask[:n_own] = True
+    return mask
+
+
+def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius, n_jobs):
     """One feature-aware iteration of a tile's own points, the first ``n_own`` of ``points``.
 
     Parameters
     ----------
     points : (m, 3) float64
         The tile's own points, then its halo: every point of the cloud inside the boxes
-        ``region`` (``(p, 2, 3)``, lows and highs; None: the tile holds the whole cloud), at
-        this iteration's positions.
+        ``region`` (``(p, 2, 3)``, lows and highs; None, or all ``n`` points of the cloud: no
+        halo to check), at this iteration's positions.
     normals : (m, 3) float64 or None
         The normals of the iteration before (the hints of the PCA), the caller's normals
         (``given``: used as they are), or None (the PCA's hints point away from
@@ -142,20 +152,19 @@ def step(points, normals, given, centroid, n_own, k, sigma_n, region, radius, n_
         of the iteration's record: ``held``, ``rms_sum``, ``degree`` counts, ``degenerate``,
         ``step_sum``.
     """
+    region = None if points.shape[0] == n else region
     if region is not None and points.shape[0] <= k:
         return None
     with threads(n_jobs):
         lists = knn_graph(points, k, False)
         if region is not None:
-            slack = _slack(points, region)
-            own = np.arange(n_own)
-            reach = _closure(lists, _closure(lists, own))
-            if not _exact(lists, slack, reach):
+            if not _exact(lists, points, region, _closure(lists, _closure(
+                    lists, _own(points, n_own)))):
                 return None
-            if radius is not None:
-                voters = np.flatnonzero(within(points, widened(boxes(points[:n_own]), radius)))
-                if not _exact(lists, slack, voters):
-                    return None
+            if radius is not None and not _exact(
+                    lists, points, region, within(points, widened(boxes(points[:n_own]),
+                                                                  radius))):
+                return None
         if given:
             nrm, degenerate = normals, np.zeros(points.shape[0], np.bool_)
         else:
@@ -225,12 +234,13 @@ def iterate(current, given, k, iterations, sigma_n, spans, width, runner):
 
         def spacing_args(i, width):
             (a, b), (rows, region) = spans[i], _candidates(current, *spans[i], width, cloud)
-            return current[rows], b - a, k, region
+            return current[rows], b - a, n, k, region
 
         def step_args(i, width):
             (a, b), (rows, region) = spans[i], _candidates(current, *spans[i], width, cloud)
             return (current[rows], None if normals is None else normals[rows],
-                    t == 0 and given is not None, centroid, b - a, k, sigma_n, region, radius)
+                    t == 0 and given is not None, centroid, b - a, n, k, sigma_n, region,
+                    radius)
 
         radius = None
         if t == iterations - 1:

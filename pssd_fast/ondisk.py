@@ -33,6 +33,8 @@ RESULT_FIELDS = (*FIELDS, "normals")
 _PREFIX_BITS = 21
 #: A point in a bucket or tile file: its row in the input, its Morton code, its coordinates.
 RECORD = np.dtype([("row", np.int64), ("code", np.uint64), ("xyz", np.float64, 3)])
+#: The same with the point's unit normal, for a file that has normals.
+RECORD_NORMALS = np.dtype([*RECORD.descr, ("nrm", np.float64, 3)])
 
 
 class NpyFile:
@@ -71,9 +73,11 @@ class NpyFile:
 
 class LasFile:
     """A LAS or LAZ file's coordinates (the integers times the scale plus the offset, as
-    :func:`pssd_fast.io.read` computes them), read by rows through laspy."""
+    :func:`pssd_fast.io.read` computes them) and its normals (``nx``, ``ny``, ``nz``, if it has
+    them), read by rows through laspy."""
 
     def __init__(self, path):
+        from .io._common import NORMALS
         from .io.las import _need_laspy
 
         self.path = path
@@ -82,18 +86,31 @@ class LasFile:
             self.header = reader.header
         self.shape = (self.header.point_count, 3)
         self.dtype = np.dtype(np.float64)
+        self.has_normals = set(NORMALS) <= set(self.header.point_format.dimension_names)
 
     def __getitem__(self, rows):
-        start, stop = rows.start or 0, min(rows.stop, self.shape[0])
+        return self.chunk(rows.start or 0, rows.stop)[0]
+
+    def chunk(self, start, stop):
+        """The coordinates of rows ``start..stop-1``, and their normals or None."""
+        from .io._common import NORMALS
+
+        stop = min(stop, self.shape[0])
         with self.laspy.open(self.path) as reader:
             reader.seek(start)
-            records = reader.read_points(stop - start).array
-        if records.shape[0] != stop - start:
+            records = reader.read_points(stop - start)
+        if len(records) != stop - start:
             raise ValueError(f"{self.path}: truncated; its header claims {self.shape[0]:,} "
-                             f"points, but point {start + records.shape[0]:,} is missing")
+                             f"points, but point {start + len(records):,} is missing")
         header = self.header
-        return np.column_stack([records[c] * s + o for c, s, o in
-                                zip("XYZ", header.scales, header.offsets, strict=True)])
+        points = np.column_stack([records.array[c] * s + o for c, s, o in
+                                  zip("XYZ", header.scales, header.offsets, strict=True)])
+        normals = None
+        if self.has_normals:
+            # As pssd_fast.io.read takes them.
+            normals = np.column_stack([np.asarray(records[c]) for c in NORMALS]).astype(
+                np.float64)
+        return points, normals
 
     def write(self, path, table, fields=RESULT_FIELDS):
         """A copy of this file with the columns of ``table`` (an ``(n, 9)`` array-like read
@@ -179,16 +196,33 @@ class ZarrFile:
 
 
 def chunks(array):
-    """``(start, points)`` over ``array`` (n, 3) of real numbers, each chunk as float64 and
-    checked for NaN and Inf."""
+    """``(start, points, normals)`` over ``array`` (n, 3) of real numbers, each chunk as float64
+    and checked for NaN and Inf; ``normals``: the file's, of unit length as
+    :func:`pssd_fast.denoise` makes them, or None."""
     for start in range(0, array.shape[0], CHUNK_POINTS):
-        points = np.ascontiguousarray(array[start:start + CHUNK_POINTS], dtype=np.float64)
-        bad = ~np.isfinite(points).all(axis=1)
-        if bad.any():
-            first = start + int(np.flatnonzero(bad)[0])
-            raise ValueError(f"points contain NaN or Inf in {int(bad.sum())} row(s) from row "
-                             f"{start} on; the first is row {first}; drop or repair those rows")
-        yield start, points
+        stop = start + CHUNK_POINTS
+        points, normals = (array.chunk(start, stop) if hasattr(array, "chunk")
+                           else (array[start:stop], None))
+        points = _finite(np.ascontiguousarray(points, dtype=np.float64), start, "points")
+        if normals is not None:
+            normals = _finite(normals, start, "normals")
+            length = np.linalg.norm(normals, axis=1)
+            zero = ~(length > 0.0)
+            if zero.any():
+                raise ValueError(f"normals have {int(zero.sum())} zero-length row(s) from row "
+                                 f"{start} on, the first is row "
+                                 f"{start + int(np.flatnonzero(zero)[0])}")
+            normals = normals / length[:, None]
+        yield start, points, normals
+
+
+def _finite(values, start, name):
+    bad = ~np.isfinite(values).all(axis=1)
+    if bad.any():
+        first = start + int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{name} contain NaN or Inf in {int(bad.sum())} row(s) from row "
+                         f"{start} on; the first is row {first}; drop or repair those rows")
+    return values
 
 
 class Buckets:
@@ -202,7 +236,8 @@ class Buckets:
         self.shape = (n, 3)
         low = np.full(3, np.inf)
         high = np.full(3, -np.inf)
-        for _, points in chunks(array):
+        self.dtype = RECORD_NORMALS if getattr(array, "has_normals", False) else RECORD
+        for _, points, _ in chunks(array):
             lo, hi = bounds(points)
             low, high = np.minimum(low, lo), np.maximum(high, hi)
         self.centre = 0.5 * (low + high)
@@ -212,7 +247,7 @@ class Buckets:
         scale = (2**_MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
         shift = np.uint64(3 * _MORTON_BITS - _PREFIX_BITS)
         histogram = np.zeros(1 << _PREFIX_BITS, np.int64)
-        for _, points in chunks(array):
+        for _, points, _ in chunks(array):
             prefix = (_codes(points, low, scale) >> shift).astype(np.int64)
             histogram += np.bincount(prefix, minlength=1 << _PREFIX_BITS)
         # Consecutive bins, at most tile_points points a bucket (a fuller bin alone).
@@ -228,16 +263,20 @@ class Buckets:
         self.paths = [folder / f"bucket_{i}.bin" for i in range(bucket + 1)]
         writers = [open(path, "wb") for path in self.paths]
         try:
-            for start, points in chunks(array):
-                codes = _codes(points, low, scale)
-                rows = np.arange(start, start + points.shape[0])
-                _scatter(writers, bucket_of_bin[codes >> shift], rows, codes, points)
+            for start, points, normals in chunks(array):
+                records = np.empty(points.shape[0], self.dtype)
+                records["row"] = np.arange(start, start + points.shape[0])
+                records["code"] = codes = _codes(points, low, scale)
+                records["xyz"] = points
+                if normals is not None:
+                    records["nrm"] = normals
+                _append(writers, bucket_of_bin[codes >> shift], records)
         finally:
             for writer in writers:
                 writer.close()
         counts = []
         for path in self.paths:
-            records = np.fromfile(path, RECORD)
+            records = np.fromfile(path, self.dtype)
             # Rows were appended in input order: a stable sort by code is denoise's order.
             records[np.argsort(records["code"], kind="stable")].tofile(path)
             counts.append(records.shape[0])
@@ -247,9 +286,14 @@ class Buckets:
         """The records of each bucket in turn (input row, Morton code, coordinates), in
         Morton order."""
         for path in self.paths:
-            yield np.fromfile(path, RECORD)
+            yield np.fromfile(path, self.dtype)
 
     def __getitem__(self, key):
+        return self.ranked("xyz", key) - self.centre
+
+    def ranked(self, field, key):
+        """The ``field`` of every ``key.step``-th point of the Morton order (``key``: a slice
+        ``[::step]``)."""
         if not isinstance(key, slice) or key.start is not None or key.stop is not None:
             raise TypeError("only [::step] is read from the buckets")
         ranks = np.arange(0, self.shape[0], key.step or 1)
@@ -257,9 +301,24 @@ class Buckets:
         for i, path in enumerate(self.paths):
             lo, hi = np.searchsorted(ranks, self.starts[i:i + 2])
             if hi > lo:
-                records = np.fromfile(path, RECORD)
-                out[lo:hi] = records["xyz"][ranks[lo:hi] - self.starts[i]] - self.centre
+                records = np.fromfile(path, self.dtype)
+                out[lo:hi] = records[field][ranks[lo:hi] - self.starts[i]]
         return out
+
+    @property
+    def normals(self):
+        """The file's unit normals, ``[::step]`` as :meth:`__getitem__` reads points; or None."""
+        if "nrm" not in self.dtype.names:
+            return None
+        buckets = self
+
+        class Normals:
+            shape = buckets.shape
+
+            def __getitem__(self, key):
+                return buckets.ranked("nrm", key)
+
+        return Normals()
 
     def layout(self, noise, preset):
         """:func:`pssd_fast.pipelines.coarse.layout` of the whole cloud: ``(codes, counts,
@@ -293,8 +352,8 @@ class Buckets:
             for records in self.each():
                 codes = coarse.cell_codes(records["xyz"] - self.centre, self.low, self.high,
                                           edge)
-                tile = np.searchsorted(first_codes, codes, side="right") - 1
-                _scatter(writers, tile, records["row"], codes, records["xyz"])
+                records["code"] = codes
+                _append(writers, np.searchsorted(first_codes, codes, side="right") - 1, records)
         finally:
             for writer in writers:
                 writer.close()
@@ -303,29 +362,32 @@ class Buckets:
 
     def states(self, paths, spans):
         """The points cut into the rank ranges ``spans``, a :data:`STATE` file each (at
-        ``paths``); returns each tile's :func:`pssd_fast.halo.boxes` and the points' sum,
-        row after row in rank order (the sum of ``mean(axis=0)``)."""
+        ``paths``; the file's normals, else zeros); returns each tile's
+        :func:`pssd_fast.halo.boxes` and the points' sum, row after row in rank order (the sum
+        of ``mean(axis=0)``)."""
         from .halo import boxes
 
         pieces = []
         total = None
-        rows, points = np.empty(0, np.int64), np.empty((0, 3))
+        pending = np.empty(0, self.dtype)
         for records in self.each():
             start = records["xyz"] - self.centre
             total = np.add.reduce(start if total is None else
                                   np.concatenate((total[None], start)), axis=0)
-            rows = np.concatenate((rows, records["row"]))
-            points = np.concatenate((points, start))
+            records["xyz"] = start
+            pending = np.concatenate((pending, records))
             while len(pieces) < len(spans):
                 a, b = spans[len(pieces)]
-                if rows.shape[0] < b - a:
+                if pending.shape[0] < b - a:
                     break
                 state = np.zeros(b - a, STATE)
-                state["row"] = rows[:b - a]
-                state["xyz"] = state["start"] = points[:b - a]
+                state["row"] = pending["row"][:b - a]
+                state["xyz"] = state["start"] = pending["xyz"][:b - a]
+                if "nrm" in self.dtype.names:
+                    state["nrm"] = pending["nrm"][:b - a]
                 save(state, paths[len(pieces)])
-                pieces.append(boxes(points[:b - a]))
-                rows, points = rows[b - a:], points[b - a:]
+                pieces.append(boxes(state["xyz"]))
+                pending = pending[b - a:]
         return pieces, total
 
 
@@ -373,15 +435,6 @@ def _codes(points, low, scale):
     return codes
 
 
-def _scatter(writers, target, rows, codes, points):
-    """Append each point's record to the file of its ``target``, in the points' order."""
-    records = np.empty(rows.shape[0], RECORD)
-    records["row"] = rows
-    records["code"] = codes
-    records["xyz"] = points
-    _append(writers, target, records)
-
-
 def _append(writers, target, records):
     """Append each of ``records`` to the file of its ``target``, keeping their order."""
     order = np.argsort(target, kind="stable")
@@ -392,10 +445,12 @@ def _append(writers, target, records):
         records[a:b].tofile(writers[target[a]])
 
 
-def read_tile(path, centre):
-    """A tile file's input rows, cell codes, and points relative to ``centre``."""
-    records = np.fromfile(path, RECORD)
-    return records["row"], records["code"], records["xyz"] - centre
+def read_tile(path, centre, dtype):
+    """A tile file's input rows, cell codes, points relative to ``centre``, and normals (or
+    None); its records of ``dtype``."""
+    records = np.fromfile(path, dtype)
+    normals = records["nrm"] if "nrm" in dtype.names else None
+    return records["row"], records["code"], records["xyz"] - centre, normals
 
 
 def write_rows(path, parts, n, dtype, columns=("xyz",)):

@@ -254,10 +254,14 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
             first = Clock(report, 0, iterations)
             cloud = first.run("buckets", ondisk.Buckets, array, folder, tile_points)
             n = cloud.shape[0]
-            k, scale, _ = aware.choose_k(cloud, None, *setting["probe"])
+            given = cloud.normals
+            if given is not None and orient is not None:
+                raise ValueError(f"orient applies to estimated normals; {source} has normals, "
+                                 f"whose signs are kept (drop orient)")
+            k, scale, _ = aware.choose_k(cloud, given, *setting["probe"])
             found = sigma = None
             if scale["ratio"] >= coarse.COARSE[preset]["min_ratio"]:
-                sigma = aware.noise_sigma(cloud, None, scale)
+                sigma = aware.noise_sigma(cloud, given, scale)
                 found = cloud.layout(sigma, preset)
             scale["coarse"] = None
             if found is None:
@@ -298,12 +302,14 @@ def _file_cells(cloud, found, folder, runner, first, report, k, iterations, sigm
     tiles = _tiles(starts, tile_points)
     paths = first.run("tiles", cloud.tiles, folder, codes[[c0 for c0, _ in tiles]], edge)
     sums = runner.map("tile_cells", 1, iterations, _file_cells_task,
-                      [(path, cloud.centre) for path in paths])
-    cells = coarse.Cells(np.concatenate(sums), None, counts, edge, k,
-                         coarse.COARSE[preset]["surface_k"], rebuild_graph)
+                      [(path, cloud.centre, cloud.dtype) for path in paths])
+    given = cloud.normals is not None
+    cells = coarse.Cells(np.concatenate([s[0] for s in sums]),
+                         np.concatenate([s[1] for s in sums]) if given else None, counts, edge,
+                         k, coarse.COARSE[preset]["surface_k"], rebuild_graph)
     means, out_normals, extra, records = iterate(
-        cells.points, None, STEPS["aware"], k, iterations, rebuild_graph, None, None, params,
-        orient, cloud.centre, report, cells.counts)
+        cells.points, cells.normals, STEPS["aware"], k, iterations, rebuild_graph, None, None,
+        params, orient, cloud.centre, report, cells.counts)
     surface, surface_normals, extra = coarse.collapse(cells, means, out_normals, extra)
     clock = Clock(report, iterations - 1, iterations)
     coef, rms, degree = coarse.fit_surface(surface, surface_normals, cells.surface_k, sigma_n,
@@ -311,8 +317,8 @@ def _file_cells(cloud, found, folder, runner, first, report, k, iterations, sigm
     records[-1]["times"].update(clock.times)
     parts = [folder / f"part_{i}.bin" for i in range(len(paths))]
     fits = runner.map("tile_update", iterations, iterations, _file_update, [
-        (path, part, cloud.centre, surface, surface_normals, coef, extra, rms, degree)
-        for path, part in zip(paths, parts)])
+        (path, part, cloud.centre, cloud.dtype, surface, surface_normals, coef, extra, rms,
+         degree) for path, part in zip(paths, parts)])
     fit = coarse.fit_summary(sum(f[0] for f in fits), sum(f[1] for f in fits),
                              np.sum([f[2] for f in fits], axis=0), cloud.shape[0])
     scale["coarse"] = coarse.describe(sigma, edge, counts, surface, cells.surface_k, fit)
@@ -329,7 +335,8 @@ def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, wi
     n = cloud.shape[0]
     paths = [folder / f"state_0_{i}.bin" for i in range(len(spans))]
     pieces, total = first.run("tiles", cloud.states, paths, spans)
-    centroid = total / n
+    given = cloud.normals is not None
+    centroid = None if given else total / n
     widths = [width] * len(spans)
     records = []
     for t in range(iterations):
@@ -347,12 +354,12 @@ def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, wi
         if last:
             nearest = [folder / f"nearest_{i}.bin" for i in range(len(spans))]
             halo.each_tile(runner, "tile_spacing", t, iterations, _file_spacing, widths,
-                           lambda i, width: (paths[i], *sources(i, width), k, nearest[i]))
+                           lambda i, width: (paths[i], *sources(i, width), n, k, nearest[i]))
             radius = aware.region_radius(halo.pairwise_mean(
                 ondisk.ranked(nearest, spans, np.dtype(np.float64)), n))
         out = halo.each_tile(runner, "tile_step", t, iterations, _file_step, widths,
-                             lambda i, width: (paths[i], *sources(i, width), t == 0,
-                                               centroid, k, sigma_n, radius, outputs[i],
+                             lambda i, width: (paths[i], *sources(i, width), t == 0, given,
+                                               centroid, n, k, sigma_n, radius, outputs[i],
                                                cloud.centre))
         pieces = [o.pop("boxes") for o in out]
         records.append(halo.record(out, n, widths, started))
@@ -390,29 +397,32 @@ def _sources(i, region, pieces, paths, spans):
     return found
 
 
-def _file_spacing(own_path, sources, region, k, output, n_jobs):
+def _file_spacing(own_path, sources, region, n, k, output, n_jobs):
     """:func:`pssd_fast.halo.spacing` of a tile in its state file, saved to ``output``;
     None when the halo is too thin."""
     own = np.fromfile(own_path, ondisk.STATE)
     points = ondisk.gather(own, sources, region)
-    nearest = halo.spacing(np.ascontiguousarray(points["xyz"]), own.shape[0], k, region, n_jobs)
+    nearest = halo.spacing(np.ascontiguousarray(points["xyz"]), own.shape[0], n, k, region,
+                           n_jobs)
     if nearest is None:
         return None
     ondisk.save(nearest, output)
     return True
 
 
-def _file_step(own_path, sources, region, first, centroid, k, sigma_n, radius, output, centre,
-               n_jobs):
+def _file_step(own_path, sources, region, first, given, centroid, n, k, sigma_n, radius, output,
+               centre, n_jobs):
     """:func:`pssd_fast.halo.step` of a tile in its state file; the moved points saved to
     ``output``, a state file, or on the last iteration (``radius`` given) a part file whose
     likelihood column holds the residual for now. Returns the step's counts and the
     :func:`~pssd_fast.halo.boxes` of the moved points, or None when the halo is too thin."""
     own = np.fromfile(own_path, ondisk.STATE)
     points = ondisk.gather(own, sources, region)
+    # The first iteration's normals: the file's (given), else PCA's hinted by the centroid.
     found = halo.step(np.ascontiguousarray(points["xyz"]),
-                      None if first else np.ascontiguousarray(points["nrm"]), False, centroid,
-                      own.shape[0], k, sigma_n, region, radius, n_jobs)
+                      None if first and not given else np.ascontiguousarray(points["nrm"]),
+                      first and given, centroid, own.shape[0], n, k, sigma_n, region, radius,
+                      n_jobs)
     if found is None:
         return None
     moved, normals = found.pop("moved"), found.pop("normals")
@@ -495,19 +505,20 @@ def _check_points_route(preset):
                          f"query them anew in each iteration: use preset 'default'")
 
 
-def _file_cells_task(path, centre, n_jobs):
-    """The cell means of a tile file."""
+def _file_cells_task(path, centre, dtype, n_jobs):
+    """The cell means of a tile file, and their mean normals (or None)."""
     with threads(n_jobs):
-        _, codes, points = ondisk.read_tile(path, centre)
-        return coarse.cell_means(points, None, *coarse.group_codes(codes))[0]
+        _, codes, points, normals = ondisk.read_tile(path, centre, dtype)
+        return coarse.cell_means(points, normals, *coarse.group_codes(codes))
 
 
-def _file_update(path, part, centre, surface, normals, coef, extra, rms, degree, n_jobs):
+def _file_update(path, part, centre, dtype, surface, normals, coef, extra, rms, degree,
+                 n_jobs):
     """A tile file's points moved onto the fits, saved to ``part`` with the normal, the
     likelihood and the feature intensity of their nearest denoised mean; returns the held
     points, the sum of the nearest fits' residuals and their degrees."""
     with threads(n_jobs):
-        rows, _, points = ondisk.read_tile(path, centre)
+        rows, _, points, _ = ondisk.read_tile(path, centre, dtype)
         moved, held, nearest = coarse.onto_fits(points, surface, normals, coef)
         ondisk.save(ondisk.part_records(rows, moved + centre, normals[nearest],
                                         extra[0][nearest], extra[1][nearest],

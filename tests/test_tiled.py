@@ -138,6 +138,14 @@ def test_halos_too_thin_are_widened_until_exact(sparse, sparse_in_core, monkeypa
     _assert_same(got, sparse_in_core)
 
 
+def test_halos_take_given_normals():
+    cloud = datasets.cad_part(n_points=30_000, noise=0.002, seed=6)
+    expected = pssd_fast.denoise(cloud.points, -cloud.normals)
+    got = tiled.denoise(cloud.points, -cloud.normals, tile_points=4_000, client="sync")
+    assert got.stats["tiles"]["route"] == "halo"
+    _assert_same(got, expected)
+
+
 def test_halos_orient_each_normal_alone(sparse, sparse_in_core):
     got = tiled.denoise(sparse, tile_points=30_000, orient="up")
     np.testing.assert_array_equal(got.points, sparse_in_core.points)
@@ -204,9 +212,12 @@ def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dty
 
 
 @pytest.mark.usefixtures("small_chunks")
-@pytest.mark.parametrize("ext, noise, route", [(".las", 0.02, "cells"), (".laz", 0.02, "cells"),
-                                               (".las", 0.001, "halo")])
-def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, ext, noise, route):
+@pytest.mark.parametrize("ext, noise, route, normals", [
+    (".las", 0.02, "cells", False), (".laz", 0.02, "cells", False),
+    (".las", 0.001, "halo", False), (".las", 0.02, "cells", True),
+    (".laz", 0.001, "halo", True)])
+def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, ext, noise, route,
+                                                          normals):
     """Records, scale, offset, VLRs and EVLRs as read; the coordinates, normals, likelihood,
     feature intensity and displacement those of denoise, as the in-core writer stores them."""
     laspy = pytest.importorskip("laspy")
@@ -219,16 +230,22 @@ def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, ext, noise, 
     from laspy.vlrs.vlrlist import VLRList
 
     header.evlrs = VLRList([laspy.VLR("pssd_test", 8, "an EVLR", b"kept too")])
-    points = datasets.cad_part(n_points=40_000, noise=noise, seed=8).points * 100
+    cloud = datasets.cad_part(n_points=40_000, noise=noise, seed=8)
+    points = cloud.points * 100
+    if normals:  # read as the given normals, of any length
+        header.add_extra_dims([laspy.ExtraBytesParams(c, np.float32) for c in ("nx", "ny", "nz")])
     las = laspy.LasData(header)
     las.x, las.y, las.z = (points + [500_123.0, 4_000_456.0, 310.0]).T
     las.intensity = np.arange(len(points)) % 65535
     las.gps_time = np.linspace(0.0, 1e5, len(points))
+    if normals:
+        las.nx, las.ny, las.nz = (cloud.normals * 3.0).T
     source = tmp_path / f"scan{ext}"
     las.write(str(source))
     read = io.read(source)
     expected = tmp_path / f"in_core{ext}"
-    result = pssd_fast.denoise(read.points)
+    assert (read.normals is not None) == normals
+    result = pssd_fast.denoise(read.points, read.normals)
     io.write(expected, read, points=result.points, normals=result.normals, fields={
         name: getattr(result, name).astype(np.float32)
         for name in ("likelihood", "feature_intensity", "displacement")})
