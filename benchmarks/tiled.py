@@ -13,7 +13,7 @@ as ``.npy``, or
 (``--format laz``) scaled to 100 m and saved as LAZ. Each cell runs in a fresh process: the
 in-core cell reads the file, calls ``pssd_fast.denoise`` and writes the result as ``pssd
 denoise --fields none`` would; a tiled cell starts a ``LocalCluster`` of that many worker processes
-(one thread each for two workers, both cores for one) and calls
+(one thread each for two workers, both cores for one, ``OMP_NUM_THREADS`` alike) and calls
 ``pssd_fast.tiled.denoise_file``, then reads the driver's and each worker's peak resident size
 (``ru_maxrss``) and the time of its passes over the file in the calling process (binning into
 buckets and tiles, writing the output). The tiled output is compared with the in-core one of the
@@ -60,8 +60,12 @@ def child(kind, source, out, tile_points, workers):
 
         from pssd_fast import tiled
 
+        import dask
+
         cores = os.cpu_count() or 1
         threads = max(1, cores // workers)
+        # The nanny starts workers with OMP_NUM_THREADS=1, which pykdtree's query obeys.
+        dask.config.set({"distributed.nanny.pre-spawn-environ.OMP_NUM_THREADS": threads})
         with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                       dashboard_address=None) as cluster, \
                 distributed.Client(cluster) as client:

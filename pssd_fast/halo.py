@@ -3,17 +3,17 @@
 
 A tile is a range of the cloud's Morton order (starting at a multiple of :data:`ALIGN`). Each
 iteration is one task per tile: the tile's own points and every point within a *halo width*
-of their bounding box, at their positions of that iteration, go through the feature-aware
-iteration, and the task keeps its own points' results. A point's move reads the lists of the
-points within two hops of it (its normal is filtered over its list, each listed normal comes
-from a PCA over its own list) and the positions one hop further; the feature intensity reads
+of the boxes around runs of them, at their positions of that iteration, go through the
+feature-aware iteration, and the task keeps its own points' results. A point's move reads the
+lists of the points within two hops of it (its normal is filtered over its list, each listed
+normal comes from a PCA over its own list) and the positions one hop further; the feature intensity reads
 the lists of the points within ``R`` of it. A list is exact when the point is farther from
 the edge of the halo than its farthest neighbour: every point within its reach is then in the
 task. The task checks this for every list it reads, and reports a halo too thin instead of a
 result; the tile runs again with a halo twice as wide.
 
-The two means the last iteration needs over the whole cloud (the mean spacing behind ``R``
-and the mean residual behind the likelihood) are taken over all tiles' values in Morton
+The means over the whole cloud (the centroid behind the first PCA's signs, the mean spacing
+behind ``R`` and the mean residual behind the likelihood) are taken over all points in Morton
 order, as :func:`pssd_fast.denoise` takes them, so the result is bit-identical to it.
 """
 import time
@@ -22,7 +22,7 @@ import numpy as np
 
 from . import core
 from ._threads import threads
-from .graph import knn_graph
+from .graph import bounds, knn_graph
 from .pipelines import aware
 from .progress import Clock
 
@@ -46,7 +46,7 @@ def tiles(n, tile_points):
 
 def box(points):
     """The bounding box of ``points``: ``(low, high)``."""
-    return points.min(axis=0), points.max(axis=0)
+    return bounds(points)
 
 
 def boxes(points):
