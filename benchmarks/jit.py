@@ -61,7 +61,8 @@ def cold_child():
     filtered = timed("filter", core.filter_normals, points, nrm, graph)
     timed("update", core.move, points, proj, filtered, lik, feat, 0.5)
     timed("bilateral (BIL)", core.filter_points, points, nrm, graph, 0.0, 0.0)
-    timed("aware fit (default preset)", core.aware_fit, points, filtered, graph, 0.05)
+    timed("aware fit (default preset)", core.aware_fit, points, filtered, graph, 0.05, None,
+          True)
     started = time.perf_counter()
     pssd_fast.warmup()
     rest = time.perf_counter() - started

@@ -1,29 +1,36 @@
-"""Our defaults against the best-tuned CGAL peers, on the paper's models and a generated part.
+"""Our defaults against the best-tuned CGAL peers, on the paper's models and generated shapes.
 
 Usage::
 
     python -m benchmarks.versus                    # 4 shapes x 3 noise levels, cached peers
     python -m benchmarks.versus --refresh-peers    # re-run CGAL (about 15 min on 2 cores)
     python -m benchmarks.versus --shapes cad_part --noise 0.005
+    python -m benchmarks.versus --sizes 10000 30000               # 8 shapes, sparse clouds
+    python -m benchmarks.versus --sizes 10000 30000 --peers-only  # only fill the peer cache
+    python -m benchmarks.versus --sizes 10000 --shapes sphere cube --noise 0.005
 
 Shapes: Fandisk, the dragon head and Igea as in Table 1 (``benchmarks.models``, paper point
 counts, unit diagonal) and the library's generated CAD-like part
-(``pssd_fast.datasets.cad_part``, 100,000 points). Noise: isotropic Gaussian, sigma 0.25%, 0.5%
-and 1% of the bounding-box diagonal, seed 0. Errors in 1e-4 of the diagonal: *mean* is the mean
-point-to-surface distance, *edge* the mean over points whose clean position lies within 1% of
-the diagonal of an edge sharper than 30 degrees.
+(``pssd_fast.datasets.cad_part``, 100,000 points). With ``--sizes`` every chosen shape is sampled
+at each of the given point counts instead, and the shapes may also be the other generated ones
+(plane, sphere, cylinder, cube; default: all eight). Noise: isotropic Gaussian, sigma 0.25%,
+0.5% and 1% of the bounding-box diagonal, seed 0. Errors in 1e-4 of the diagonal: *mean* is the
+mean point-to-surface distance, *edge* the mean over points whose clean position lies within 1%
+of the diagonal of an edge sharper than 30 degrees (none on the plane and the sphere: their edge
+cells are "-" and not compared). Shapes in :data:`IN_SAMPLE` are marked in the tables.
 
 Peers: CGAL jet smoothing (k in {24, 48, 96}, 1 or 2 passes) and CGAL bilateral smoothing
 (k in {60, 120}, 3 passes). "Best" is taken strictly: for each family and each cell, the
 minimum over its settings separately for the mean and for the edge column (the two minima may
 come from different settings). Peer runs are deterministic and slow, so their scores are cached
-in ``benchmarks/results/versus_peers.json`` (``--refresh-peers`` recomputes them).
+in ``benchmarks/results/versus_peers.json`` under "shape|noise" (sized cells: "shape|noise|N";
+``--refresh-peers`` recomputes them).
 
 Ours: ``denoise(points)`` at its defaults, ``preset="fast"`` and ``preset="paper"``. Times are
 warm wall times divided by pykdtree's k=25 kNN query (tree build + query, points in Morton
 order) measured in the same run; *per it.* is the default's mean iteration (all stages, the
 noise probe that chooses ``k`` excluded). Results go to ``benchmarks/results/versus.md`` and
-``.json``.
+``.json``; with ``--sizes`` to ``versus_sparse.md`` and ``.json``.
 """
 import argparse
 import json
@@ -43,7 +50,12 @@ from .stages import knn_query_seconds, machine, write_atomic, write_results
 
 RESULTS = Path(__file__).resolve().parent / "results"
 PEER_CACHE = RESULTS / "versus_peers.json"
+#: Shapes of the dense run (paper point counts; ``CAD_POINTS`` for the part).
 SHAPES = ("fandisk", "dragon", "igea", "cad_part")
+#: Shapes of a sized run (``--sizes``): the paper's models and every generated shape.
+SIZED_SHAPES = tuple(models.MODELS) + tuple(datasets.GENERATORS)
+#: The shapes the default's constants were calibrated on: their cells are in-sample.
+IN_SAMPLE = {"cad_part"}
 NOISE_LEVELS = (0.0025, 0.005, 0.01)
 CAD_POINTS = 100_000
 #: Peer family -> label -> keyword arguments.
@@ -52,11 +64,14 @@ PEER_SETTINGS = {
             for k in (24, 48, 96) for p in (1, 2)},
     "bilateral": {f"k={k}, 3 passes": {"k": k, "passes": 3} for k in (60, 120)},
 }
+FAMILIES = tuple(PEER_SETTINGS)
+COLUMNS = ("mean", "edge")
 
 
 @dataclass(frozen=True)
 class Case:
-    """One cell: the noisy input and a scorer returning (mean, edge) in 1e-4 of the diagonal."""
+    """One cell: the noisy input and a scorer returning (mean, edge) in 1e-4 of the diagonal
+    (edge None when no point lies near an edge)."""
 
     shape: str
     noise: float
@@ -64,38 +79,74 @@ class Case:
     score: Callable[[np.ndarray], tuple]
 
 
-def make_case(shape, noise, model_cache=None, cad_points=CAD_POINTS):
-    """The noisy input of ``shape`` at ``noise`` and its scorer."""
-    if shape == "cad_part":
-        cloud = datasets.cad_part(n_points=cad_points, noise=noise, seed=0)
-        near = cloud.edge_distance < models.EDGE_BAND * cloud.diagonal
-        unit = UNIT * cloud.diagonal
+def make_case(shape, noise, n_points=None, model_cache=None):
+    """The noisy input of ``shape`` at ``noise`` and its scorer.
 
-        def score(points):
-            dist = cloud.surface_distance(points) / unit
-            return float(dist.mean()), float(dist[near].mean())
-        return Case(shape, noise, np.array(cloud.points), score)
+    Parameters
+    ----------
+    shape : str
+        A paper model (``models.MODELS``) or a generated shape (``datasets.GENERATORS``).
+    noise : float
+        Noise sigma as a fraction of the diagonal (seed 0).
+    n_points : int, optional
+        Points; default the paper's count for a model, ``CAD_POINTS`` for a generated shape.
+    model_cache : dict, optional
+        (shape, n_points) -> loaded model, shared between the noise levels of one shape.
+    """
+    if shape in datasets.GENERATORS:
+        return _generated_case(shape, noise, CAD_POINTS if n_points is None else n_points)
+    return _model_case(shape, noise, n_points, {} if model_cache is None else model_cache)
+
+
+def _generated_case(shape, noise, n_points):
+    """A generated shape, scored by its analytic distance in 1e-4 of its diagonal."""
+    cloud = datasets.make(shape, n_points=n_points, noise=noise, seed=0)
+    near = cloud.edge_distance < models.EDGE_BAND * cloud.diagonal
+    unit = UNIT * cloud.diagonal
+    return Case(shape, noise, np.array(cloud.points),
+                lambda points: _split(cloud.surface_distance(points) / unit, near))
+
+
+def _model_case(shape, noise, n_points, model_cache):
+    """A paper model (unit diagonal), scored by the distance to its mesh."""
     from .metrics import surface_distance
-    model_cache = {} if model_cache is None else model_cache
-    if shape not in model_cache:
-        model_cache[shape] = models.load(shape)
-    model = model_cache[shape]
+    if (shape, n_points) not in model_cache:
+        model_cache[shape, n_points] = models.load(shape, n_points=n_points)
+    model = model_cache[shape, n_points]
     near = model.edge_distance < models.EDGE_BAND
-
-    def score(points):
-        dist = surface_distance(points, model.vertices, model.faces) / UNIT
-        return float(dist.mean()), float(dist[near].mean())
-    return Case(shape, noise, model.noisy(noise, seed=0), score)
+    return Case(shape, noise, model.noisy(noise, seed=0),
+                lambda points: _split(surface_distance(points, model.vertices, model.faces)
+                                      / UNIT, near))
 
 
-def _key(shape, noise):
-    return f"{shape}|{noise:g}"
+def _split(dist, near):
+    """(mean, edge) of the distances ``dist``; edge None when no point is ``near`` an edge."""
+    return float(dist.mean()), float(dist[near].mean()) if near.any() else None
+
+
+def _key(shape, noise, n_points=None):
+    """The peer-cache key of a cell: "shape|noise", and "|N" for a sized cell."""
+    return f"{shape}|{noise:g}" + ("" if n_points is None else f"|{n_points}")
 
 
 def load_peer_cache(path=PEER_CACHE):
     if path.exists():
         return json.loads(path.read_text())
     return {"machine": machine(), "cells": {}}
+
+
+def peer_cell(case, key, cache_path, refresh, log):
+    """The peer scores of one cell from the cache, running CGAL (and caching) when missing."""
+    cells = load_peer_cache(cache_path)["cells"]
+    if key in cells and not refresh:
+        return cells[key]
+    cell = run_peers(case, log)
+    cache = load_peer_cache(cache_path)  # re-read: another run may have added cells meanwhile
+    cache["cells"][key] = cell
+    cache["machine"] = machine()
+    cache_path.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(cache_path, json.dumps(cache, indent=1))
+    return cell
 
 
 def run_peers(case, log):
@@ -109,15 +160,32 @@ def run_peers(case, log):
             result = call(case.points, **kwargs)
             mean, edge = case.score(result.points)
             out[family][label] = {"mean": mean, "edge": edge, "seconds": result.seconds}
-            log(f"  CGAL {family:9s} {label:18s} {mean:7.2f} {edge:7.2f} "
+            log(f"  CGAL {family:9s} {label:18s} {_fmt(mean, 2):>7s} {_fmt(edge, 2):>7s} "
                 f"{result.seconds:7.2f} s")
     return out
 
 
 def best_of(family_rows, column):
-    """(value, label) of the setting with the lowest ``column``."""
-    label = min(family_rows, key=lambda name: family_rows[name][column])
-    return family_rows[label][column], label
+    """(value, label) of the setting with the lowest ``column``; (None, None) when the cell
+    has no such score (no edge points)."""
+    scored = {label: row[column] for label, row in family_rows.items()
+              if row[column] is not None}
+    if not scored:
+        return None, None
+    label = min(scored, key=scored.get)
+    return scored[label], label
+
+
+def best_entry(family_rows):
+    """A family's minima: each column's value, the setting behind it and that setting's time;
+    ``seconds`` is the time behind the mean."""
+    entry = {}
+    for col in COLUMNS:
+        value, label = best_of(family_rows, col)
+        entry.update({col: value, f"{col}_setting": label,
+                      f"{col}_seconds": None if label is None else family_rows[label]["seconds"]})
+    entry["seconds"] = entry["mean_seconds"]
+    return entry
 
 
 def run_ours(case, preset, repeats=1):
@@ -142,117 +210,171 @@ def knn_reference(points, k=25, repeats=3):
     return min(knn_query_seconds(ordered, k) for _ in range(repeats))
 
 
+def measure_row(case, peer_rows, repeats, log):
+    """One table row: the noisy and our scores and times, and each peer family's minima."""
+    noisy = case.score(case.points)
+    row = {"shape": case.shape, "noise": case.noise, "points": len(case.points),
+           "in_sample": case.shape in IN_SAMPLE,
+           "noisy": {"mean": noisy[0], "edge": noisy[1]},
+           "knn_seconds": knn_reference(case.points)}
+    for preset in ("default", "fast", "paper"):
+        ours = row[preset] = run_ours(case, preset, repeats)
+        log(f"  ours {preset:8s} {_fmt(ours['mean'], 2):>7s} {_fmt(ours['edge'], 2):>7s} "
+            f"{ours['seconds']:7.2f} s")
+    for family, settings in peer_rows.items():
+        row[family] = best_entry(settings)
+    return row
+
+
 def _fmt(value, digits=1):
     return "-" if value is None else f"{value:.{digits}f}"
 
 
 def _wl(ours, peer):
+    """"win" / "lose" of ``ours`` against ``peer``; "-" when there is nothing to compare."""
+    if ours is None or peer is None:
+        return "-"
     return "win" if ours < peer else "lose"
 
 
-def markdown(rows, compile_seconds):
-    """The comparison table and the settings that gave each peer minimum."""
+def _pair(scores):
+    return f"{_fmt(scores['mean'])} / {_fmt(scores['edge'])}"
+
+
+def _lead(row, sized):
+    """The first cells of a row: shape (marked when in-sample), points when sized, noise."""
+    shape = row["shape"] + ("\\*" if row["shape"] in IN_SAMPLE else "")
+    points = f" {row['points']:,} |" if sized else ""
+    return f"| {shape} |{points} {row['noise']:.2%} |"
+
+
+def _cell(row, sized):
+    """A cell's name in the list of lost comparisons."""
+    return " ".join([row["shape"]] + ([f"{row['points']:,} pts"] if sized else [])
+                    + [f"{row['noise']:.2%}"])
+
+
+def _comparisons(rows, sized):
+    """(name, won) for each real comparison of our default against a peer family's minimum
+    (none where either score is missing)."""
+    return [(f"{_cell(r, sized)} {col} vs {fam}", r["default"][col] < r[fam][col])
+            for r in rows for fam in FAMILIES for col in COLUMNS
+            if r["default"][col] is not None and r[fam][col] is not None]
+
+
+def _tally(rows, sized):
+    """The count of comparisons won, naming the lost ones."""
+    results = _comparisons(rows, sized)
+    lost = [name for name, won in results if not won]
+    return (f"Cells won: {len(results) - len(lost)} of {len(results)}."
+            + (f" Lost: {'; '.join(lost)}." if lost else ""))
+
+
+def markdown(rows, compile_seconds, sized=False):
+    """The comparison table and the settings that gave each peer minimum (with a points
+    column when ``sized``)."""
+    lead = "| shape |" + (" points |" if sized else "") + " noise |"
+    rule = "|---|---|" + ("---|" if sized else "")
+    no_edge = any(r["noisy"]["edge"] is None for r in rows)
     out = [f"Machine: {machine()}. JIT compilation before timing: {compile_seconds:.1f} s.", "",
            "Errors in 1e-4 of the bounding-box diagonal, *mean* / *edge* (points within 1% of "
-           "the diagonal of an edge sharper than 30 degrees). *Jet* / *Bil.*: the best CGAL jet "
-           "(k 24, 48, 96; 1-2 passes) and CGAL bilateral (k 60, 120; 3 passes) result, minimum "
-           "over settings taken separately for each column. *W/L*: win or lose of our default "
-           "against that peer, mean then edge. Time: wall time divided by pykdtree's k=25 kNN "
+           "the diagonal of an edge sharper than 30 degrees"
+           + ("; \"-\" where a shape has none" if no_edge else "")
+           + "). *Jet* / *Bil.*: the best CGAL jet (k 24, 48, 96; 1-2 passes) and CGAL "
+           "bilateral (k 60, 120; 3 passes) result, minimum over settings taken separately "
+           "for each column. *W/L*: win or lose of our default against that peer, mean then "
+           "edge. Time: wall time divided by pykdtree's k=25 kNN "
            "query on the same points in the same run (*kNN* in seconds).", "",
-           "| shape | noise | noisy | ours default (k) | ours paper | best jet | W/L jet | "
+           lead + " noisy | ours default (k) | ours paper | best jet | W/L jet | "
            "best bil. | W/L bil. | ours fast | kNN (s) | default / kNN | default per it. / kNN "
            "| fast / kNN | paper / kNN | jet / kNN | bil. / kNN |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           rule + "---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         d, p, j, b, f = r["default"], r["paper"], r["jet"], r["bilateral"], r["fast"]
         knn = r["knn_seconds"]
         out.append(
-            f"| {r['shape']} | {r['noise']:.2%} | {_fmt(r['noisy']['mean'])} / "
-            f"{_fmt(r['noisy']['edge'])} | **{_fmt(d['mean'])} / {_fmt(d['edge'])}** "
-            f"({d['k']}) | "
-            f"{_fmt(p['mean'])} / {_fmt(p['edge'])} | {_fmt(j['mean'])} / {_fmt(j['edge'])} | "
-            f"{_wl(d['mean'], j['mean'])} / {_wl(d['edge'], j['edge'])} | "
-            f"{_fmt(b['mean'])} / {_fmt(b['edge'])} | "
+            f"{_lead(r, sized)} {_pair(r['noisy'])} | **{_pair(d)}** ({d['k']}) | "
+            f"{_pair(p)} | {_pair(j)} | "
+            f"{_wl(d['mean'], j['mean'])} / {_wl(d['edge'], j['edge'])} | {_pair(b)} | "
             f"{_wl(d['mean'], b['mean'])} / {_wl(d['edge'], b['edge'])} | "
-            f"{_fmt(f['mean'])} / {_fmt(f['edge'])} | {knn:.3f} | "
+            f"{_pair(f)} | {knn:.3f} | "
             f"{d['seconds'] / knn:.0f} | {d['iteration_seconds'] / knn:.0f} | "
             f"{f['seconds'] / knn:.0f} | {p['seconds'] / knn:.0f} | "
             f"{j['seconds'] / knn:.0f} | {b['seconds'] / knn:.0f} |")
-    losses = [f"{r['shape']} {r['noise']:.2%} {col} vs {fam}" for r in rows
-              for fam in ("jet", "bilateral") for col in ("mean", "edge")
-              if not r["default"][col] < r[fam][col]]
-    out += ["", f"Cells won: {4 * len(rows) - len(losses)} of {4 * len(rows)}."
-            + (f" Lost: {'; '.join(losses)}." if losses else "")]
+    out += ["", _tally(rows, sized)]
     out += ["", "Peer setting behind each minimum (mean / edge) and its time in seconds "
             "(peer times are cached with the scores, from the run that made the cache):", "",
-            "| shape | noise | jet mean | jet edge | bil. mean | bil. edge |",
-            "|---|---|---|---|---|---|"]
+            lead + " jet mean | jet edge | bil. mean | bil. edge |", rule + "---|---|---|---|"]
     for r in rows:
-        cells = [f"{r[fam][col + '_setting']} ({r[fam][col + '_seconds']:.1f} s)"
-                 for fam in ("jet", "bilateral") for col in ("mean", "edge")]
-        out.append(f"| {r['shape']} | {r['noise']:.2%} | " + " | ".join(cells) + " |")
+        cells = ["-" if r[fam][col + "_setting"] is None else
+                 f"{r[fam][col + '_setting']} ({r[fam][col + '_seconds']:.1f} s)"
+                 for fam in FAMILIES for col in COLUMNS]
+        out.append(f"{_lead(r, sized)} " + " | ".join(cells) + " |")
     out += ["", "Time columns for the peers use the time of the setting behind the mean minimum; "
             "our times are the best of the runs made here, peers' from the cache."]
+    if any(r["in_sample"] for r in rows):
+        out += ["", "\\* In-sample: the default's constants were calibrated on this shape."]
     return "\n".join(out) + "\n"
 
 
-def main(argv=None):
+def parse_args(argv=None):
+    """The command line, with the shape list defaulted for the dense or the sized run."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--shapes", nargs="+", default=list(SHAPES), choices=list(SHAPES))
+    parser.add_argument("--shapes", nargs="+", choices=list(SIZED_SHAPES),
+                        help=f"default {' '.join(SHAPES)}; with --sizes, all eight (the "
+                             "generated plane, sphere, cylinder and cube only with --sizes)")
     parser.add_argument("--noise", type=float, nargs="+", default=list(NOISE_LEVELS))
+    parser.add_argument("--sizes", type=int, nargs="+", metavar="N",
+                        help="run every shape at each of these point counts (writes "
+                             "versus_sparse.md/.json)")
     parser.add_argument("--refresh-peers", action="store_true",
                         help="re-run CGAL instead of using versus_peers.json")
     parser.add_argument("--peers-only", action="store_true", help="only fill the peer cache")
     parser.add_argument("--repeats", type=int, default=1, help="timed runs of ours per cell")
     parser.add_argument("--cad-points", type=int, default=CAD_POINTS,
-                        help="points of the generated part (cached peers are per cell: use "
-                             "--out elsewhere when changing it)")
-    parser.add_argument("--out", type=Path, default=RESULTS, help="folder for versus.md/.json")
+                        help="points of the generated part without --sizes (cached peers are "
+                             "per cell: use --out elsewhere when changing it)")
+    parser.add_argument("--out", type=Path, default=RESULTS,
+                        help="folder for the results and the peer cache")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
-    log = (lambda line: None) if args.quiet else print
-    if not models.available() and any(s != "cad_part" for s in args.shapes):
+    if args.shapes is None:
+        args.shapes = list(SIZED_SHAPES if args.sizes else SHAPES)
+    elif not args.sizes and not set(args.shapes) <= set(SHAPES):
+        parser.error(f"without --sizes the shapes are {', '.join(SHAPES)}")
+    if not models.available() and set(args.shapes) & set(models.MODELS):
         parser.exit(1, models.MISSING + "\n")
+    return args
 
+
+def cells(args):
+    """(shape, noise, n_points, cache key) of every cell, in table order."""
+    if args.sizes:
+        return [(shape, noise, n, _key(shape, noise, n))
+                for shape in args.shapes for n in args.sizes for noise in args.noise]
+    return [(shape, noise, args.cad_points if shape == "cad_part" else None, _key(shape, noise))
+            for shape in args.shapes for noise in args.noise]
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    log = (lambda line: None) if args.quiet else print
     cache_path = args.out / PEER_CACHE.name
-    cache = load_peer_cache(cache_path)
-    compile_seconds = pssd_fast.warmup()
+    compile_seconds = None if args.peers_only else pssd_fast.warmup()
     model_cache = {}
     rows = []
-    for shape in args.shapes:
-        for noise in args.noise:
-            case = make_case(shape, noise, model_cache, args.cad_points)
-            key = _key(shape, noise)
-            log(f"{shape} {noise:.2%} ({len(case.points)} points)")
-            if args.refresh_peers or key not in cache["cells"]:
-                cache["cells"][key] = run_peers(case, log)
-                cache["machine"] = machine()
-                args.out.mkdir(parents=True, exist_ok=True)
-                write_atomic(cache_path, json.dumps(cache, indent=1))
-            if args.peers_only:
-                continue
-            noisy = case.score(case.points)
-            row = {"shape": shape, "noise": noise, "points": len(case.points),
-                   "noisy": {"mean": noisy[0], "edge": noisy[1]},
-                   "knn_seconds": knn_reference(case.points)}
-            for preset in ("default", "fast", "paper"):
-                row[preset] = run_ours(case, preset, args.repeats)
-                log(f"  ours {preset:8s} {row[preset]['mean']:7.2f} {row[preset]['edge']:7.2f} "
-                    f"{row[preset]['seconds']:7.2f} s")
-            for family, settings in cache["cells"][key].items():
-                entry = {}
-                for col in ("mean", "edge"):
-                    value, label = best_of(settings, col)
-                    entry.update({col: value, f"{col}_setting": label,
-                                  f"{col}_seconds": settings[label]["seconds"]})
-                entry["seconds"] = entry["mean_seconds"]
-                row[family] = entry
-            rows.append(row)
+    for shape, noise, n_points, key in cells(args):
+        case = make_case(shape, noise, n_points, model_cache)
+        log(f"{shape} {noise:.2%} ({len(case.points)} points)")
+        peer_rows = peer_cell(case, key, cache_path, args.refresh_peers, log)
+        if not args.peers_only:
+            rows.append(measure_row(case, peer_rows, args.repeats, log))
     if args.peers_only:
         return rows
-    text = markdown(rows, compile_seconds)
-    write_results(args.out, "versus", text, {"compile_seconds": compile_seconds, "rows": rows},
-                  indent=1)
+    sized = bool(args.sizes)
+    text = markdown(rows, compile_seconds, sized)
+    write_results(args.out, "versus_sparse" if sized else "versus", text,
+                  {"compile_seconds": compile_seconds, "rows": rows}, indent=1)
     log(text)
     return rows
 

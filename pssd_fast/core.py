@@ -119,17 +119,18 @@ def mls_fit(points, nrm, graph, h):
     return proj, resid, degree, curvature
 
 
-def aware_fit(points, nrm, graph, sigma_n, mass=None):
+def aware_fit(points, nrm, graph, sigma_n, mass=None, robust=False):
     """Feature-aware quadratic of every point in the frame of ``nrm``: height of the surface
     above the point, RMS residual and number of coefficients fitted. ``mass``: a factor on
-    each point's weight, or None."""
+    each point's weight, or None; ``robust``: try the robust fit that keeps the sides of a
+    thin wall apart."""
     n = points.shape[0]
     height = np.empty(n)
     rms = np.empty(n)
     degree = np.empty(n, np.int8)
     mass = np.empty(0) if mass is None else mass
     kernels.mls.aware_fit(points, points, nrm, mass, graph.indptr, graph.indices, sigma_n,
-                          height, rms, degree, _NO_COEF)
+                          robust, height, rms, degree, _NO_COEF)
     return height, rms, degree
 
 
@@ -142,7 +143,7 @@ def surface_fits(surface, nrm, lists, sigma_n):
     degree = np.empty(m, np.int8)
     coef = np.empty((m, 7))
     kernels.mls.aware_fit(surface, surface, nrm, np.empty(0), lists.indptr, lists.indices,
-                          sigma_n, np.empty(m), rms, degree, coef)
+                          sigma_n, False, np.empty(m), rms, degree, coef)
     return coef, rms, degree
 
 

@@ -11,6 +11,11 @@ import numpy as np
 # Decisions shared with the kernels (docs/ALGORITHM.md and docs/DECISIONS.md).
 DEGENERATE_RATIO = 1e-12  # second covariance eigenvalue / largest below this: no plane
 FIT_TOL = 1e-9  # smallest eigenvalue of the column-normalised Gram matrix below this: singular
+# The robust fit of the feature-aware quadratic (docs/ALGORITHM.md, "Thin walls").
+ROBUST_SPREAD = 0.5  # Welsch spread, as a fraction of the plain fit's weighted RMS residual
+ROBUST_MARGIN = 0.3  # the robust fit's Welsch score must beat the plain fit's by this fraction
+REFITS = 4  # refits to the own residuals after the fit anchored at the point's height
+ROBUST_SAMPLES = (18.0, 6.0)  # effective sample sizes for the quadratic and the plane
 
 
 def morton_order(points):
@@ -131,14 +136,15 @@ def mls_fit(points, normals, lists, h):
     return tuple(np.array([o[c] for o in out]) for c in range(4))
 
 
-def frame_fit(origin, n, pts, nrms, sigma_n, mass=None):
+def frame_fit(origin, n, pts, nrms, sigma_n, mass=None, robust=False):
     """Weighted quadratic of ``pts`` in the frame of ``origin`` and axis ``n``: height at the
-    origin, weighted RMS residual and number of coefficients fitted (docs/DECISIONS.md)."""
-    coef, _, rms, fitted = frame_coefficients(origin, n, pts, nrms, sigma_n, mass)
+    origin, weighted RMS residual and number of coefficients fitted (docs/DECISIONS.md); with
+    ``robust``, the robust fit where it explains the list better."""
+    coef, _, rms, fitted = frame_coefficients(origin, n, pts, nrms, sigma_n, mass, robust)
     return coef[0], rms, fitted
 
 
-def frame_coefficients(origin, n, pts, nrms, sigma_n, mass=None):
+def frame_coefficients(origin, n, pts, nrms, sigma_n, mass=None, robust=False):
     """:func:`frame_fit`'s quadratic itself: its six coefficients (in the tangent coordinates
     of :func:`_basis` over the list radius), that radius, the RMS residual and the number of
     coefficients fitted."""
@@ -155,16 +161,58 @@ def frame_coefficients(origin, n, pts, nrms, sigma_n, mass=None):
     scale = np.sqrt(radius2) if radius2 > 0 else 1.0
     x, y, z = rel @ u / scale, rel @ v / scale, rel @ n
     design = _monomials(x, y)[:, :6]
+    coef, fitted = _solve(design, weights, z, 6)
+    rms = _rms(weights, z - design @ coef)
+    if robust and rms > 0:
+        spread = ROBUST_SPREAD * rms
+        origin = (x == 0) & (y == 0) & (z == 0)
+        other, other_fitted = robust_fit(design, weights, z, spread, origin)
+        if (_welsch(weights, z - design @ other, spread)
+                > (1 + ROBUST_MARGIN) * _welsch(weights, z - design @ coef, spread)):
+            coef, fitted = other, other_fitted
+            rms = _rms(weights, z - design @ coef)
+    return coef, scale, rms, fitted
+
+
+def _solve(design, weights, z, top):
+    """Weighted least squares on the first 6, 3 or 1 columns (at most ``top``): the first that
+    is well posed; zeros and 0 when none is."""
     coef = np.zeros(6)
-    fitted = 0
     for m in (6, 3, 1):
-        if _well_posed(design[:, :m], weights):
+        if m <= top and _well_posed(design[:, :m], weights):
             sw = np.sqrt(weights)
             coef[:m] = np.linalg.lstsq(sw[:, None] * design[:, :m], sw * z, rcond=None)[0]
-            fitted = m
-            break
-    rms = np.sqrt((weights * (z - design @ coef) ** 2).sum() / weights.sum())
-    return coef, scale, rms, fitted
+            return coef, m
+    return coef, 0
+
+
+def _rms(weights, resid):
+    return np.sqrt((weights * resid ** 2).sum() / weights.sum())
+
+
+def _welsch(weights, resid, spread):
+    """The weight ``sum(w exp(-(r / spread)^2))`` a fit gathers from its close neighbours."""
+    return (weights * np.exp(-(resid / spread) ** 2)).sum()
+
+
+def _top(weights):
+    """The most columns a reweighted fit may use, from Kish's effective sample size."""
+    size = weights.sum() ** 2 / (weights ** 2).sum() if (weights ** 2).sum() > 0 else 0.0
+    return 6 if size >= ROBUST_SAMPLES[0] else 3 if size >= ROBUST_SAMPLES[1] else 1
+
+
+def robust_fit(design, weights, z, spread, origin):
+    """The robust quadratic: a plane through the neighbours near the point's own height (the
+    point itself, ``origin``, left out), then ``REFITS`` refits to its own residuals, each time
+    with the weights times ``exp(-(r / spread)^2)``; coefficients and their number."""
+    wts = np.where(origin, 0.0, weights * np.exp(-(z / spread) ** 2))
+    coef, fitted = _solve(design, wts, z, min(3, _top(wts)))
+    if fitted == 0:
+        coef, fitted = _solve(design, weights, z, 3)
+    for _ in range(REFITS):
+        wts = weights * np.exp(-((z - design @ coef) / spread) ** 2)
+        coef, fitted = _solve(design, wts, z, _top(wts))
+    return coef, fitted
 
 
 def on_fit(point, origin, n, coef, scale):
@@ -176,28 +224,30 @@ def on_fit(point, origin, n, coef, scale):
     return point + (_monomials(x, y)[0, :6] @ coef - z) * n
 
 
-def aware_point(points, normals, members, i, sigma_n, mass=None):
+def aware_point(points, normals, members, i, sigma_n, mass=None, robust=False):
     """Feature-aware fit of point i over its list, in the frame of p_i and n_i; ``mass``
     multiplies each member's weight."""
     return frame_fit(points[i], normals[i], points[members], normals[members], sigma_n,
-                     None if mass is None else mass[members])
+                     None if mass is None else mass[members], robust)
 
 
-def aware_fit(points, normals, lists, sigma_n, mass=None):
-    out = [aware_point(points, normals, m, i, sigma_n, mass) for i, m in enumerate(lists)]
+def aware_fit(points, normals, lists, sigma_n, mass=None, robust=False):
+    out = [aware_point(points, normals, m, i, sigma_n, mass, robust)
+           for i, m in enumerate(lists)]
     return tuple(np.array([o[c] for o in out]) for c in range(3))
 
 
 def aware_iteration(points, normals, k, sigma_n=0.05, mass=None):
     """One iteration of the feature-aware pipeline: PCA normals (oriented like ``normals``, or
     away from the centroid), bilateral filter, feature-aware fit (each neighbour's weight times
-    its ``mass`` if given), projection along n*_i."""
+    its ``mass`` if given; without ``mass``, with its robust alternative), projection along
+    n*_i."""
     lists, _ = knn_lists(points, k)
     nrm = pca_normals(points, lists)
     hints = points - points.mean(axis=0) if normals is None else normals
     nrm *= np.where((nrm * hints).sum(axis=1) < 0, -1.0, 1.0)[:, None]
     filtered = filter_normals(points, nrm, lists)
-    height, _, _ = aware_fit(points, filtered, lists, sigma_n, mass)
+    height, _, _ = aware_fit(points, filtered, lists, sigma_n, mass, robust=mass is None)
     return points + height[:, None] * filtered, filtered
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import pssd_fast
-from pssd_fast import core
+from pssd_fast import core, datasets
 from pssd_fast.denoise import METHOD_DEFAULTS
 from pssd_fast.graph import morton_order
 from pssd_fast.kernels import feature
@@ -217,7 +217,7 @@ def _aware_iteration_with(points, normals, k, sigma_n=0.05):
     """Reference feature-aware iteration that uses ``normals`` as they are (no PCA)."""
     lists, _ = reference.knn_lists(points, k)
     filtered = reference.filter_normals(points, normals, lists)
-    height, _, _ = reference.aware_fit(points, filtered, lists, sigma_n)
+    height, _, _ = reference.aware_fit(points, filtered, lists, sigma_n, robust=True)
     return points + height[:, None] * filtered
 
 
@@ -539,6 +539,44 @@ def test_two_close_sheets_are_not_bridged():
     assert abs(lower.mean()) < 0.002 and abs(upper.mean() - gap) < 0.002
 
 
+def _two_sheets(gap, sigma=0.002, side=0.35, per_sheet=6125, seed=0):
+    """Two parallel noisy squares ``gap`` sigmas apart at the density of ``benchmarks.sheets``
+    (50,000 points per unit square): points, each one's own sheet height, and the points away
+    from the borders."""
+    rng = np.random.default_rng(seed)
+    own = np.repeat([0.0, gap * sigma], per_sheet)
+    xy = rng.uniform(0, side, (2 * per_sheet, 2))
+    points = np.column_stack([xy, own]) + rng.normal(0, sigma, (2 * per_sheet, 3))
+    return points, own, ((xy >= 0.1 * side) & (xy <= 0.9 * side)).all(axis=1)
+
+
+@pytest.mark.parametrize("gap, most", [(4.0, 0.8), (7.5, 0.5)])
+def test_the_default_keeps_a_thin_wall_apart(gap, most):
+    """Sheets closer than the default's lists are wide: the noisy input is 0.80 sigma from its
+    own sheet; merged sheets would be about gap / 2 away (issue 16's targets)."""
+    points, own, inside = _two_sheets(gap)
+    result = pssd_fast.denoise(points)
+    error = np.abs(result.points[inside, 2] - own[inside]).mean() / 0.002
+    assert error < most
+
+
+def test_the_default_keeps_the_edges_of_a_sparse_part():
+    """10,000 points of the generated part at 0.5% noise: the default removes most of the noise
+    and keeps the edges better than the MLS projection baseline, which rounds them."""
+    cloud = datasets.cad_part(n_points=10_000, noise=0.005, seed=0)
+    near = cloud.edge_distance < 0.01 * cloud.diagonal
+
+    def errors(points):
+        dist = cloud.surface_distance(points)
+        return dist.mean(), dist[near].mean()
+
+    noisy = errors(cloud.points)
+    default = errors(pssd_fast.denoise(cloud.points).points)
+    mls = errors(pssd_fast.denoise(cloud.points, method="mls").points)
+    assert default[0] < 0.3 * noisy[0] and default[1] < 0.6 * noisy[1]
+    assert default[0] < mls[0] and default[1] < mls[1]
+
+
 #: The stage whose output is made non-finite for some points, per preset, and the position of
 #: the per-point value that gets NaN/Inf in its result: the feature-aware fit's height, the
 #: paper's MLS projection.
@@ -681,8 +719,6 @@ def test_time_left_is_the_mean_iteration_times_the_iterations_to_go(monkeypatch)
 @pytest.fixture(scope="module")
 def thick():
     """Noise several times the point spacing: cells of 1.5 times the noise hold 4 points."""
-    from pssd_fast import datasets
-
     return datasets.cad_part(n_points=20000, noise=0.03, seed=3)
 
 

@@ -29,6 +29,30 @@ def test_versus_writes_the_table_from_a_peer_cache(tmp_path):
     assert row["paper"]["mean"] < row["noisy"]["mean"]
     assert row["default"]["k"] >= 10 and row["knn_seconds"] > 0
     text = (tmp_path / "versus.md").read_text()
-    assert "| cad_part | 0.50% |" in text and "win / lose" in text
+    assert "| cad_part\\* | 0.50% |" in text and "win / lose" in text
+    assert "\\* In-sample" in text
     assert "Cells won: 2 of 4." in text and "cad_part 0.50% edge vs jet" in text
     assert len(json.loads((tmp_path / "versus.json").read_text())["rows"]) == 1
+
+
+def _fake_cell(score):
+    return {family: {label: dict(score) for label in settings}
+            for family, settings in versus.PEER_SETTINGS.items()}
+
+
+def test_sized_run_compares_only_real_cells(tmp_path):
+    fake = {"mean": 1e9, "edge": 0.0, "seconds": 1.0}  # peers lose every mean, win every edge
+    no_edge = {"mean": 1e9, "edge": None, "seconds": 1.0}
+    cells = {versus._key("plane", 0.005, 2000): _fake_cell(no_edge),
+             versus._key("cube", 0.005, 2000): _fake_cell(fake)}
+    (tmp_path / versus.PEER_CACHE.name).write_text(json.dumps({"machine": "test",
+                                                                "cells": cells}))
+    rows = versus.main(["--sizes", "2000", "--shapes", "plane", "cube", "--noise", "0.005",
+                        "--out", str(tmp_path), "--quiet"])
+    assert [(r["shape"], r["points"]) for r in rows] == [("plane", 2000), ("cube", 2000)]
+    assert rows[0]["default"]["edge"] is None and rows[0]["jet"]["edge_setting"] is None
+    text = (tmp_path / "versus_sparse.md").read_text()
+    assert not (tmp_path / "versus.md").exists()
+    assert "| plane | 2,000 | 0.50% |" in text and "win / -" in text
+    assert "Cells won: 4 of 6." in text and "cube 2,000 pts 0.50% edge vs jet" in text
+    assert "In-sample" not in text

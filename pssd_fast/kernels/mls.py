@@ -21,6 +21,19 @@ PIVOT_TOL = 1e-9
 
 # Fit degree codes written to ``degree``.
 CUBIC, QUADRATIC, PLANE = 3, 2, 0
+# Thin walls (docs/DECISIONS.md, "Thin walls"): a list may reach across to the other side of a
+# thin part, and its plain fit then lies between the two. A robust fit is tried beside it, with
+# Welsch weights ``exp(-(r / s)^2)`` on the residuals ``r``, ``s`` this fraction of the plain
+# fit's weighted RMS residual (the spread of the list as the plain fit sees it) ...
+ROBUST_SPREAD = 0.5
+# ... and kept where its Welsch score (the weights' sum) beats the plain fit's by this fraction:
+# on one surface the plain fit already sits at the densest height, and a robust fit that merely
+# follows the noise gains less.
+ROBUST_MARGIN = 0.3
+# Refits of the robust fit to its own residuals after the fit anchored at the point's height.
+REFITS = 4
+# Effective sample sizes a reweighted fit needs for the quadratic and the plane.
+ROBUST_SAMPLES = (18.0, 6.0)
 
 
 @helper
@@ -221,12 +234,74 @@ def mls_fit(points, normals, indptr, indices, h, proj, resid, degree, curvature)
 
 
 @helper
+def _solve(phi, wts, zs, count, top, a, b):
+    """Weighted least-squares fit of the first ``top`` (6, 3 or 1) monomials into ``b``: the
+    quadratic if well posed, else the plane, else the weighted mean height, else nothing;
+    returns the number of coefficients fitted (``b`` is zero beyond them)."""
+    _normal_equations(phi, wts, zs, count, top, a, b)
+    rank = cholesky_prefix(a, top, PIVOT_TOL)
+    if rank == 6:
+        m = 6
+    elif rank >= 3:
+        m = 3
+    else:
+        m = min(rank, 1)
+    cholesky_solve(a, b, m)
+    for p in range(m, 6):
+        b[p] = 0.0
+    return m
+
+
+@helper
+def _robust_top(wts, count):
+    """The most monomials a reweighted fit may take: the quadratic where its weights amount to
+    at least ``ROBUST_SAMPLES[0]`` equal ones (Kish's effective sample size), the plane from
+    ``ROBUST_SAMPLES[1]``, else the mean height (a few lopsided neighbours would let a
+    quadratic swing far off)."""
+    s1 = 0.0
+    s2 = 0.0
+    for t in range(count):
+        s1 += wts[t]
+        s2 += wts[t] * wts[t]
+    size = s1 * s1 / s2 if s2 > 0.0 else 0.0
+    if size >= ROBUST_SAMPLES[0]:
+        return 6
+    return 3 if size >= ROBUST_SAMPLES[1] else 1
+
+
+@helper
+def _robust_fit(phi, base, zs, count, inv_spread, wts, xs, a, b):
+    """The quadratic of a list that may hold another sheet: anchored at the origin's height (a
+    plane; the origin itself left out, so that an outlier meets the neighbours nearest its
+    height), then refitted ``REFITS`` times to its own residuals, each neighbour's weight
+    ``base`` times ``exp(-(r * inv_spread)^2)``. Leaves the last weights in ``wts`` and the
+    coefficients in ``b``; returns their number."""
+    for t in range(count):
+        u = zs[t] * inv_spread
+        origin = phi[1, t] == 0.0 and phi[2, t] == 0.0 and zs[t] == 0.0
+        wts[t] = 0.0 if origin else base[t] * math.exp(-u * u)
+    m = _solve(phi, wts, zs, count, min(3, _robust_top(wts, count)), a, b)
+    if m == 0:
+        for t in range(count):
+            wts[t] = base[t]
+        m = _solve(phi, wts, zs, count, 3, a, b)
+    for _ in range(REFITS):
+        _residuals(phi, b, m, zs, count, xs)
+        for t in range(count):
+            u = xs[t] * inv_spread
+            wts[t] = base[t] * math.exp(-u * u)
+        m = _solve(phi, wts, zs, count, _robust_top(wts, count), a, b)
+    return m
+
+
+@helper
 def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, count,
-               inv_sigma_n, wts, xs, zs, a, b, phi):
+               inv_sigma_n, robust, wts, base, xs, zs, a, b, other, phi):
     """Weighted quadratic over the listed ``points`` in the frame of origin ``(px, py, pz)`` and
     unit axis ``(nx, ny, nz)``: the height ``g(0, 0)``, the weighted RMS residual, the number
     of coefficients fitted (see :func:`aware_fit`) and the inverse of the list radius that
-    scales the tangent coordinates; ``b`` holds the coefficients."""
+    scales the tangent coordinates; ``b`` holds the coefficients. With ``robust``, the fit
+    of :func:`_robust_fit` replaces the plain one where it explains the list better."""
     ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
     radius2 = 0.0
     for t in range(count):
@@ -253,33 +328,52 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
         if mass.shape[0] > 0:
             wgt *= mass[j]
         zs[t] = z
-        wts[t] = wgt
+        base[t] = wgt
         _basis(x, y, phi, t)
-    _normal_equations(phi, wts, zs, count, 6, a, b)
-
-    # Quadratic if well posed, else the plane, else the weighted mean height, else nothing.
-    rank = cholesky_prefix(a, 6, PIVOT_TOL)
-    if rank == 6:
-        m = 6
-    elif rank >= 3:
-        m = 3
-    else:
-        m = min(rank, 1)
-    cholesky_solve(a, b, m)
-    for p in range(m, 6):
-        b[p] = 0.0
+    for t in range(count):
+        wts[t] = base[t]
+    m = _solve(phi, wts, zs, count, 6, a, b)
     _residuals(phi, b, m, zs, count, xs)
+    rms = _weighted_rms(base, xs, count)
+    if robust and rms > 0.0:
+        inv_spread = 1.0 / (ROBUST_SPREAD * rms)
+        m_other = _robust_fit(phi, base, zs, count, inv_spread, wts, xs, a, other)
+        plain = _welsch_score(phi, b, m, zs, count, base, inv_spread, xs)
+        if _welsch_score(phi, other, m_other, zs, count, base, inv_spread, xs) > (
+                1.0 + ROBUST_MARGIN) * plain:
+            m = m_other
+            for p in range(6):
+                b[p] = other[p]
+            rms = _weighted_rms(base, xs, count)  # xs: the residuals about ``other``
+    return b[0], rms, m, inv_r
+
+
+@helper
+def _welsch_score(phi, b, m, zs, count, base, inv_spread, xs):
+    """``sum(base * exp(-(r * inv_spread)^2))`` over the residuals ``r`` about the fit ``b`` (left
+    in ``xs``): the weight a fit gathers from the neighbours close to it."""
+    _residuals(phi, b, m, zs, count, xs)
+    s = 0.0
+    for t in range(count):
+        u = xs[t] * inv_spread
+        s += base[t] * math.exp(-u * u)
+    return s
+
+
+@helper
+def _weighted_rms(wts, xs, count):
+    """Weighted RMS of the residuals ``xs``."""
     se = 0.0
     sw = 0.0
     for t in range(count):
         se += wts[t] * xs[t] * xs[t]
         sw += wts[t]
-    return b[0], math.sqrt(se / sw) if sw > 0.0 else 0.0, m, inv_r
+    return math.sqrt(se / sw) if sw > 0.0 else 0.0
 
 
 @parallel_kernel
-def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, height, rms, degree,
-              coef):
+def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, robust, height, rms,
+              degree, coef):
     """Feature-aware local quadratic of each point's listed ``surface`` points, in the frame of
     the point and the normal of its first (nearest) listed one: the iterations of the default
     pipeline (``surface`` is ``points``, each list starting with the point itself, so the frame
@@ -302,6 +396,9 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, height, 
     sigma_n : float
         Width of the normal-agreement weight ``exp(-((1 - |n_i . n_j|) / sigma_n)^2)``; 0 or
         less turns it off (weights by distance only).
+    robust : bool
+        Also try the robust fit of :func:`_robust_fit` at each point and keep it where its
+        Welsch score beats the plain fit's by ``ROBUST_MARGIN`` (thin walls).
     height : (n,) float64
         Output: ``g(0, 0)``, the height of the fitted surface above ``p_i`` along the frame's
         axis ``n``, so that ``p_i + height_i n`` is the projection of ``p_i`` along it (0 for an
@@ -330,6 +427,8 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, height, 
     inv_sigma_n = 1.0 / sigma_n if sigma_n > 0.0 else 0.0
     for c in prange((n + CHUNK - 1) // CHUNK):
         wts = np.empty(longest)
+        base = np.empty(longest)
+        other = np.empty(6)
         xs = np.empty(longest)
         zs = np.empty(longest)
         a = np.empty((6, 6))
@@ -347,7 +446,7 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, height, 
             height[i], rms[i], degree[i], inv_r = _frame_fit(
                 points[i, 0], points[i, 1], points[i, 2], normals[first, 0],
                 normals[first, 1], normals[first, 2], surface, normals, mass, indices, start,
-                count, inv_sigma_n, wts, xs, zs, a, b, phi)
+                count, inv_sigma_n, robust, wts, base, xs, zs, a, b, other, phi)
             if coef.shape[0] > 0:
                 coef[i, :6] = b
                 coef[i, 6] = inv_r

@@ -31,11 +31,12 @@ def step(points, nrm, graph, lam, params, clock, last=True, mass=None):
 
     Bilateral filter of the normals to ``n*_i``, a quadratic fitted in the frame of ``p_i`` and
     ``n*_i`` with each neighbour weighted by distance and normal agreement (``sigma_n``), and
-    the projection ``p_i + g_i(0, 0) n*_i``; ``mass`` (or None) multiplies each neighbour's
-    weight in the fit (the points a cell mean stands for). The move uses neither the likelihood
-    nor the feature intensity; the last iteration still computes both (from the fit's RMS
-    residual, and by the paper's voting at the paper's constants) so that every preset returns
-    them.
+    the projection ``p_i + g_i(0, 0) n*_i``; where a robust refit to the residuals explains a
+    list better, it replaces the quadratic (a list reaching across a thin wall; not on cell
+    means). ``mass`` (or None) multiplies each neighbour's weight in the fit (the points a cell
+    mean stands for). The move uses neither the likelihood nor the feature intensity; the last
+    iteration still computes both (from the fit's RMS residual, and by the paper's voting at
+    the paper's constants) so that every preset returns them.
     """
     moved, filtered, rms, degree, held = fit_and_move(points, nrm, graph, params["sigma_n"],
                                                       clock, mass)
@@ -53,8 +54,10 @@ def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None):
     """The move of :func:`step`: the moved points, the filtered normals, the fit's RMS
     residual and degree, and the points held in place (their step was not finite)."""
     filtered = clock.run("filter", core.filter_normals, points, nrm, graph)
+    # The robust fit keeps a thin wall's sides apart; cell means (``mass``) have averaged them
+    # already, and on them it only costs accuracy (docs/DECISIONS.md, "Thin walls").
     height, rms, degree = clock.run("mls", core.aware_fit, points, filtered, graph, sigma_n,
-                                    mass)
+                                    mass, mass is None)
     moved, held = clock.run("update", core.project, points, filtered, height)
     return moved, filtered, rms, degree, held
 
