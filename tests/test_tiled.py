@@ -206,9 +206,12 @@ def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dty
     assert got.dtype == dtype and stats["tiles"]["count"] >= 8
     np.testing.assert_array_equal(got, expected.points)
     assert stats["k"] == expected.stats["k"]
-    # The tiles' residual sums are added tile by tile: their mean may differ in the last bit.
-    coarse, in_core = dict(stats["auto_k"]["coarse"]), dict(expected.stats["auto_k"]["coarse"])
-    assert coarse.pop("mean_residual") == pytest.approx(in_core.pop("mean_residual"), rel=1e-12)
+    coarse, in_core = stats["auto_k"]["coarse"], expected.stats["auto_k"]["coarse"]
+    if in_core is not None:
+        # The tiles' residual sums are added tile by tile: their mean may differ in the last bit.
+        coarse, in_core = dict(coarse), dict(in_core)
+        assert coarse.pop("mean_residual") == pytest.approx(in_core.pop("mean_residual"),
+                                                            rel=1e-12)
     assert coarse == in_core
     assert list(scratch.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == [
         "in.npy", "out.npy", "scratch"]
