@@ -274,17 +274,15 @@ def _robust_fit(phi, base, zs, count, inv_spread, wts, xs, a, b):
     """The quadratic of a list that may hold another sheet: anchored at the origin's height (a
     plane; the origin itself left out, so that an outlier meets the neighbours nearest its
     height), then refitted ``REFITS`` times to its own residuals, each neighbour's weight
-    ``base`` times ``exp(-(r * inv_spread)^2)``. Leaves the last weights in ``wts`` and the
-    coefficients in ``b``; returns their number."""
+    ``base`` times ``exp(-(r * inv_spread)^2)`` (``wts`` is scratch). Leaves the coefficients
+    in ``b``; returns their number."""
     for t in range(count):
         u = zs[t] * inv_spread
         origin = phi[1, t] == 0.0 and phi[2, t] == 0.0 and zs[t] == 0.0
         wts[t] = 0.0 if origin else base[t] * math.exp(-u * u)
     m = _solve(phi, wts, zs, count, min(3, _robust_top(wts, count)), a, b)
     if m == 0:
-        for t in range(count):
-            wts[t] = base[t]
-        m = _solve(phi, wts, zs, count, 3, a, b)
+        m = _solve(phi, base, zs, count, 3, a, b)
     for _ in range(REFITS):
         _residuals(phi, b, m, zs, count, xs)
         for t in range(count):
@@ -330,9 +328,7 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
         zs[t] = z
         base[t] = wgt
         _basis(x, y, phi, t)
-    for t in range(count):
-        wts[t] = base[t]
-    m = _solve(phi, wts, zs, count, 6, a, b)
+    m = _solve(phi, base, zs, count, 6, a, b)
     _residuals(phi, b, m, zs, count, xs)
     rms = _weighted_rms(base, xs, count)
     if robust and rms > 0.0:
