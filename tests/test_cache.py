@@ -38,23 +38,31 @@ def _child(script, cache_dir, *args, env=None, cwd=None):
                           capture_output=True, text=True, check=True)
 
 
-def test_empty_and_warm_cache_give_identical_bytes(tmp_path):
-    cold = _child(CHILD, tmp_path / "cache", tmp_path / "cold.bin")
-    warm = _child(CHILD, tmp_path / "cache", tmp_path / "warm.bin")
-    assert (tmp_path / "cold.bin").read_bytes() == (tmp_path / "warm.bin").read_bytes()
+@pytest.fixture(scope="module")
+def cold(tmp_path_factory):
+    """A child's run on an empty cache folder: the folder, the outputs' bytes and the child's
+    report. Compiling every kernel takes most of a minute on CI: the tests below share it."""
+    folder = tmp_path_factory.mktemp("cold")
+    done = _child(CHILD, folder / "cache", folder / "cold.bin")
+    return folder / "cache", (folder / "cold.bin").read_bytes(), done.stdout
+
+
+def test_empty_and_warm_cache_give_identical_bytes(cold, tmp_path):
+    cache_dir, cold_bytes, cold_stdout = cold
+    warm = _child(CHILD, cache_dir, tmp_path / "warm.bin")
+    assert cold_bytes == (tmp_path / "warm.bin").read_bytes()
     # The calling process only ever loads kernels: children compiled them into the cache.
-    assert "compiled here: 0" in cold.stdout and "compiled here: 0" in warm.stdout
-    assert len(list((tmp_path / "cache").glob(f"kernels-{cache.source_key()}/built/*"))) >= 9
+    assert "compiled here: 0" in cold_stdout and "compiled here: 0" in warm.stdout
+    assert len(list(cache_dir.glob(f"kernels-{cache.source_key()}/built/*"))) >= 9
 
 
-def test_a_copy_of_the_package_sharing_the_cache_gives_identical_bytes(tmp_path):
+def test_a_copy_of_the_package_sharing_the_cache_gives_identical_bytes(cold, tmp_path):
     """Another checkout or install of the same source finds the same cache folder, but numba
     serves a kernel only to the file it was compiled from, as it was then: the copy, and the
     copy with a rewritten kernel file, still load their kernels instead of compiling them."""
     import pssd_fast
 
-    cache_dir = tmp_path / "cache"
-    _child(CHILD, cache_dir, tmp_path / "original.bin")
+    cache_dir, original, _ = cold
     copy = tmp_path / "copy"
     shutil.copytree(os.path.dirname(pssd_fast.__file__), copy / "pssd_fast",
                     ignore=shutil.ignore_patterns("__pycache__"))
@@ -66,7 +74,7 @@ def test_a_copy_of_the_package_sharing_the_cache_gives_identical_bytes(tmp_path)
             os.utime(kernel, ns=(kernel.stat().st_atime_ns, kernel.stat().st_mtime_ns + 10**9))
         done = _child(where + CHILD, cache_dir, tmp_path / f"{run}.bin", env=env, cwd=tmp_path)
         assert f"from {copy}" in done.stdout and "compiled here: 0" in done.stdout, run
-        assert (tmp_path / f"{run}.bin").read_bytes() == (tmp_path / "original.bin").read_bytes()
+        assert (tmp_path / f"{run}.bin").read_bytes() == original, run
 
 
 def test_the_key_changes_with_any_kernel_source(tmp_path, monkeypatch):

@@ -1,0 +1,227 @@
+"""Prototype: the default with ``k`` chosen per point by a test on the fit residuals.
+
+Usage::
+
+    python -m benchmarks.scale_selection                      # 10,000 points, 8 shapes, 3 noises
+    python -m benchmarks.scale_selection --sizes 30000 --shapes plane sphere --noise 0.005
+
+Not part of the library: it measures a rule for docs/DECISIONS.md ("Sparse clouds") before it
+is built into the kernels. It runs ``denoise(points)`` at its defaults with the move of the
+feature-aware iterations replaced (and restores it afterwards); everything else, the probe
+that picks ``k`` included, is the library's. Peer minima come from the cache of
+``benchmarks.versus`` (its sized cells); results go to ``results/scale_selection_<sizes>.md``.
+
+The rule, for each point and iteration:
+
+1. Quadratic fits ``z = g(x, y)`` in the frame of the point and its filtered normal over the
+   first ``s`` of its neighbours (nearest first), for ``s`` in ``SCALE_FACTORS`` times the
+   pipeline's ``k``. Each neighbour weighs its normal agreement only (flat in distance), so
+   one pass over the longest list accumulates the normal equations of every scale.
+2. Walking up the scales from the smallest whose median list radius is at least
+   ``RADIUS_OVER_NOISE`` times the noise the largest sees (smaller lists cut the noise off
+   and see too little of it), a scale is kept while the residual it adds per unit weight
+   stays below ``sigma^2 (1 + TAU sqrt(2 / added weight))``: an F-test of "the quadratic
+   still explains the wider list". The first scale that fails ends the walk.
+3. At the scale kept, the plane replaces the quadratic where the three curvature terms
+   explain less than ``sigma^2 (1 + TAU_PLANE sqrt(2 / 3))`` each.
+4. ``sigma^2``: on the first iteration, the median residual variance (``rss / (weight - 6)``)
+   at the scale the walk starts from; later iterations use ``LATER_NOISE`` times that value.
+   The smoothing leaves far less noise than the input had (the same median falls to about 1%
+   of it after one iteration), but what it leaves varies over wider lists than the small
+   scales see, so measured again it would stop every walk early on a plane.
+"""
+import argparse
+import math
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+from numba import njit, prange
+
+import pssd_fast
+from pssd_fast import core
+from pssd_fast.graph import knn_graph
+from pssd_fast.kernels.linalg import cholesky_prefix, cholesky_solve, orthonormal_basis
+from pssd_fast.pipelines import aware
+
+from . import versus
+from .stages import write_atomic
+
+SCALE_FACTORS = (0.25, 0.5, 1.0, 2.0, 3.0)
+TAU = 2.0
+TAU_PLANE = 1.0
+RADIUS_OVER_NOISE = 4.0
+LATER_NOISE = 0.03
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+@njit(fastmath=True, cache=True)
+def _height(factor, rhs, b, szz, m, rank):
+    """Height at the origin and residual sum of squares of the fit of the first ``m``
+    monomials, from the Cholesky ``factor`` of ``rank`` pivots; NaN where they are too few."""
+    if rank < m:
+        return np.nan, np.nan
+    for p in range(m):
+        b[p] = rhs[p]
+    cholesky_solve(factor, b, m)
+    r = szz
+    for p in range(m):
+        r -= b[p] * rhs[p]
+    return b[0], max(r, 0.0)
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def scale_fits(points, normals, indptr, indices, scales, sigma_n, quad, plane, rss, rss_plane,
+               weight, radius):
+    """Height of the quadratic and of the plane, their residual sums of squares, the summed
+    weight and the list radius of each point at each scale (columns)."""
+    inv_sn = 1.0 / sigma_n
+    n_scales = scales.shape[0]
+    for i in prange(points.shape[0]):
+        a = np.zeros((6, 6))
+        acc = np.zeros((6, 6))
+        bacc = np.zeros(6)
+        b = np.zeros(6)
+        phi = np.zeros(6)
+        start = indptr[i]
+        count = indptr[i + 1] - start
+        first = indices[start]
+        nx, ny, nz = normals[first, 0], normals[first, 1], normals[first, 2]
+        ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        r2 = 0.0
+        for t in range(count):
+            j = indices[start + t]
+            r2 = max(r2, (points[j, 0] - px) ** 2 + (points[j, 1] - py) ** 2
+                     + (points[j, 2] - pz) ** 2)
+        inv_r = 1.0 / math.sqrt(r2) if r2 > 0.0 else 1.0
+        szz = 0.0
+        sw = 0.0
+        s = 0
+        for t in range(count):
+            j = indices[start + t]
+            dx, dy, dz = points[j, 0] - px, points[j, 1] - py, points[j, 2] - pz
+            x = (dx * ux + dy * uy + dz * uz) * inv_r
+            y = (dx * vx + dy * vy + dz * vz) * inv_r
+            z = dx * nx + dy * ny + dz * nz
+            u = (1.0 - min(abs(nx * normals[j, 0] + ny * normals[j, 1] + nz * normals[j, 2]),
+                           1.0)) * inv_sn
+            w = math.exp(-u * u)
+            phi[0], phi[1], phi[2], phi[3], phi[4], phi[5] = 1.0, y, x, x * y, y * y, x * x
+            for p in range(6):
+                bacc[p] += w * phi[p] * z
+                for q in range(p + 1):
+                    acc[p, q] += w * phi[p] * phi[q]
+            szz += w * z * z
+            sw += w
+            while s < n_scales and (t + 1 == scales[s] or t + 1 == count):
+                a[:, :] = acc
+                rank = cholesky_prefix(a, 6, 1e-9)
+                quad[i, s], rss[i, s] = _height(a, bacc, b, szz, 6, rank)
+                plane[i, s], rss_plane[i, s] = _height(a, bacc, b, szz, 3, rank)
+                weight[i, s] = sw
+                radius[i, s] = math.sqrt(dx * dx + dy * dy + dz * dz)
+                s += 1
+
+
+class ScaleMove:
+    """The replacement of ``aware.fit_and_move``; keeps the first iteration's noise and the
+    scales each iteration kept (``kept``: counts per scale)."""
+
+    def __init__(self):
+        self.noise2 = None
+        self.kept = []
+
+    def __call__(self, points, nrm, graph, sigma_n, clock, mass=None):
+        n = points.shape[0]
+        filtered = core.filter_normals(points, nrm, graph)
+        k = graph.indices.shape[0] // n
+        scales = np.array(sorted({max(8, round(f * k)) for f in SCALE_FACTORS}), np.int64)
+        scales = scales[scales < n]
+        lists = knn_graph(points, int(scales[-1]), False)
+        quad, plane, rss, rss_plane, weight, radius = (np.empty((n, len(scales)))
+                                                       for _ in range(6))
+        scale_fits(points, filtered, lists.indptr, lists.indices, scales, sigma_n, quad,
+                   plane, rss, rss_plane, weight, radius)
+        variance = rss / np.maximum(weight - 6.0, 1.0)
+        widest = np.sqrt(np.nanmedian(variance[:, -1]))
+        wide = np.flatnonzero(np.median(radius, axis=0) >= RADIUS_OVER_NOISE * widest)
+        first = int(wide[0]) if len(wide) else len(scales) - 1
+        if self.noise2 is None:
+            self.noise2 = noise2 = float(np.nanmedian(variance[:, first]))
+        else:
+            noise2 = LATER_NOISE * self.noise2
+        pick = np.full(n, first)
+        going = np.isfinite(quad[:, first])
+        for s in range(first + 1, len(scales)):
+            added = np.maximum(weight[:, s] - weight[:, s - 1], 1e-9)
+            rate = (rss[:, s] - rss[:, s - 1]) / added / noise2
+            going &= np.isfinite(quad[:, s]) & (rate <= 1.0 + TAU * np.sqrt(2.0 / added))
+            pick[going] = s
+        rows = np.arange(n)
+        self.kept.append(np.bincount(pick, minlength=len(scales)).tolist())
+        height = quad[rows, pick]
+        curvature = (rss_plane[rows, pick] - rss[rows, pick]) / 3.0 / noise2
+        flat = np.isfinite(plane[rows, pick]) & (curvature <= 1.0 + TAU_PLANE * np.sqrt(2 / 3))
+        height = np.where(flat, plane[rows, pick], height)
+        height = np.where(np.isfinite(height), height, 0.0)
+        moved, held = core.project(points, filtered, height)
+        rms = np.sqrt(rss[rows, pick] / np.maximum(weight[rows, pick], 1.0))
+        return moved, filtered, rms, np.full(n, 6, np.int8), held
+
+
+@contextmanager
+def selected_scales():
+    """The default pipeline with :class:`ScaleMove` in place of its move, inside the block."""
+    original = aware.fit_and_move
+    aware.fit_and_move = move = ScaleMove()
+    try:
+        yield move
+    finally:
+        aware.fit_and_move = original
+
+
+def _best(peers, column):
+    """The lowest ``column`` of both peer families' settings; None where there is none."""
+    values = [versus.best_of(peers[family], column)[0] for family in versus.FAMILIES]
+    values = [v for v in values if v is not None]
+    return min(values) if values else None
+
+
+def _pair(scores):
+    return " / ".join("-" if x is None else f"{x:.1f}" for x in scores)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[10_000])
+    parser.add_argument("--shapes", nargs="+", default=list(versus.SIZED_SHAPES))
+    parser.add_argument("--noise", type=float, nargs="+", default=list(versus.NOISE_LEVELS))
+    args = parser.parse_args(argv)
+    cache = versus.load_peer_cache()["cells"]
+    lines = ["| shape | points | noise | default | with the rule | best peer | won |",
+             "|---|---|---|---|---|---|---|"]
+    won = total = 0
+    for n_points in args.sizes:
+        for shape in args.shapes:
+            for noise in args.noise:
+                case = versus.make_case(shape, noise, n_points)
+                peers = cache[versus._key(shape, noise, n_points)]
+                best = [_best(peers, col) for col in versus.COLUMNS]
+                plain = case.score(pssd_fast.denoise(case.points).points)
+                with selected_scales():
+                    rule = case.score(pssd_fast.denoise(case.points).points)
+                ok = all(b is None or r < b for r, b in zip(rule, best))
+                won += ok
+                total += 1
+                lines.append(f"| {shape} | {n_points:,} | {noise:.2%} | {_pair(plain)} | "
+                             f"{_pair(rule)} | {_pair(best)} | {'yes' if ok else 'no'} |")
+                print(lines[-1], flush=True)
+    lines.append(f"\nCells won on both columns against both peers with the rule: {won} of {total}.")
+    RESULTS.mkdir(exist_ok=True)
+    name = "_".join(str(n) for n in args.sizes)
+    write_atomic(RESULTS / f"scale_selection_{name}.md", "\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
