@@ -55,7 +55,7 @@ LATER_NOISE = 0.03
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-@njit(fastmath=True, cache=True)
+@njit(fastmath=True)
 def _height(factor, rhs, b, szz, m, rank):
     """Height at the origin and residual sum of squares of the fit of the first ``m``
     monomials, from the Cholesky ``factor`` of ``rank`` pivots; NaN where they are too few."""
@@ -70,7 +70,7 @@ def _height(factor, rhs, b, szz, m, rank):
     return b[0], max(r, 0.0)
 
 
-@njit(parallel=True, fastmath=True, cache=True)
+@njit(parallel=True, fastmath=True)
 def scale_fits(points, normals, indptr, indices, scales, sigma_n, quad, plane, rss, rss_plane,
                weight, radius):
     """Height of the quadratic and of the plane, their residual sums of squares, the summed
