@@ -15,20 +15,27 @@ The rule, for each point and iteration:
 
 1. Quadratic fits ``z = g(x, y)`` in the frame of the point and its filtered normal over the
    first ``s`` of its neighbours (nearest first), for ``s`` in ``SCALE_FACTORS`` times the
-   pipeline's ``k``. Each neighbour weighs its normal agreement only (flat in distance), so
-   one pass over the longest list accumulates the normal equations of every scale.
-2. Walking up the scales from the smallest whose median list radius is at least
-   ``RADIUS_OVER_NOISE`` times the noise the largest sees (smaller lists cut the noise off
-   and see too little of it), a scale is kept while the residual it adds per unit weight
-   stays below ``sigma^2 (1 + TAU sqrt(2 / added weight))``: an F-test of "the quadratic
-   still explains the wider list". The first scale that fails ends the walk.
-3. At the scale kept, the plane replaces the quadratic where the three curvature terms
+   pipeline's ``k``. Each neighbour weighs its normal agreement, flat in distance, so one pass
+   over the longest list accumulates the normal equations of every scale.
+2. Thin walls: where the default's own fit at ``k`` took its robust alternative (its list
+   reaches across to another sheet), each neighbour also weighs ``exp(-(r / s)^2)``, ``r``
+   its height above that fit and ``s`` the cloud's robust noise (:func:`thin_wall_weights`),
+   so that the other sheet counts at no scale.
+3. Walking up the scales from the smallest whose median list radius is at least
+   ``RADIUS_OVER_NOISE`` times the noise at ``k`` (smaller lists cut the noise off and see too
+   little of it), a scale is kept while the residual it adds per unit weight stays below
+   ``sigma^2 (1 + TAU sqrt(2 / added weight))``: an F-test of "the quadratic still explains
+   the wider list". The first scale that fails ends the walk.
+4. At the scale kept, the plane replaces the quadratic where the three curvature terms
    explain less than ``sigma^2 (1 + TAU_PLANE sqrt(2 / 3))`` each.
-4. ``sigma^2``: on the first iteration, the median residual variance (``rss / (weight - 6)``)
+5. ``sigma^2``: on the first iteration, the median residual variance (``rss / (weight - 6)``)
    at the scale the walk starts from; later iterations use ``LATER_NOISE`` times that value.
    The smoothing leaves far less noise than the input had (the same median falls to about 1%
    of it after one iteration), but what it leaves varies over wider lists than the small
    scales see, so measured again it would stop every walk early on a plane.
+
+``--sheets`` runs the two sheets of ``benchmarks.sheets`` (gaps of 4, 7.5 and 15 sigma)
+instead, with and without the rule.
 """
 import argparse
 import math
@@ -39,12 +46,12 @@ import numpy as np
 from numba import njit, prange
 
 import pssd_fast
-from pssd_fast import core
+from pssd_fast import core, kernels
 from pssd_fast.graph import knn_graph
 from pssd_fast.kernels.linalg import cholesky_prefix, cholesky_solve, orthonormal_basis
 from pssd_fast.pipelines import aware
 
-from . import versus
+from . import sheets, versus
 from .stages import write_atomic
 
 SCALE_FACTORS = (0.25, 0.5, 1.0, 2.0, 3.0)
@@ -71,10 +78,11 @@ def _height(factor, rhs, b, szz, m, rank):
 
 
 @njit(parallel=True, fastmath=True)
-def scale_fits(points, normals, indptr, indices, scales, sigma_n, quad, plane, rss, rss_plane,
-               weight, radius):
+def scale_fits(points, normals, indptr, indices, scales, sigma_n, extra, quad, plane, rss,
+               rss_plane, weight, radius):
     """Height of the quadratic and of the plane, their residual sums of squares, the summed
-    weight and the list radius of each point at each scale (columns)."""
+    weight and the list radius of each point at each scale (columns). ``extra[i, t]``: a
+    factor on the weight of the ``t``-th neighbour of point ``i``."""
     inv_sn = 1.0 / sigma_n
     n_scales = scales.shape[0]
     for i in prange(points.shape[0]):
@@ -106,7 +114,7 @@ def scale_fits(points, normals, indptr, indices, scales, sigma_n, quad, plane, r
             z = dx * nx + dy * ny + dz * nz
             u = (1.0 - min(abs(nx * normals[j, 0] + ny * normals[j, 1] + nz * normals[j, 2]),
                            1.0)) * inv_sn
-            w = math.exp(-u * u)
+            w = math.exp(-u * u) * extra[i, t]
             phi[0], phi[1], phi[2], phi[3], phi[4], phi[5] = 1.0, y, x, x * y, y * y, x * x
             for p in range(6):
                 bacc[p] += w * phi[p] * z
@@ -124,13 +132,58 @@ def scale_fits(points, normals, indptr, indices, scales, sigma_n, quad, plane, r
                 s += 1
 
 
+@njit(parallel=True, fastmath=True)
+def residuals_about(points, normals, lists, coef, out):
+    """``out[i, t]``: the height of the ``t``-th neighbour of point ``i`` above the fit
+    ``coef[i]`` of :func:`pssd_fast.kernels.mls.aware_fit` (same frame: the point and the
+    normal of its first neighbour, tangent coordinates scaled by ``coef[i, 6]``)."""
+    for i in prange(lists.shape[0]):
+        first = lists[i, 0]
+        nx, ny, nz = normals[first, 0], normals[first, 1], normals[first, 2]
+        ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
+        for t in range(lists.shape[1]):
+            j = lists[i, t]
+            dx = points[j, 0] - points[i, 0]
+            dy = points[j, 1] - points[i, 1]
+            dz = points[j, 2] - points[i, 2]
+            x = (dx * ux + dy * uy + dz * uz) * coef[i, 6]
+            y = (dx * vx + dy * vy + dz * vz) * coef[i, 6]
+            c = coef[i]
+            out[i, t] = (dx * nx + dy * ny + dz * nz
+                         - (c[0] + c[1] * y + c[2] * x + c[3] * x * y + c[4] * y * y
+                            + c[5] * x * x))
+
+
+def thin_wall_weights(points, filtered, graph, lists, sigma_n):
+    """The factor on each neighbour's weight, ``(n, longest)``: where the default's fit at
+    ``k`` took its robust alternative (a list reaching across a thin wall),
+    ``exp(-(r / s)^2)`` with ``r`` the neighbour's height above that fit and ``s`` the
+    cloud's robust noise (the median over points of the median ``|r|`` of their ``k``
+    nearest, over 0.6745); 1 elsewhere. Also the height of the default's fit."""
+    n = points.shape[0]
+    k = graph.indices.shape[0] // n
+    height, plain, coef = np.empty(n), np.empty(n), np.empty((n, 7))
+    for robust, out, kept in ((True, height, coef), (False, plain, np.empty((0, 7)))):
+        kernels.mls.aware_fit(points, points, filtered, np.empty(0), graph.indptr,
+                              graph.indices, sigma_n, robust, out, np.empty(n),
+                              np.empty(n, np.int8), kept)
+    longest = lists.indices.shape[0] // n
+    residual = np.empty((n, longest))
+    residuals_about(points, filtered, lists.indices.reshape(n, longest), coef, residual)
+    spread = np.median(np.median(np.abs(residual[:, :k]), axis=1)) / 0.6745
+    across = height != plain  # the robust fit replaced the plain one
+    return np.where(across[:, None], np.exp(-(residual / spread) ** 2), 1.0), height, across
+
+
 class ScaleMove:
-    """The replacement of ``aware.fit_and_move``; keeps the first iteration's noise and the
-    scales each iteration kept (``kept``: counts per scale)."""
+    """The replacement of ``aware.fit_and_move``; keeps the first iteration's noise, the
+    scales each iteration kept (``kept``: counts per scale) and the points whose lists
+    reached across a thin wall (``across``)."""
 
     def __init__(self):
         self.noise2 = None
         self.kept = []
+        self.across = []
 
     def __call__(self, points, nrm, graph, sigma_n, clock, mass=None):
         n = points.shape[0]
@@ -139,13 +192,15 @@ class ScaleMove:
         scales = np.array(sorted({max(8, round(f * k)) for f in SCALE_FACTORS}), np.int64)
         scales = scales[scales < n]
         lists = knn_graph(points, int(scales[-1]), False)
+        extra, default, across = thin_wall_weights(points, filtered, graph, lists, sigma_n)
         quad, plane, rss, rss_plane, weight, radius = (np.empty((n, len(scales)))
                                                        for _ in range(6))
-        scale_fits(points, filtered, lists.indptr, lists.indices, scales, sigma_n, quad,
+        scale_fits(points, filtered, lists.indptr, lists.indices, scales, sigma_n, extra, quad,
                    plane, rss, rss_plane, weight, radius)
         variance = rss / np.maximum(weight - 6.0, 1.0)
-        widest = np.sqrt(np.nanmedian(variance[:, -1]))
-        wide = np.flatnonzero(np.median(radius, axis=0) >= RADIUS_OVER_NOISE * widest)
+        at_k = min(int(np.searchsorted(scales, k)), len(scales) - 1)
+        noise_at_k = np.sqrt(np.nanmedian(variance[:, at_k]))
+        wide = np.flatnonzero(np.median(radius, axis=0) >= RADIUS_OVER_NOISE * noise_at_k)
         first = int(wide[0]) if len(wide) else len(scales) - 1
         if self.noise2 is None:
             self.noise2 = noise2 = float(np.nanmedian(variance[:, first]))
@@ -164,7 +219,8 @@ class ScaleMove:
         curvature = (rss_plane[rows, pick] - rss[rows, pick]) / 3.0 / noise2
         flat = np.isfinite(plane[rows, pick]) & (curvature <= 1.0 + TAU_PLANE * np.sqrt(2 / 3))
         height = np.where(flat, plane[rows, pick], height)
-        height = np.where(np.isfinite(height), height, 0.0)
+        height = np.where(np.isfinite(height), height, default)
+        self.across.append(int(across.sum()))
         moved, held = core.project(points, filtered, height)
         rms = np.sqrt(rss[rows, pick] / np.maximum(weight[rows, pick], 1.0))
         return moved, filtered, rms, np.full(n, 6, np.int8), held
@@ -192,12 +248,29 @@ def _pair(scores):
     return " / ".join("-" if x is None else f"{x:.1f}" for x in scores)
 
 
+def run_sheets(gaps=(4.0, 7.5, 15.0), n_points=50_000):
+    """Mean distance of each point to its own sheet, in sigmas, without and with the rule."""
+    lines = ["| gap (sigma) | default | with the rule |", "|---|---|---|"]
+    for gap in gaps:
+        points, height, clean_xy = sheets.sheets(n_points, gap)
+        plain = sheets.score(pssd_fast.denoise(points).points, height, clean_xy)
+        with selected_scales():
+            rule = sheets.score(pssd_fast.denoise(points).points, height, clean_xy)
+        lines.append(f"| {gap:g} | {plain:.2f} | {rule:.2f} |")
+        print(lines[-1], flush=True)
+    RESULTS.mkdir(exist_ok=True)
+    write_atomic(RESULTS / "scale_selection_sheets.md", "\n".join(lines) + "\n")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000])
     parser.add_argument("--shapes", nargs="+", default=list(versus.SIZED_SHAPES))
     parser.add_argument("--noise", type=float, nargs="+", default=list(versus.NOISE_LEVELS))
+    parser.add_argument("--sheets", action="store_true", help="the thin-wall case instead")
     args = parser.parse_args(argv)
+    if args.sheets:
+        return run_sheets()
     cache = versus.load_peer_cache()["cells"]
     lines = ["| shape | points | noise | default | with the rule | best peer | won |",
              "|---|---|---|---|---|---|---|"]

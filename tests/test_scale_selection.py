@@ -3,7 +3,8 @@ plain weighted least squares, and the rule on a small cloud."""
 import numpy as np
 import pytest
 
-from benchmarks import scale_selection
+import pssd_fast
+from benchmarks import scale_selection, sheets
 from pssd_fast import datasets
 from pssd_fast.graph import knn_graph
 from pssd_fast.kernels.linalg import orthonormal_basis
@@ -11,7 +12,7 @@ from pssd_fast.kernels.linalg import orthonormal_basis
 SIGMA_N = 0.3
 
 
-def reference_fits(points, normals, lists, scales):
+def reference_fits(points, normals, lists, scales, extra):
     """Each point's weighted quadratic and plane over the first ``s`` of its list, by
     ``np.linalg.lstsq``: heights, residual sums of squares, summed weight and list radius."""
     n, width = lists.shape
@@ -24,6 +25,7 @@ def reference_fits(points, normals, lists, scales):
         scale = 1.0 / np.sqrt((d * d).sum(axis=1).max())
         x, y, z = d @ u * scale, d @ v * scale, d @ nrm
         w = np.exp(-((1.0 - np.minimum(np.abs(normals[lists[i]] @ nrm), 1.0)) / SIGMA_N) ** 2)
+        w = w * extra[i]
         basis = np.column_stack([np.ones(width), y, x, x * y, y * y, x * x])
         for s, count in enumerate(scales):
             sw = np.sqrt(w[:count])
@@ -38,12 +40,12 @@ def reference_fits(points, normals, lists, scales):
     return out
 
 
-def kernel_fits(points, normals, graph, scales):
+def kernel_fits(points, normals, graph, scales, extra):
     n = points.shape[0]
     out = {name: np.empty((n, len(scales)))
            for name in ("quad", "plane", "rss", "rss_plane", "weight", "radius")}
     scale_selection.scale_fits(points, normals, graph.indptr, graph.indices, scales, SIGMA_N,
-                               out["quad"], out["plane"], out["rss"], out["rss_plane"],
+                               extra, out["quad"], out["plane"], out["rss"], out["rss_plane"],
                                out["weight"], out["radius"])
     return out
 
@@ -59,8 +61,10 @@ def test_nested_fits_agree_with_least_squares(flat):
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     scales = np.array([8, 16, 30], np.int64)
     graph = knn_graph(points, 30, False)
-    got = kernel_fits(points, normals, graph, scales)
-    want = reference_fits(points, normals, graph.indices.reshape(-1, 30), scales)
+    extra = rng.uniform(0.0, 1.0, (points.shape[0], 30))
+    extra[:, 0] = 1.0
+    got = kernel_fits(points, normals, graph, scales, extra)
+    want = reference_fits(points, normals, graph.indices.reshape(-1, 30), scales, extra)
     for name in want:
         np.testing.assert_array_equal(np.isnan(got[name]), np.isnan(want[name]), err_msg=name)
         np.testing.assert_allclose(got[name], want[name], rtol=1e-7, atol=1e-12, err_msg=name)
@@ -71,17 +75,49 @@ def test_collinear_lists_have_no_quadratic():
     points = np.column_stack([t, 2.0 * t, np.zeros_like(t)])
     normals = np.tile([0.0, 0.0, 1.0], (40, 1))
     graph = knn_graph(points, 12, False)
-    got = kernel_fits(points, normals, graph, np.array([6, 12], np.int64))
+    got = kernel_fits(points, normals, graph, np.array([6, 12], np.int64), np.ones((40, 12)))
     assert np.isnan(got["quad"]).all() and np.isnan(got["plane"]).all()
     np.testing.assert_array_equal(got["weight"], [[6.0, 12.0]] * 40)
 
 
 def test_the_rule_denoises_a_sparse_sphere_below_the_default():
     cloud = datasets.make("sphere", n_points=4000, noise=0.005, seed=2)
-    import pssd_fast
-
     plain = cloud.surface_distance(pssd_fast.denoise(cloud.points).points).mean()
     with scale_selection.selected_scales() as move:
         points = pssd_fast.denoise(cloud.points).points
     assert cloud.surface_distance(points).mean() < 0.9 * plain
     assert len(move.kept) == 4 and all(sum(kept) == 4000 for kept in move.kept)
+
+
+def reference_residuals(points, normals, lists, coef):
+    out = np.empty(lists.shape)
+    for i in range(lists.shape[0]):
+        nrm = normals[lists[i, 0]]
+        u, v = np.array(orthonormal_basis(*nrm)).reshape(2, 3)
+        d = points[lists[i]] - points[i]
+        x, y = d @ u * coef[i, 6], d @ v * coef[i, 6]
+        c = coef[i]
+        out[i] = d @ nrm - (c[0] + c[1] * y + c[2] * x + c[3] * x * y + c[4] * y * y
+                            + c[5] * x * x)
+    return out
+
+
+def test_residuals_about_a_fit_agree_with_numpy():
+    rng = np.random.default_rng(5)
+    points = rng.normal(size=(200, 3))
+    normals = rng.normal(size=(200, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    lists = knn_graph(points, 12, False).indices.reshape(-1, 12)
+    coef = rng.normal(size=(200, 7))
+    got = np.empty((200, 12))
+    scale_selection.residuals_about(points, normals, lists, coef, got)
+    np.testing.assert_allclose(got, reference_residuals(points, normals, lists, coef),
+                               rtol=1e-9, atol=1e-12)
+
+
+def test_the_rule_keeps_two_close_sheets_apart():
+    points, height, clean_xy = sheets.sheets(4000, 7.5, seed=1)
+    with scale_selection.selected_scales() as move:
+        out = pssd_fast.denoise(points).points
+    assert sheets.score(out, height, clean_xy) < 0.5
+    assert move.across[0] > 0  # the thin-wall weights were in play
