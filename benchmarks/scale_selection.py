@@ -48,6 +48,7 @@ from numba import njit, prange
 import pssd_fast
 from pssd_fast import core, kernels
 from pssd_fast.graph import knn_graph
+from pssd_fast.kernels.config import CHUNK
 from pssd_fast.kernels.linalg import cholesky_prefix, cholesky_solve, orthonormal_basis
 from pssd_fast.pipelines import aware
 
@@ -85,51 +86,56 @@ def scale_fits(points, normals, indptr, indices, scales, sigma_n, extra, quad, p
     factor on the weight of the ``t``-th neighbour of point ``i``."""
     inv_sn = 1.0 / sigma_n
     n_scales = scales.shape[0]
-    for i in prange(points.shape[0]):
+    n = points.shape[0]
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        # Scratch per chunk of points, not per point.
         a = np.zeros((6, 6))
         acc = np.zeros((6, 6))
         bacc = np.zeros(6)
         b = np.zeros(6)
         phi = np.zeros(6)
-        start = indptr[i]
-        count = indptr[i + 1] - start
-        first = indices[start]
-        nx, ny, nz = normals[first, 0], normals[first, 1], normals[first, 2]
-        ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
-        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-        r2 = 0.0
-        for t in range(count):
-            j = indices[start + t]
-            r2 = max(r2, (points[j, 0] - px) ** 2 + (points[j, 1] - py) ** 2
-                     + (points[j, 2] - pz) ** 2)
-        inv_r = 1.0 / math.sqrt(r2) if r2 > 0.0 else 1.0
-        szz = 0.0
-        sw = 0.0
-        s = 0
-        for t in range(count):
-            j = indices[start + t]
-            dx, dy, dz = points[j, 0] - px, points[j, 1] - py, points[j, 2] - pz
-            x = (dx * ux + dy * uy + dz * uz) * inv_r
-            y = (dx * vx + dy * vy + dz * vz) * inv_r
-            z = dx * nx + dy * ny + dz * nz
-            u = (1.0 - min(abs(nx * normals[j, 0] + ny * normals[j, 1] + nz * normals[j, 2]),
-                           1.0)) * inv_sn
-            w = math.exp(-u * u) * extra[i, t]
-            phi[0], phi[1], phi[2], phi[3], phi[4], phi[5] = 1.0, y, x, x * y, y * y, x * x
-            for p in range(6):
-                bacc[p] += w * phi[p] * z
-                for q in range(p + 1):
-                    acc[p, q] += w * phi[p] * phi[q]
-            szz += w * z * z
-            sw += w
-            while s < n_scales and (t + 1 == scales[s] or t + 1 == count):
-                a[:, :] = acc
-                rank = cholesky_prefix(a, 6, 1e-9)
-                quad[i, s], rss[i, s] = _height(a, bacc, b, szz, 6, rank)
-                plane[i, s], rss_plane[i, s] = _height(a, bacc, b, szz, 3, rank)
-                weight[i, s] = sw
-                radius[i, s] = math.sqrt(dx * dx + dy * dy + dz * dz)
-                s += 1
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            acc[:, :] = 0.0
+            bacc[:] = 0.0
+            start = indptr[i]
+            count = indptr[i + 1] - start
+            first = indices[start]
+            nx, ny, nz = normals[first, 0], normals[first, 1], normals[first, 2]
+            ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
+            px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+            r2 = 0.0
+            for t in range(count):
+                j = indices[start + t]
+                r2 = max(r2, (points[j, 0] - px) ** 2 + (points[j, 1] - py) ** 2
+                         + (points[j, 2] - pz) ** 2)
+            inv_r = 1.0 / math.sqrt(r2) if r2 > 0.0 else 1.0
+            szz = 0.0
+            sw = 0.0
+            s = 0
+            for t in range(count):
+                j = indices[start + t]
+                dx, dy, dz = points[j, 0] - px, points[j, 1] - py, points[j, 2] - pz
+                x = (dx * ux + dy * uy + dz * uz) * inv_r
+                y = (dx * vx + dy * vy + dz * vz) * inv_r
+                z = dx * nx + dy * ny + dz * nz
+                u = (1.0 - min(abs(nx * normals[j, 0] + ny * normals[j, 1] + nz * normals[j, 2]),
+                               1.0)) * inv_sn
+                w = math.exp(-u * u) * extra[i, t]
+                phi[0], phi[1], phi[2], phi[3], phi[4], phi[5] = 1.0, y, x, x * y, y * y, x * x
+                for p in range(6):
+                    bacc[p] += w * phi[p] * z
+                    for q in range(p + 1):
+                        acc[p, q] += w * phi[p] * phi[q]
+                szz += w * z * z
+                sw += w
+                while s < n_scales and (t + 1 == scales[s] or t + 1 == count):
+                    a[:, :] = acc
+                    rank = cholesky_prefix(a, 6, 1e-9)
+                    quad[i, s], rss[i, s] = _height(a, bacc, b, szz, 6, rank)
+                    plane[i, s], rss_plane[i, s] = _height(a, bacc, b, szz, 3, rank)
+                    weight[i, s] = sw
+                    radius[i, s] = math.sqrt(dx * dx + dy * dy + dz * dz)
+                    s += 1
 
 
 @njit(parallel=True, fastmath=True)
@@ -141,14 +147,14 @@ def residuals_about(points, normals, lists, coef, out):
         first = lists[i, 0]
         nx, ny, nz = normals[first, 0], normals[first, 1], normals[first, 2]
         ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
+        c = coef[i]
         for t in range(lists.shape[1]):
             j = lists[i, t]
             dx = points[j, 0] - points[i, 0]
             dy = points[j, 1] - points[i, 1]
             dz = points[j, 2] - points[i, 2]
-            x = (dx * ux + dy * uy + dz * uz) * coef[i, 6]
-            y = (dx * vx + dy * vy + dz * vz) * coef[i, 6]
-            c = coef[i]
+            x = (dx * ux + dy * uy + dz * uz) * c[6]
+            y = (dx * vx + dy * vy + dz * vz) * c[6]
             out[i, t] = (dx * nx + dy * ny + dz * nz
                          - (c[0] + c[1] * y + c[2] * x + c[3] * x * y + c[4] * y * y
                             + c[5] * x * x))
