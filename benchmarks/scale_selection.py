@@ -4,6 +4,7 @@ Usage::
 
     python -m benchmarks.scale_selection                      # 10,000 points, 8 shapes, 3 noises
     python -m benchmarks.scale_selection --sizes 30000 --shapes plane sphere --noise 0.005
+    python -m benchmarks.scale_selection --dense                # the 12 cells of versus.md
 
 Not part of the library: it measures a rule for docs/DECISIONS.md ("Sparse clouds") before it
 is built into the kernels. It runs ``denoise(points)`` at its defaults with the move of the
@@ -27,12 +28,19 @@ The rule, for each point and iteration:
    ``sigma^2 (1 + TAU sqrt(2 / added weight))``: an F-test of "the quadratic still explains
    the wider list". The first scale that fails ends the walk.
 4. At the scale kept, the plane replaces the quadratic where the three curvature terms
-   explain less than ``sigma^2 (1 + TAU_PLANE sqrt(2 / 3))`` each.
+   explain less than ``sigma^2 (1 + TAU_PLANE sqrt(2 / 3))`` each. Where they explain more,
+   ``--curved`` (:data:`CURVED`) says which height the point takes: ``walked``, the
+   quadratic at the scale kept; ``at-k``, the quadratic at the scale kept but no wider than
+   ``k``; ``default``, the default's own fit. The test cannot tell a detailed surface's
+   wrinkles from noise at the wider scales, and their quadratics flatten them.
 5. ``sigma^2``: on the first iteration, the median residual variance (``rss / (weight - 6)``)
    at the scale the walk starts from; later iterations use ``LATER_NOISE`` times that value.
    The smoothing leaves far less noise than the input had (the same median falls to about 1%
    of it after one iteration), but what it leaves varies over wider lists than the small
    scales see, so measured again it would stop every walk early on a plane.
+
+``--dense`` runs the cells of the dense table of ``benchmarks.versus`` (the paper's models
+and the 100,000-point part) instead, at their sizes there.
 
 ``--sheets`` runs the two sheets of ``benchmarks.sheets`` (gaps of 4, 7.5 and 15 sigma)
 instead, with and without the rule.
@@ -60,6 +68,9 @@ TAU = 2.0
 TAU_PLANE = 1.0
 RADIUS_OVER_NOISE = 4.0
 LATER_NOISE = 0.03
+#: Where the plane test fails, the height a point takes (step 4 above), and the suffix of its
+#: results' file names.
+CURVED = {"walked": "", "at-k": "_at_k", "default": "_flat"}
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
@@ -183,13 +194,19 @@ def thin_wall_weights(points, filtered, graph, lists, sigma_n):
 
 class ScaleMove:
     """The replacement of ``aware.fit_and_move``; keeps the first iteration's noise, the
-    scales each iteration kept (``kept``: counts per scale) and the points whose lists
-    reached across a thin wall (``across``)."""
+    scales each iteration kept (``kept``: counts per scale), the points whose lists
+    reached across a thin wall (``across``: a count) and those given the plane (``flat``: a
+    mask), and the scale each point kept (``picked``: columns of ``scales``, the list lengths).
+    ``curved``: a key of :data:`CURVED`."""
 
-    def __init__(self):
+    def __init__(self, curved="walked"):
+        self.curved = curved
         self.noise2 = None
         self.kept = []
         self.across = []
+        self.flat = []
+        self.picked = []
+        self.scales = None
 
     def __call__(self, points, nrm, graph, sigma_n, clock, mass=None):
         n = points.shape[0]
@@ -221,22 +238,30 @@ class ScaleMove:
             pick[going] = s
         rows = np.arange(n)
         self.kept.append(np.bincount(pick, minlength=len(scales)).tolist())
-        height = quad[rows, pick]
+        self.picked.append(pick)
+        self.scales = scales
         curvature = (rss_plane[rows, pick] - rss[rows, pick]) / 3.0 / noise2
         flat = np.isfinite(plane[rows, pick]) & (curvature <= 1.0 + TAU_PLANE * np.sqrt(2 / 3))
+        if self.curved == "walked":
+            height = quad[rows, pick]
+        elif self.curved == "at-k":
+            height = quad[rows, np.minimum(pick, at_k)]
+        else:
+            height = default
         height = np.where(flat, plane[rows, pick], height)
         height = np.where(np.isfinite(height), height, default)
         self.across.append(int(across.sum()))
+        self.flat.append(flat)
         moved, held = core.project(points, filtered, height)
         rms = np.sqrt(rss[rows, pick] / np.maximum(weight[rows, pick], 1.0))
         return moved, filtered, rms, np.full(n, 6, np.int8), held
 
 
 @contextmanager
-def selected_scales():
+def selected_scales(curved="walked"):
     """The default pipeline with :class:`ScaleMove` in place of its move, inside the block."""
     original = aware.fit_and_move
-    aware.fit_and_move = move = ScaleMove()
+    aware.fit_and_move = move = ScaleMove(curved)
     try:
         yield move
     finally:
@@ -254,18 +279,19 @@ def _pair(scores):
     return " / ".join("-" if x is None else f"{x:.1f}" for x in scores)
 
 
-def run_sheets(gaps=(4.0, 7.5, 15.0), n_points=50_000):
+def run_sheets(gaps=(4.0, 7.5, 15.0), n_points=50_000, curved="walked"):
     """Mean distance of each point to its own sheet, in sigmas, without and with the rule."""
     lines = ["| gap (sigma) | default | with the rule |", "|---|---|---|"]
     for gap in gaps:
         points, height, clean_xy = sheets.sheets(n_points, gap)
         plain = sheets.score(pssd_fast.denoise(points).points, height, clean_xy)
-        with selected_scales():
+        with selected_scales(curved):
             rule = sheets.score(pssd_fast.denoise(points).points, height, clean_xy)
         lines.append(f"| {gap:g} | {plain:.2f} | {rule:.2f} |")
         print(lines[-1], flush=True)
     RESULTS.mkdir(exist_ok=True)
-    write_atomic(RESULTS / "scale_selection_sheets.md", "\n".join(lines) + "\n")
+    name = "sheets" + CURVED[curved]
+    write_atomic(RESULTS / f"scale_selection_{name}.md", "\n".join(lines) + "\n")
 
 
 def main(argv=None):
@@ -273,10 +299,16 @@ def main(argv=None):
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000])
     parser.add_argument("--shapes", nargs="+", default=list(versus.SIZED_SHAPES))
     parser.add_argument("--noise", type=float, nargs="+", default=list(versus.NOISE_LEVELS))
+    parser.add_argument("--dense", action="store_true",
+                        help="the cells of the dense table instead (versus.SHAPES, full size)")
     parser.add_argument("--sheets", action="store_true", help="the thin-wall case instead")
+    parser.add_argument("--curved", choices=list(CURVED), default="walked",
+                        help="the height where the plane test fails (step 4)")
     args = parser.parse_args(argv)
     if args.sheets:
-        return run_sheets()
+        return run_sheets(curved=args.curved)
+    if args.dense:
+        args.sizes, args.shapes = [None], list(versus.SHAPES)
     cache = versus.load_peer_cache()["cells"]
     lines = ["| shape | points | noise | default | with the rule | best peer | won |",
              "|---|---|---|---|---|---|---|"]
@@ -288,17 +320,18 @@ def main(argv=None):
                 peers = cache[versus._key(shape, noise, n_points)]
                 best = [_best(peers, col) for col in versus.COLUMNS]
                 plain = case.score(pssd_fast.denoise(case.points).points)
-                with selected_scales():
+                with selected_scales(args.curved):
                     rule = case.score(pssd_fast.denoise(case.points).points)
                 ok = all(b is None or r < b for r, b in zip(rule, best))
                 won += ok
                 total += 1
-                lines.append(f"| {shape} | {n_points:,} | {noise:.2%} | {_pair(plain)} | "
+                lines.append(f"| {shape} | {len(case.points):,} | {noise:.2%} | {_pair(plain)} | "
                              f"{_pair(rule)} | {_pair(best)} | {'yes' if ok else 'no'} |")
                 print(lines[-1], flush=True)
     lines.append(f"\nCells won on both columns against both peers with the rule: {won} of {total}.")
     RESULTS.mkdir(exist_ok=True)
-    name = "_".join(str(n) for n in args.sizes)
+    name = "dense" if args.dense else "_".join(str(n) for n in args.sizes)
+    name += CURVED[args.curved]
     write_atomic(RESULTS / f"scale_selection_{name}.md", "\n".join(lines) + "\n")
 
 

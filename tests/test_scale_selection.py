@@ -5,9 +5,10 @@ import pytest
 
 import pssd_fast
 from benchmarks import scale_selection, sheets
-from pssd_fast import datasets
+from pssd_fast import core, datasets
 from pssd_fast.graph import knn_graph
 from pssd_fast.kernels.linalg import orthonormal_basis
+from pssd_fast.pipelines import aware
 
 SIGMA_N = 0.3
 
@@ -121,3 +122,35 @@ def test_the_rule_keeps_two_close_sheets_apart():
         out = pssd_fast.denoise(points).points
     assert sheets.score(out, height, clean_xy) < 0.5
     assert move.across[0] > 0  # the thin-wall weights were in play
+
+
+class _Clock:
+    """What ``aware.fit_and_move`` needs of a clock: run the stage."""
+
+    def run(self, stage, func, *args):
+        return func(*args)
+
+
+def test_where_the_plane_test_fails_the_curved_option_picks_the_height():
+    points = np.array(datasets.make("cad_part", n_points=3000, noise=0.005, seed=2).points)
+    graph = knn_graph(points, 64, False)
+    nrm, _ = core.pca_normals(points, graph, core.outward_hints(points))
+    flat_only = scale_selection.ScaleMove(curved="default")
+    moved = flat_only(points, nrm, graph, 0.05, _Clock())[0]
+    flat = flat_only.flat[0]
+    assert 0 < flat.sum() < len(flat)
+    default = aware.fit_and_move(points, nrm, graph, 0.05, _Clock())[0]
+    np.testing.assert_allclose(moved[~flat], default[~flat], rtol=0, atol=1e-12)
+    walked = scale_selection.ScaleMove()
+    rule = walked(points, nrm, graph, 0.05, _Clock())[0]
+    np.testing.assert_array_equal(moved[flat], rule[flat])
+    assert np.abs(moved[~flat] - rule[~flat]).max() > 0
+    at_k = scale_selection.ScaleMove(curved="at-k")
+    capped = at_k(points, nrm, graph, 0.05, _Clock())[0]
+    np.testing.assert_array_equal(at_k.flat[0], flat)
+    np.testing.assert_array_equal(capped[flat], rule[flat])
+    # Points whose walk stopped at k or below keep the walked quadratic; wider ones do not.
+    wide = walked.picked[0] > np.searchsorted(walked.scales, 64)
+    assert wide[~flat].any() and (~wide[~flat]).any()
+    np.testing.assert_array_equal(capped[~flat & ~wide], rule[~flat & ~wide])
+    assert np.abs(capped[~flat & wide] - rule[~flat & wide]).max() > 0
