@@ -2,6 +2,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -374,11 +375,13 @@ print(json.dumps({"before": before, "after": after, "later": compiled(), "second
 """
 
 
-def test_warmup_compiles_every_kernel(tmp_path):
+def test_warmup_compiles_every_kernel():
     """In a fresh process (this one has compiled everything already), warmup() leaves every
     parallel kernel of pssd_fast.kernels with a compiled (or cache-loaded) signature, and the
-    ordinary calls after it need no new one."""
-    run = subprocess.run([sys.executable, "-c", _WARMUP_PROBE], cwd=tmp_path,
+    ordinary calls after it need no new one. The child imports the files this process did (an
+    installed copy elsewhere would compile every kernel again: minutes on CI)."""
+    package_parent = Path(pssd_fast.__file__).resolve().parent.parent
+    run = subprocess.run([sys.executable, "-c", _WARMUP_PROBE], cwd=package_parent,
                          capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr
     probe = json.loads(run.stdout.strip().splitlines()[-1])
