@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import pssd_fast
 from pssd_fast import meshes
 from pssd_fast.kernels import feature
 
@@ -13,6 +14,10 @@ from pssd_fast.kernels import feature
 #: ``shared/data/meshes`` beside the repository (``<repo>/../shared/data/meshes``). This default
 #: belongs to the tests only; the package itself reads ``PSSD_DATA`` or an explicit path.
 DEFAULT_MESH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
+
+#: The folder holding the ``pssd_fast`` this process imported: a child process run there imports
+#: the same files (and so loads their cached kernels) rather than an installed copy elsewhere.
+PACKAGE_PARENT = Path(pssd_fast.__file__).resolve().parent.parent
 
 
 def mesh_dir():

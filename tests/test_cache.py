@@ -4,12 +4,12 @@ import os
 import shutil
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
-import pssd_fast
 from pssd_fast.kernels import cache
+
+from .conftest import PACKAGE_PARENT
 
 #: Run in a child: denoise a small cloud with the pipelines named in argv[2] (comma-separated);
 #: print whether this process compiled any kernel itself; write each run's outputs' bytes to
@@ -35,8 +35,6 @@ compiled_here = sum(sum(k.stats.cache_misses.values())
 print("compiled here:", compiled_here)
 """
 EVERY_RUN = "default,paper,bilateral,mls"
-#: The folder holding the ``pssd_fast`` this process imported: children import the same files.
-PACKAGE_PARENT = Path(pssd_fast.__file__).resolve().parent.parent
 
 
 def _child(script, cache_dir, *args, env=None, cwd=None):

@@ -2,7 +2,6 @@
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +13,7 @@ from pssd_fast.graph import morton_order
 from pssd_fast.kernels import feature
 
 from . import reference
-from .conftest import block_regions, sphere, wavy
+from .conftest import PACKAGE_PARENT, block_regions, sphere, wavy
 
 
 @pytest.fixture(scope="module")
@@ -380,8 +379,7 @@ def test_warmup_compiles_every_kernel():
     parallel kernel of pssd_fast.kernels with a compiled (or cache-loaded) signature, and the
     ordinary calls after it need no new one. The child imports the files this process did (an
     installed copy elsewhere would compile every kernel again: minutes on CI)."""
-    package_parent = Path(pssd_fast.__file__).resolve().parent.parent
-    run = subprocess.run([sys.executable, "-c", _WARMUP_PROBE], cwd=package_parent,
+    run = subprocess.run([sys.executable, "-c", _WARMUP_PROBE], cwd=PACKAGE_PARENT,
                          capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr
     probe = json.loads(run.stdout.strip().splitlines()[-1])
