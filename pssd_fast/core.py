@@ -107,6 +107,20 @@ def pca_normals(points, graph, hints):
     return out, degenerate
 
 
+def shifted_normals(points, nrm, graph, candidates, tolerance):
+    """Each point's normal from the flattest list plane, among those of its first
+    ``candidates`` neighbours, that passes within ``tolerance`` of that list's RMS spread of
+    the point; signed like ``nrm`` (its own normal where none qualifies)."""
+    n = points.shape[0]
+    centres, normals, out = (np.empty_like(points) for _ in range(3))
+    variation, spread = np.empty(n), np.empty(n)
+    kernels.normals.list_planes(points, graph.indptr, graph.indices, centres, normals,
+                                variation, spread)
+    kernels.normals.shifted_normals(points, graph.indptr, graph.indices, nrm, centres, normals,
+                                    variation, spread, candidates, tolerance, out)
+    return out
+
+
 def mls_fit(points, nrm, graph, h):
     """MLS cubic of every point: projections, residuals, fitted degree, mean curvature."""
     n = points.shape[0]

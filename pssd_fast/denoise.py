@@ -20,7 +20,7 @@ from .progress import Clock, reporter
 #: Parameters of each method beyond the common ones, with their defaults.
 METHOD_DEFAULTS = {
     "robust": {"h": None, **core.FEATURE_DEFAULTS, "likelihood": "exp", "sigma_n": 0.05,
-               "keep_normals": False},
+               "shift_normals": True, "keep_normals": False},
     "bilateral": {"sigma_c": None, "sigma_s": None, "keep_normals": False},
     "mls": {"h": None, "keep_normals": False},
 }
@@ -29,7 +29,7 @@ METHODS = tuple(METHOD_DEFAULTS)
 #: Robust-method parameters that only the paper's pipeline uses, and those only the
 #: feature-aware pipeline uses.
 PAPER_ONLY = ("h", "radius_factor", "delta", "alpha", "beta", "likelihood")
-AWARE_ONLY = ("sigma_n",)
+AWARE_ONLY = ("sigma_n", "shift_normals")
 #: Presets: the pipeline of the robust method and where ``k``, ``lam``, ``iterations`` and
 #: ``rebuild_graph`` (on the input; on cell means see ``pssd_fast.pipelines.coarse.COARSE``)
 #: come from when not given, and the most points and the neighbours of the noise probe
@@ -187,6 +187,12 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             Width of the normal-agreement weight of the feature-aware fit (presets "default"
             and "fast" only): a neighbour ``j`` counts ``exp(-((1 - |n*_i . n*_j|) / sigma_n)^2)``
             times its distance weight.
+        shift_normals : bool, default True
+            In the first iteration of the feature-aware pipeline (presets "default" and
+            "fast"), each point takes the normal of the flattest neighbour list, among those of
+            its nearest quarter of ``k``, whose plane passes near it, instead of its own list's:
+            beside a sharp edge, a list that does not reach across it (docs/ALGORITHM.md,
+            "Shifted normals"). No effect where ``normals`` are given.
 
         ``h``, ``radius_factor``, ``delta``, ``alpha``, ``beta`` and ``likelihood`` shape the
         paper's pipeline only; the other presets refuse them (ValueError) rather than ignore
@@ -254,6 +260,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         raise TypeError(f"rebuild_graph must be True or False; got {rebuild_graph!r}")
     params = _method_params(method, method_params)
     _check_pipeline_params(method, preset, pipeline, explicit, lam)
+    if pipeline != "aware":
+        params.pop("shift_normals", None)  # the paper's pipeline keeps its PCA normals
     report = reporter(progress)
     pts, dtype = as_points(points)
     n = pts.shape[0]
@@ -410,8 +418,10 @@ def iterate(current, given, step, k, iterations, rebuild_graph, probe, lam, para
             nrm, degenerate = clock.run("normals", _given_normals, given)
         else:
             first = orient if out_normals is None else None
+            # Shifted normals in the first iteration only: later ones follow the moved points.
+            shift_k = k if out_normals is None and params.get("shift_normals") else None
             nrm, degenerate = clock.run("normals", inputs.estimated_normals, current, graph,
-                                        out_normals, first, centre)
+                                        out_normals, first, centre, shift_k)
         moved, out_normals, extra, record = step(current, nrm, graph, lam, params, clock,
                                                  iteration == iterations - 1, **weighting)
         record["degenerate_normals"] = int(degenerate.sum())
@@ -470,9 +480,11 @@ def _method_params(method, method_params):
             params[name] = check_float(params[name], name, positive=True)
     if "likelihood" in params:
         check_choice(params["likelihood"], "likelihood", tuple(core.LIKELIHOOD_FORMS))
-    if not isinstance(params["keep_normals"], (bool, np.bool_)):
-        raise TypeError(f"keep_normals must be True or False; got {params['keep_normals']!r}")
-    params["keep_normals"] = bool(params["keep_normals"])
+    for name in ("keep_normals", "shift_normals"):
+        if name in params:
+            if not isinstance(params[name], (bool, np.bool_)):
+                raise TypeError(f"{name} must be True or False; got {params[name]!r}")
+            params[name] = bool(params[name])
     return params
 
 

@@ -6,10 +6,11 @@ iteration is one task per tile: the tile's own points and every point within a *
 of the boxes around runs of them, at their positions of that iteration, go through the
 feature-aware iteration, and the task keeps its own points' results. A point's move reads the
 lists of the points within two hops of it (its normal is filtered over its list, each listed
-normal comes from a PCA over its own list) and the positions one hop further; the feature intensity reads
-the lists of the points within ``R`` of it. A list is exact when the point is farther from
-the edge of the halo than its farthest neighbour: every point within its reach is then in the
-task. The task checks this for every list it reads, and reports a halo too thin instead of a
+normal comes from a PCA over its own list; in the first iteration three hops, as that normal
+is shifted to the PCA of one of its neighbours' lists) and the positions one hop further; the
+feature intensity reads the lists of the points within ``R`` of it. A list is exact when the
+point is farther from the edge of the halo than its farthest neighbour: every point within its
+reach is then in the task. The task checks this for every list it reads, and reports a halo too thin instead of a
 result; the tile runs again with a halo twice as wide.
 
 The means over the whole cloud (the centroid behind the first PCA's signs, the mean spacing
@@ -20,7 +21,7 @@ import time
 
 import numpy as np
 
-from . import core
+from . import core, inputs
 from ._threads import threads
 from .graph import bounds, knn_graph
 from .pipelines import aware
@@ -158,8 +159,10 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
     with threads(n_jobs):
         lists = knn_graph(points, k, False)
         if region is not None:
-            if not _exact(lists, points, region, _closure(lists, _closure(
-                    lists, _own(points, n_own)))):
+            reach = _closure(lists, _closure(lists, _own(points, n_own)))
+            if normals is None and not given:
+                reach = _closure(lists, reach)  # shifted normals read their candidates' lists
+            if not _exact(lists, points, region, reach):
                 return None
             if radius is not None and not _exact(
                     lists, points, region, within(points, widened(boxes(points[:n_own]),
@@ -170,6 +173,8 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
         else:
             hints = points - centroid if normals is None else normals
             nrm, degenerate = core.pca_normals(points, lists, hints)
+            if normals is None:  # the first iteration (docs/ALGORITHM.md, "Shifted normals")
+                nrm = inputs.shifted(points, nrm, lists, k)
         clock = Clock(None, 0, 1)
         moved, filtered, rms, degree, held = aware.fit_and_move(points, nrm, lists, sigma_n,
                                                                 clock)

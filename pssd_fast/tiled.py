@@ -37,7 +37,7 @@ LOCAL_SCHEDULERS = ("threads", "processes", "sync")
 #: What :func:`denoise_file` reads and writes, by extension.
 FILE_KINDS = {".npy": "npy", ".zarr": "zarr", ".las": "las", ".laz": "las"}
 #: The feature-aware pipeline's parameters other than ``sigma_n``, at their defaults.
-PARAMS = {"keep_normals": False}
+PARAMS = {"keep_normals": False, "shift_normals": True}
 
 
 def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset="default",

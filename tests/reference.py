@@ -4,6 +4,7 @@ Python loops over points, ``np.linalg.eigh`` and ``np.linalg.lstsq``, sets and d
 at speed, so that each line can be checked against the text. The kernels must agree with these.
 Neighbour lists are passed as a list of integer arrays (``lists[i]`` = ``N_k(i)``, self first).
 """
+import math
 from collections import deque
 
 import numpy as np
@@ -16,6 +17,8 @@ ROBUST_SPREAD = 0.5  # Welsch spread, as a fraction of the plain fit's weighted 
 ROBUST_MARGIN = 0.3  # the robust fit's Welsch score must beat the plain fit's by this fraction
 REFITS = 4  # refits to the own residuals after the fit anchored at the point's height
 ROBUST_SAMPLES = (18.0, 6.0)  # effective sample sizes for the quadratic and the plane
+# The shifted normals of the first feature-aware iteration (docs/ALGORITHM.md, "Shifted normals").
+SHIFT = {"candidates": 0.25, "tolerance": 2.0}  # candidates as a fraction of k; spreads
 
 
 def morton_order(points):
@@ -237,18 +240,67 @@ def aware_fit(points, normals, lists, sigma_n, mass=None, robust=False):
     return tuple(np.array([o[c] for o in out]) for c in range(3))
 
 
-def aware_iteration(points, normals, k, sigma_n=0.05, mass=None):
+def aware_iteration(points, normals, k, sigma_n=0.05, mass=None, shift=True):
     """One iteration of the feature-aware pipeline: PCA normals (oriented like ``normals``, or
-    away from the centroid), bilateral filter, feature-aware fit (each neighbour's weight times
-    its ``mass`` if given; without ``mass``, with its robust alternative), projection along
-    n*_i."""
+    away from the centroid), on the first iteration (``normals`` None) shifted if ``shift``,
+    bilateral filter, feature-aware fit (each neighbour's weight times its ``mass`` if given;
+    without ``mass``, with its robust alternative), projection along n*_i."""
     lists, _ = knn_lists(points, k)
     nrm = pca_normals(points, lists)
     hints = points - points.mean(axis=0) if normals is None else normals
     nrm *= np.where((nrm * hints).sum(axis=1) < 0, -1.0, 1.0)[:, None]
+    if normals is None and shift:
+        nrm = shifted_normals(points, nrm, lists, max(1, round(SHIFT["candidates"] * k)),
+                              SHIFT["tolerance"])[0]
     filtered = filter_normals(points, nrm, lists)
     height, _, _ = aware_fit(points, filtered, lists, sigma_n, mass, robust=mass is None)
     return points + height[:, None] * filtered, filtered
+
+
+def list_plane(points, members):
+    """Centroid, unit normal, surface variation (inf without a plane) and RMS distance to the
+    plane of ``points[members]``."""
+    x = points[members]
+    centre = x.mean(axis=0)
+    w, v = np.linalg.eigh((x - centre).T @ (x - centre))
+    lowest = max(w[0], 0.0)
+    planar = w[1] > DEGENERATE_RATIO * w[2] and lowest + w[1] + w[2] > 0
+    variation = lowest / (lowest + w[1] + w[2]) if planar else math.inf
+    return centre, v[:, 0], variation, math.sqrt(lowest / len(members))
+
+
+def shifted_normals(points, normals, lists, candidates, tolerance):
+    """Each point's normal from the flattest plane among the lists of its first ``candidates``
+    neighbours that passes within ``tolerance`` RMS spreads of it (the first on a tie), signed
+    like ``normals``; its own normal where none does. Also the index of the list taken (-1 for
+    none) and, for the tests, whether that choice is clear of ties and of the tolerance's edge.
+    """
+    planes = [list_plane(points, members) for members in lists]
+    out = np.array(normals, dtype=float)
+    chosen = np.full(len(points), -1)
+    clear = np.ones(len(points), bool)
+    for i, members in enumerate(lists):
+        least = math.inf
+        qualified = []
+        for j in members[:candidates]:
+            centre, n, variation, spread = planes[j]
+            if variation == math.inf:
+                continue
+            dist = abs((points[i] - centre) @ n)
+            if abs(dist - tolerance * spread) <= 1e-9 * max(spread, 1e-300):
+                clear[i] = False  # rounding decides whether it qualifies
+            if dist <= tolerance * spread:
+                qualified.append((variation, n))
+                if variation < least:
+                    least, chosen[i] = variation, j
+        if chosen[i] >= 0:
+            n = planes[chosen[i]][1]
+            out[i] = -n if n @ normals[i] < 0 else n
+            # A near-tie matters only between planes of different normals.
+            if any(abs(other - least) <= 1e-9 * max(least, 1e-300) and abs(m @ n) < 1 - 1e-9
+                   for other, m in qualified):
+                clear[i] = False
+    return out, chosen, clear
 
 
 def likelihood(resid, form):

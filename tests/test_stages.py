@@ -58,6 +58,70 @@ def test_pca_normals_flag_degenerate_lists():
     np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0)
 
 
+def test_shifted_normals(cloud):
+    """Against the loops of the reference, on every test cloud; the candidates are a third of
+    each list so that the shift happens often."""
+    name, points, k = cloud
+    graph, lists = _setup(points, k)
+    hints = _pca_reference(points, lists)
+    got = core.shifted_normals(points, hints, graph, k // 3, 2.0)
+    ref, chosen, clear = reference.shifted_normals(points, hints, lists, k // 3, 2.0)
+    np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0, atol=1e-12)
+    if name == "collinear":  # no list has a plane: every point keeps its own normal
+        assert (chosen == -1).all()
+        np.testing.assert_array_equal(got, hints)
+        return
+    if name == "plane":  # every plane is z = 0: which list wins is a tie of rounding errors
+        np.testing.assert_allclose(np.abs(got[:, 2]), 1.0, atol=1e-12)
+        np.testing.assert_allclose(np.sign(got[:, 2]), np.sign(hints[:, 2]))
+        return
+    shifted = chosen != np.arange(len(points))
+    assert shifted.any() and (chosen >= 0).any()
+    # Where the winner is clear of ties and its own normal is unique, the kernel agrees.
+    ok = clear & _well_defined_normals(points, lists)[np.maximum(chosen, 0)]
+    assert ok.mean() > 0.8
+    np.testing.assert_allclose(got[ok], ref[ok], atol=1e-9)
+
+
+def test_list_planes_of_degenerate_lists_have_no_variation():
+    points = np.repeat(np.eye(3), 12, axis=0)  # 3 locations, 12 copies each
+    graph = pssd_fast.neighbors(points, 11)
+    centres, out = np.empty_like(points), np.empty_like(points)
+    variation, spread = np.empty(len(points)), np.empty(len(points))
+    normals.list_planes(points, graph.indptr, graph.indices, centres, out, variation, spread)
+    assert np.isinf(variation).all()
+    np.testing.assert_array_equal(spread, 0.0)
+    np.testing.assert_array_equal(centres, 0.0)
+
+
+def test_shifted_normals_mirror_reference_constants():
+    from pssd_fast import inputs
+
+    assert inputs.SHIFT == reference.SHIFT
+
+
+def test_shifted_normals_take_each_side_of_a_crease():
+    """A noisy 90-degree fold: beside the crease, PCA over lists that reach across it tilts the
+    normals; the shifted ones come from lists on one face."""
+    rng = np.random.default_rng(5)
+    u, v = rng.uniform(-1, 1, (2, 4000))
+    points = np.column_stack([np.minimum(u, 0), v, np.maximum(u, 0)])
+    points += rng.normal(0, 0.005, points.shape)
+    truth = np.where((u < 0)[:, None], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+    graph = pssd_fast.neighbors(points, 40)
+    pca = pssd_fast.estimate_normals(points, graph=graph)
+    shifted = core.shifted_normals(points, pca, graph, 10, 2.0)
+
+    def error(nrm):
+        return np.degrees(np.arccos(np.minimum(np.abs((nrm * truth).sum(axis=1)), 1.0)))
+
+    beside = (np.abs(u) > 0.03) & (np.abs(u) < 0.1)
+    assert error(pca)[beside].mean() > 10.0
+    assert error(shifted)[beside].mean() < 0.5 * error(pca)[beside].mean()
+    far = np.abs(u) > 0.3
+    assert error(shifted)[far].mean() < 2.0
+
+
 def _mean_kth_distance(points, k):
     """Brute force: the mean over points of the distance to the farthest of their ``k`` nearest
     points (the point itself included), from all pairwise distances."""

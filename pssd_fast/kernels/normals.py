@@ -1,4 +1,7 @@
-"""PCA normals over the kNN lists (docs/ALGORITHM.md, step 0)."""
+"""PCA normals over the kNN lists (docs/ALGORITHM.md, step 0), and their shifted variant at
+sharp edges (docs/ALGORITHM.md, "Shifted normals")."""
+import math
+
 import numpy as np
 from numba import prange
 
@@ -76,3 +79,90 @@ def pca_normals(points, indptr, indices, hints, normals, degenerate):
             normals[i, 0] = nx
             normals[i, 1] = ny
             normals[i, 2] = nz
+
+
+@parallel_kernel
+def list_planes(points, indptr, indices, centres, normals, variation, spread):
+    """The PCA plane of each neighbour list and how well the list fits it.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    indptr, indices : CSR neighbour graph
+    centres : (n, 3) float64
+        Output: the list's centroid relative to ``points[i]``.
+    normals : (n, 3) float64
+        Output: the unit normal of the list's plane (unsigned: the eigenvector as found).
+    variation : (n,) float64
+        Output: the surface variation ``w0 / (w0 + w1 + w2)`` of the covariance's eigenvalues
+        (ascending); ``inf`` where the list is collinear or coincident (no plane).
+    spread : (n,) float64
+        Output: the RMS distance of the list to its plane, ``sqrt(w0 / count)``.
+    """
+    n = points.shape[0]
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        cov = np.empty((3, 3))
+        w = np.empty(3)
+        v = np.empty((3, 3))
+        centre = np.empty(3)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            neighbourhood_covariance(points, indptr, indices, i, 0, cov, centre)
+            sym3_eigh(cov, w, v)
+            lowest = max(w[0], 0.0)
+            total = lowest + w[1] + w[2]
+            planar = w[1] > DEGENERATE_RATIO * w[2] and total > 0.0
+            variation[i] = lowest / total if planar else np.inf
+            spread[i] = math.sqrt(lowest / (indptr[i + 1] - indptr[i]))
+            for d in range(3):
+                centres[i, d] = centre[d]
+                normals[i, d] = v[d, 0]
+
+
+@parallel_kernel
+def shifted_normals(points, indptr, indices, hints, centres, normals, variation, spread,
+                    candidates, tolerance, out):
+    """Each point's normal from the flattest plane among the lists of its first neighbours
+    that passes near it (the lists of points beside a sharp edge do not reach across it).
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    indptr, indices : CSR neighbour graph (each list starts with the point itself)
+    hints : (n, 3) float64
+        The points' own oriented normals: the sign of each output, and the output where no
+        candidate qualifies.
+    centres, normals, variation, spread : outputs of :func:`list_planes` on the same graph
+    candidates : int
+        How many of each list's first entries are candidates.
+    tolerance : float
+        A candidate ``j`` qualifies when the distance of ``points[i]`` to its plane is at most
+        ``tolerance * spread[j]``; of those, the one with the least ``variation`` wins (the
+        first in list order on a tie).
+    out : (n, 3) float64
+        Output: unit normals, signed to agree with ``hints``.
+    """
+    n = points.shape[0]
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            start = indptr[i]
+            count = min(candidates, indptr[i + 1] - start)
+            best = -1
+            least = np.inf
+            for t in range(count):
+                j = indices[start + t]
+                if not variation[j] < least:
+                    continue
+                # Distance of point i to the plane through j's centroid, relative to point j.
+                dist = ((points[i, 0] - points[j, 0] - centres[j, 0]) * normals[j, 0]
+                        + (points[i, 1] - points[j, 1] - centres[j, 1]) * normals[j, 1]
+                        + (points[i, 2] - points[j, 2] - centres[j, 2]) * normals[j, 2])
+                if abs(dist) <= tolerance * spread[j]:
+                    best = j
+                    least = variation[j]
+            if best < 0:
+                out[i, 0], out[i, 1], out[i, 2] = hints[i, 0], hints[i, 1], hints[i, 2]
+                continue
+            nx, ny, nz = normals[best, 0], normals[best, 1], normals[best, 2]
+            if nx * hints[i, 0] + ny * hints[i, 1] + nz * hints[i, 2] < 0.0:
+                nx, ny, nz = -nx, -ny, -nz
+            out[i, 0], out[i, 1], out[i, 2] = nx, ny, nz
