@@ -10,8 +10,8 @@ normal comes from a PCA over its own list; in the first iteration three hops, as
 is shifted to the PCA of one of its neighbours' lists) and the positions one hop further; the
 feature intensity reads the lists of the points within ``R`` of it. A list is exact when the
 point is farther from the edge of the halo than its farthest neighbour: every point within its
-reach is then in the task. The task checks this for every list it reads, and reports a halo too thin instead of a
-result; the tile runs again with a halo twice as wide.
+reach is then in the task. The task checks this for every list it reads, and reports a halo
+too thin instead of a result; the tile runs again with a halo twice as wide.
 
 The means over the whole cloud (the centroid behind the first PCA's signs, the mean spacing
 behind ``R`` and the mean residual behind the likelihood) are taken over all points in Morton
@@ -160,7 +160,7 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
         lists = knn_graph(points, k, False)
         if region is not None:
             reach = _closure(lists, _closure(lists, _own(points, n_own)))
-            if normals is None and not given:
+            if normals is None:
                 reach = _closure(lists, reach)  # shifted normals read their candidates' lists
             if not _exact(lists, points, region, reach):
                 return None
