@@ -134,6 +134,9 @@ def _parser():
                          help=f"{text}; method {' or '.join(methods)}")
     den.add_argument("--keep-normals", action="store_true",
                      help="use the file's normals in every iteration instead of re-estimating")
+    den.add_argument("--no-shift-normals", dest="shift_normals", action="store_false",
+                     help="first iteration of presets default and fast: keep each point's own "
+                          "PCA normal instead of the flattest nearby list's")
     den.add_argument("--orient", type=_orientation, default=None, metavar="HOW",
                      help="sign of the estimated normals: outward, up, or a viewpoint X,Y,Z "
                           "(normals towards it), made consistent over the neighbour graph "
@@ -416,13 +419,18 @@ def _run_tiled(points, normals, args, method_params, progress, orient, remove_ou
                          n_jobs=args.n_jobs, progress=progress, **method_params)
 
 
+def _flag(dest):
+    """The option that sets method parameter ``dest``."""
+    return "--no-shift-normals" if dest == "shift_normals" else f"--{dest.replace('_', '-')}"
+
+
 def _check_tiled(args, method_params, remove_outliers):
     """Refuse the options that ``--tile-points`` does not take."""
     unused = [name for name, given in (
         ("--method", args.method != "robust"), ("--k", args.k is not None),
         ("--lam", args.lam is not None), ("--rebuild-graph", args.rebuild_graph is not None),
         ("--remove-outliers", remove_outliers),
-        *((f"--{dest.replace('_', '-')}", True) for dest in method_params if dest != "sigma_n"))
+        *((_flag(dest), True) for dest in method_params if dest != "sigma_n"))
         if given]
     if args.preset == "paper":
         unused.append("--preset paper")
@@ -503,6 +511,8 @@ def _denoise(args):
         params[dest] = value
     if args.keep_normals:
         params["keep_normals"] = True
+    if not args.shift_normals:
+        params["shift_normals"] = False
     jobs = _jobs(args)
     # Data on stdout: every message goes to stderr.
     say = sys.stderr if any(_is_stdio(out) for _, out in jobs) else sys.stdout

@@ -56,7 +56,8 @@ def test_help_is_complete():
     status, out, _ = pssd("denoise", "--help")
     assert status == 0
     for option in ["--method", "--iterations", "--preset", "--k", "--lam", "--n-jobs", "--threads",
-                   "--keep-normals", "--rebuild-graph", "--no-rebuild-graph",
+                   "--keep-normals", "--no-shift-normals", "--rebuild-graph",
+                   "--no-rebuild-graph",
                    "--force", "--quiet", "--verbose"] + [
                        "--" + d.replace("_", "-") for d in cli.METHOD_OPTIONS]:
         assert option in out
@@ -313,6 +314,28 @@ def test_graph_reuse_reaches_the_library(tmp_path, cloud, flag, rebuild):
     expected = pssd_fast.denoise(cloud.points, preset="paper", iterations=2,
                                  rebuild_graph=rebuild)
     np.testing.assert_array_equal(np.load(out)["points"], expected.points)
+
+
+@pytest.mark.parametrize("flags, shift", [((), True), (("--no-shift-normals",), False)])
+def test_shifted_normals_reach_the_library(tmp_path, cloud, flags, shift):
+    source, out = tmp_path / "in.npy", tmp_path / "out.npz"
+    np.save(source, cloud.points)
+    status = cli.main(["denoise", str(source), str(out), "--iterations", "1", *flags,
+                       "--quiet"])
+    assert status == 0
+    expected = pssd_fast.denoise(cloud.points, iterations=1, shift_normals=shift)
+    np.testing.assert_array_equal(np.load(out)["points"], expected.points)
+    other = pssd_fast.denoise(cloud.points, iterations=1, shift_normals=not shift)
+    assert np.abs(other.points - expected.points).max() > 0  # the flag changes the result
+
+
+def test_no_shift_normals_is_refused_by_the_paper_preset(tmp_path, cloud, capsys):
+    source = tmp_path / "in.npy"
+    np.save(source, cloud.points)
+    status = cli.main(["denoise", str(source), str(tmp_path / "out.npy"), "--preset", "paper",
+                       "--no-shift-normals"])
+    assert status == 1
+    assert "shift_normals only applies to the feature-aware" in capsys.readouterr().err
 
 
 def test_an_unwritable_folder_is_one_line(tmp_path, cloud, monkeypatch, capsys):
@@ -634,6 +657,7 @@ def test_tile_points_read_and_write_zarr(tmp_path):
     (("--method", "mls"), "does not take --method"),
     (("--remove-outliers",), "does not take --remove-outliers"),
     (("--keep-normals",), "does not take --keep-normals"),
+    (("--no-shift-normals",), "does not take --no-shift-normals"),
 ])
 def test_tile_points_name_what_they_do_not_take(tmp_path, small, extra, match):
     path = tmp_path / "small.xyz"
