@@ -5,6 +5,7 @@ Usage::
     python -m benchmarks.scale_selection                      # 10,000 points, 8 shapes, 3 noises
     python -m benchmarks.scale_selection --sizes 30000 --shapes plane sphere --noise 0.005
     python -m benchmarks.scale_selection --dense                # the 12 cells of versus.md
+    python -m benchmarks.scale_selection --sizes 10000 30000 --cubic 4   # with the cubic test
 
 Not part of the library: it measures a rule for docs/DECISIONS.md ("Sparse clouds") before it
 is built into the kernels. It runs ``denoise(points)`` at its defaults with the move of the
@@ -26,7 +27,10 @@ The rule, for each point and iteration:
    ``RADIUS_OVER_NOISE`` times the noise at ``k`` (smaller lists cut the noise off and see too
    little of it), a scale is kept while the residual it adds per unit weight stays below
    ``sigma^2 (1 + TAU sqrt(2 / added weight))``: an F-test of "the quadratic still explains
-   the wider list". The first scale that fails ends the walk.
+   the wider list". The first scale that fails ends the walk. With ``--cubic TAU``, so does
+   the first where the four cubic terms explain more than ``sigma^2 (1 + TAU sqrt(2 / 4))``
+   each (a lack of fit the quadratic leaves: a detailed surface's wrinkles, where a sphere
+   has none).
 4. At the scale kept, the plane replaces the quadratic where the three curvature terms
    explain less than ``sigma^2 (1 + TAU_PLANE sqrt(2 / 3))`` each. Where they explain more,
    ``--curved`` (:data:`CURVED`) says which height the point takes: ``walked``, the
@@ -91,20 +95,20 @@ def _height(factor, rhs, b, szz, m, rank):
 
 @njit(parallel=True, fastmath=True)
 def scale_fits(points, normals, indptr, indices, scales, sigma_n, extra, quad, plane, rss,
-               rss_plane, weight, radius):
-    """Height of the quadratic and of the plane, their residual sums of squares, the summed
-    weight and the list radius of each point at each scale (columns). ``extra[i, t]``: a
-    factor on the weight of the ``t``-th neighbour of point ``i``."""
+               rss_plane, weight, radius, rss_cubic):
+    """Height of the quadratic and of the plane, their residual sums of squares (and the
+    cubic's), the summed weight and the list radius of each point at each scale (columns).
+    ``extra[i, t]``: a factor on the weight of the ``t``-th neighbour of point ``i``."""
     inv_sn = 1.0 / sigma_n
     n_scales = scales.shape[0]
     n = points.shape[0]
     for c in prange((n + CHUNK - 1) // CHUNK):
         # Scratch per chunk of points, not per point.
-        a = np.zeros((6, 6))
-        acc = np.zeros((6, 6))
-        bacc = np.zeros(6)
-        b = np.zeros(6)
-        phi = np.zeros(6)
+        a = np.zeros((10, 10))
+        acc = np.zeros((10, 10))
+        bacc = np.zeros(10)
+        b = np.zeros(10)
+        phi = np.zeros(10)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             acc[:, :] = 0.0
             bacc[:] = 0.0
@@ -133,7 +137,8 @@ def scale_fits(points, normals, indptr, indices, scales, sigma_n, extra, quad, p
                                1.0)) * inv_sn
                 w = math.exp(-u * u) * extra[i, t]
                 phi[0], phi[1], phi[2], phi[3], phi[4], phi[5] = 1.0, y, x, x * y, y * y, x * x
-                for p in range(6):
+                phi[6], phi[7], phi[8], phi[9] = x * x * x, x * x * y, x * y * y, y * y * y
+                for p in range(10):
                     bacc[p] += w * phi[p] * z
                     for q in range(p + 1):
                         acc[p, q] += w * phi[p] * phi[q]
@@ -141,8 +146,9 @@ def scale_fits(points, normals, indptr, indices, scales, sigma_n, extra, quad, p
                 sw += w
                 while s < n_scales and (t + 1 == scales[s] or t + 1 == count):
                     a[:, :] = acc
-                    rank = cholesky_prefix(a, 6, 1e-9)
+                    rank = cholesky_prefix(a, 10, 1e-9)
                     quad[i, s], rss[i, s] = _height(a, bacc, b, szz, 6, rank)
+                    rss_cubic[i, s] = _height(a, bacc, b, szz, 10, rank)[1]
                     plane[i, s], rss_plane[i, s] = _height(a, bacc, b, szz, 3, rank)
                     weight[i, s] = sw
                     radius[i, s] = math.sqrt(dx * dx + dy * dy + dz * dz)
@@ -197,10 +203,12 @@ class ScaleMove:
     scales each iteration kept (``kept``: counts per scale), the points whose lists
     reached across a thin wall (``across``: a count) and those given the plane (``flat``: a
     mask), and the scale each point kept (``picked``: columns of ``scales``, the list lengths).
-    ``curved``: a key of :data:`CURVED`."""
+    ``curved``: a key of :data:`CURVED`; ``cubic``: the ``TAU`` of the cubic test of step 3,
+    or None for none."""
 
-    def __init__(self, curved="walked"):
+    def __init__(self, curved="walked", cubic=None):
         self.curved = curved
+        self.cubic = cubic
         self.noise2 = None
         self.kept = []
         self.across = []
@@ -216,10 +224,10 @@ class ScaleMove:
         scales = scales[scales < n]
         lists = knn_graph(points, int(scales[-1]), False)
         extra, default, across = thin_wall_weights(points, filtered, graph, lists, sigma_n)
-        quad, plane, rss, rss_plane, weight, radius = (np.empty((n, len(scales)))
-                                                       for _ in range(6))
+        quad, plane, rss, rss_plane, weight, radius, rss_cubic = (np.empty((n, len(scales)))
+                                                                  for _ in range(7))
         scale_fits(points, filtered, lists.indptr, lists.indices, scales, sigma_n, extra, quad,
-                   plane, rss, rss_plane, weight, radius)
+                   plane, rss, rss_plane, weight, radius, rss_cubic)
         variance = rss / np.maximum(weight - 6.0, 1.0)
         at_k = min(int(np.searchsorted(scales, k)), len(scales) - 1)
         noise_at_k = np.sqrt(np.nanmedian(variance[:, at_k]))
@@ -235,6 +243,10 @@ class ScaleMove:
             added = np.maximum(weight[:, s] - weight[:, s - 1], 1e-9)
             rate = (rss[:, s] - rss[:, s - 1]) / added / noise2
             going &= np.isfinite(quad[:, s]) & (rate <= 1.0 + TAU * np.sqrt(2.0 / added))
+            if self.cubic is not None:
+                # Lack of fit: the four cubic terms explain more than noise at this scale.
+                gain = (rss[:, s] - rss_cubic[:, s]) / 4.0 / noise2
+                going &= ~(gain > 1.0 + self.cubic * np.sqrt(2.0 / 4.0))
             pick[going] = s
         rows = np.arange(n)
         self.kept.append(np.bincount(pick, minlength=len(scales)).tolist())
@@ -258,10 +270,10 @@ class ScaleMove:
 
 
 @contextmanager
-def selected_scales(curved="walked"):
+def selected_scales(curved="walked", cubic=None):
     """The default pipeline with :class:`ScaleMove` in place of its move, inside the block."""
     original = aware.fit_and_move
-    aware.fit_and_move = move = ScaleMove(curved)
+    aware.fit_and_move = move = ScaleMove(curved, cubic)
     try:
         yield move
     finally:
@@ -304,6 +316,9 @@ def main(argv=None):
     parser.add_argument("--sheets", action="store_true", help="the thin-wall case instead")
     parser.add_argument("--curved", choices=list(CURVED), default="walked",
                         help="the height where the plane test fails (step 4)")
+    parser.add_argument("--cubic", type=float, default=None, metavar="TAU",
+                        help="also end a walk where the cubic terms explain more than noise "
+                             "(step 3); e.g. 4")
     args = parser.parse_args(argv)
     if args.sheets:
         return run_sheets(curved=args.curved)
@@ -320,7 +335,7 @@ def main(argv=None):
                 peers = cache[versus._key(shape, noise, n_points)]
                 best = [_best(peers, col) for col in versus.COLUMNS]
                 plain = case.score(pssd_fast.denoise(case.points).points)
-                with selected_scales(args.curved):
+                with selected_scales(args.curved, args.cubic):
                     rule = case.score(pssd_fast.denoise(case.points).points)
                 ok = all(b is None or r < b for r, b in zip(rule, best))
                 won += ok
@@ -331,7 +346,7 @@ def main(argv=None):
     lines.append(f"\nCells won on both columns against both peers with the rule: {won} of {total}.")
     RESULTS.mkdir(exist_ok=True)
     name = "dense" if args.dense else "_".join(str(n) for n in args.sizes)
-    name += CURVED[args.curved]
+    name += CURVED[args.curved] + ("" if args.cubic is None else f"_cubic{args.cubic:g}")
     write_atomic(RESULTS / f"scale_selection_{name}.md", "\n".join(lines) + "\n")
 
 
