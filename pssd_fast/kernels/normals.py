@@ -46,6 +46,22 @@ def neighbourhood_covariance(points, indptr, indices, i, skip, cov, centre):
     set_sym3(cov, c00, c01, c02, c11, c12, c22)
 
 
+@helper
+def eigen_scratch():
+    """Scratch for :func:`list_eigen`, once per chunk of points: the covariance, its
+    eigenvalues, its eigenvectors and the centroid."""
+    return np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3)
+
+
+@helper
+def list_eigen(points, indptr, indices, i, skip, cov, w, v, centre):
+    """Eigenvalues ``w`` (ascending) and eigenvectors ``v`` (columns) of the covariance of the
+    neighbour list of point ``i``, and its centroid relative to ``points[i]`` into ``centre``
+    (:func:`neighbourhood_covariance`, the first ``skip`` entries left out)."""
+    neighbourhood_covariance(points, indptr, indices, i, skip, cov, centre)
+    sym3_eigh(cov, w, v)
+
+
 @parallel_kernel
 def pca_normals(points, indptr, indices, hints, normals, degenerate):
     """Unit normals by PCA of each neighbour list, oriented to agree with ``hints``.
@@ -65,13 +81,9 @@ def pca_normals(points, indptr, indices, hints, normals, degenerate):
     """
     n = points.shape[0]
     for c in prange((n + CHUNK - 1) // CHUNK):
-        cov = np.empty((3, 3))
-        w = np.empty(3)
-        v = np.empty((3, 3))
-        centre = np.empty(3)
+        cov, w, v, centre = eigen_scratch()
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            neighbourhood_covariance(points, indptr, indices, i, 0, cov, centre)
-            sym3_eigh(cov, w, v)
+            list_eigen(points, indptr, indices, i, 0, cov, w, v, centre)
             degenerate[i] = not (w[1] > DEGENERATE_RATIO * w[2])
             nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
             if nx * hints[i, 0] + ny * hints[i, 1] + nz * hints[i, 2] < 0.0:
@@ -101,13 +113,9 @@ def list_planes(points, indptr, indices, centres, normals, variation, spread):
     """
     n = points.shape[0]
     for c in prange((n + CHUNK - 1) // CHUNK):
-        cov = np.empty((3, 3))
-        w = np.empty(3)
-        v = np.empty((3, 3))
-        centre = np.empty(3)
+        cov, w, v, centre = eigen_scratch()
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            neighbourhood_covariance(points, indptr, indices, i, 0, cov, centre)
-            sym3_eigh(cov, w, v)
+            list_eigen(points, indptr, indices, i, 0, cov, w, v, centre)
             lowest = max(w[0], 0.0)
             total = lowest + w[1] + w[2]
             planar = w[1] > DEGENERATE_RATIO * w[2] and total > 0.0

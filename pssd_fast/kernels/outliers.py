@@ -1,12 +1,10 @@
 """Per-point measures of how far a point lies off the surface its neighbours sample."""
 import math
 
-import numpy as np
 from numba import prange
 
 from .config import CHUNK, parallel_kernel
-from .linalg import sym3_eigh
-from .normals import neighbourhood_covariance
+from .normals import eigen_scratch, list_eigen
 
 
 @parallel_kernel
@@ -25,12 +23,8 @@ def plane_offsets(points, indptr, indices, offsets):
     """
     n = points.shape[0]
     for c in prange((n + CHUNK - 1) // CHUNK):
-        cov = np.empty((3, 3))
-        w = np.empty(3)
-        v = np.empty((3, 3))
-        centre = np.empty(3)
+        cov, w, v, centre = eigen_scratch()
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            neighbourhood_covariance(points, indptr, indices, i, 1, cov, centre)
-            sym3_eigh(cov, w, v)
+            list_eigen(points, indptr, indices, i, 1, cov, w, v, centre)
             offsets[i] = math.fabs(centre[0] * v[0, 0] + centre[1] * v[1, 0]
                                    + centre[2] * v[2, 0])
