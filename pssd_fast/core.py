@@ -5,6 +5,8 @@ The pipelines (:mod:`pssd_fast.pipelines`) and the public stage functions
 arrays. Inputs are trusted: C-contiguous float64 points and normals, and a
 :class:`~pssd_fast.graph.NeighborGraph` of the same points. Not public API.
 """
+from typing import NamedTuple
+
 import numpy as np
 
 from . import kernels
@@ -107,17 +109,38 @@ def pca_normals(points, graph, hints):
     return out, degenerate
 
 
-def shifted_normals(points, nrm, graph, candidates, tolerance):
-    """Each point's normal from the flattest list plane, among those of its first
-    ``candidates`` neighbours, that passes within ``tolerance`` of that list's RMS spread of
-    the point; signed like ``nrm`` (its own normal where none qualifies)."""
+class ListPlanes(NamedTuple):
+    """Outputs of :func:`list_planes`, one row per point (see
+    ``kernels.normals.list_planes``)."""
+
+    centres: np.ndarray
+    normals: np.ndarray
+    variation: np.ndarray
+    spread: np.ndarray
+
+    @property
+    def degenerate(self):
+        """Where the list has no plane, as :func:`pca_normals` reports it."""
+        return np.isinf(self.variation)
+
+
+def list_planes(points, graph, hints):
+    """The PCA plane of every list: :func:`pca_normals`' normals (oriented along ``hints``),
+    with the centroids, surface variations and RMS spreads :func:`shifted_normals` reads."""
     n = points.shape[0]
-    centres, normals, out = (np.empty_like(points) for _ in range(3))
-    variation, spread = np.empty(n), np.empty(n)
-    kernels.normals.list_planes(points, graph.indptr, graph.indices, centres, normals,
-                                variation, spread)
-    kernels.normals.shifted_normals(points, graph.indptr, graph.indices, nrm, centres, normals,
-                                    variation, spread, candidates, tolerance, out)
+    planes = ListPlanes(np.empty_like(points), np.empty_like(points), np.empty(n), np.empty(n))
+    kernels.normals.list_planes(points, graph.indptr, graph.indices, hints, *planes)
+    return planes
+
+
+def shifted_normals(points, nrm, graph, planes, candidates, tolerance):
+    """Each point's normal from the flattest of the list ``planes`` (:func:`list_planes` of
+    ``graph``), among those of its first ``candidates`` neighbours, that passes within
+    ``tolerance`` of that list's RMS spread of the point; signed like ``nrm`` (its own normal
+    where none qualifies)."""
+    out = np.empty_like(points)
+    kernels.normals.shifted_normals(points, graph.indptr, graph.indices, nrm, *planes,
+                                    candidates, tolerance, out)
     return out
 
 

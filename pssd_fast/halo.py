@@ -172,9 +172,10 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
             nrm, degenerate = normals, np.zeros(points.shape[0], np.bool_)
         else:
             hints = points - centroid if normals is None else normals
-            nrm, degenerate = core.pca_normals(points, lists, hints)
-            if normals is None:  # the first iteration (docs/ALGORITHM.md, "Shifted normals")
-                nrm = inputs.shifted(points, nrm, lists, k)
+            first = normals is None  # shifted (docs/ALGORITHM.md, "Shifted normals")
+            nrm, degenerate, planes = inputs.pca(points, lists, hints, first)
+            if first:
+                nrm = inputs.shifted(points, nrm, lists, planes, k)
         clock = Clock(None, 0, 1)
         moved, filtered, rms, degree, held = aware.fit_and_move(points, nrm, lists, sigma_n,
                                                                 clock)

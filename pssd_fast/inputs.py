@@ -10,20 +10,30 @@ SHIFT = {"candidates": 0.25, "tolerance": 2.0}
 def estimated_normals(points, graph, previous, orient, centre, shift_k=None):
     """PCA normals signed like the ``previous`` iteration's, else by ``orient`` (propagation)
     or away from the centroid (``orient=None``); ``points`` are relative to ``centre``.
-    ``shift_k``: the lists' ``k``, to replace the normals by
-    :func:`pssd_fast.core.shifted_normals` (same signs), or None."""
+    ``shift_k``: the lists' ``k``, to replace the normals by :func:`shifted` ones (same signs),
+    or None."""
     hints = core.outward_hints(points) if previous is None else previous
-    nrm, degenerate = core.pca_normals(points, graph, hints)
+    nrm, degenerate, planes = pca(points, graph, hints, shift_k is not None)
     if orient is not None:
         core.orient_normals(points, nrm, graph, orient if isinstance(orient, str)
                             else orient - centre)
     if shift_k is not None:
-        nrm = shifted(points, nrm, graph, shift_k)
+        nrm = shifted(points, nrm, graph, planes, shift_k)
     return nrm, degenerate
 
 
-def shifted(points, nrm, graph, k):
+def pca(points, graph, hints, planes):
+    """PCA normals signed along ``hints`` and the mask of degenerate lists; with ``planes``,
+    from :func:`pssd_fast.core.list_planes`, which also gives the planes :func:`shifted`
+    reads (else None), so the lists are decomposed once."""
+    if not planes:
+        return (*core.pca_normals(points, graph, hints), None)
+    found = core.list_planes(points, graph, hints)
+    return found.normals.copy(), found.degenerate, found
+
+
+def shifted(points, nrm, graph, planes, k):
     """:func:`pssd_fast.core.shifted_normals` at the constants of :data:`SHIFT`, for lists of
-    ``k`` neighbours."""
-    return core.shifted_normals(points, nrm, graph, max(1, round(SHIFT["candidates"] * k)),
-                                SHIFT["tolerance"])
+    ``k`` neighbours and their ``planes``."""
+    return core.shifted_normals(points, nrm, graph, planes,
+                                max(1, round(SHIFT["candidates"] * k)), SHIFT["tolerance"])

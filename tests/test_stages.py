@@ -64,7 +64,8 @@ def test_shifted_normals(cloud):
     name, points, k = cloud
     graph, lists = _setup(points, k)
     hints = _pca_reference(points, lists)
-    got = core.shifted_normals(points, hints, graph, k // 3, 2.0)
+    planes = core.list_planes(points, graph, hints)
+    got = core.shifted_normals(points, hints, graph, planes, k // 3, 2.0)
     ref, chosen, clear = reference.shifted_normals(points, hints, lists, k // 3, 2.0)
     np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0, atol=1e-12)
     if name == "collinear":  # no list has a plane: every point keeps its own normal
@@ -83,12 +84,24 @@ def test_shifted_normals(cloud):
     np.testing.assert_allclose(got[ok], ref[ok], atol=1e-9)
 
 
+def test_list_planes_give_the_pca_normals(cloud):
+    """The shifted normals' PCA pass also serves as the iteration's PCA normals."""
+    _, points, k = cloud
+    graph = pssd_fast.neighbors(points, k)
+    hints = core.outward_hints(points)
+    planes = core.list_planes(points, graph, hints)
+    nrm, degenerate = core.pca_normals(points, graph, hints)
+    np.testing.assert_array_equal(planes.normals, nrm)
+    np.testing.assert_array_equal(planes.degenerate, degenerate)
+
+
 def test_list_planes_of_degenerate_lists_have_no_variation():
     points = np.repeat(np.eye(3), 12, axis=0)  # 3 locations, 12 copies each
     graph = pssd_fast.neighbors(points, 11)
     centres, out = np.empty_like(points), np.empty_like(points)
     variation, spread = np.empty(len(points)), np.empty(len(points))
-    normals.list_planes(points, graph.indptr, graph.indices, centres, out, variation, spread)
+    normals.list_planes(points, graph.indptr, graph.indices, points, centres, out, variation,
+                        spread)
     assert np.isinf(variation).all()
     np.testing.assert_array_equal(spread, 0.0)
     np.testing.assert_array_equal(centres, 0.0)
@@ -110,7 +123,8 @@ def test_shifted_normals_take_each_side_of_a_crease():
     truth = np.where((u < 0)[:, None], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
     graph = pssd_fast.neighbors(points, 40)
     pca = pssd_fast.estimate_normals(points, graph=graph)
-    shifted = core.shifted_normals(points, pca, graph, 10, 2.0)
+    shifted = core.shifted_normals(points, pca, graph, core.list_planes(points, graph, pca), 10,
+                                   2.0)
 
     def error(nrm):
         return np.degrees(np.arccos(np.minimum(np.abs((nrm * truth).sum(axis=1)), 1.0)))

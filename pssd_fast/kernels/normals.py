@@ -94,20 +94,24 @@ def pca_normals(points, indptr, indices, hints, normals, degenerate):
 
 
 @parallel_kernel
-def list_planes(points, indptr, indices, centres, normals, variation, spread):
-    """The PCA plane of each neighbour list and how well the list fits it.
+def list_planes(points, indptr, indices, hints, centres, normals, variation, spread):
+    """The PCA plane of each neighbour list and how well the list fits it: the normals of
+    :func:`pca_normals`, and what the shifted normals need besides.
 
     Parameters
     ----------
     points : (n, 3) float64
     indptr, indices : CSR neighbour graph
+    hints : (n, 3) float64
+        Orientation hints, as in :func:`pca_normals`.
     centres : (n, 3) float64
         Output: the list's centroid relative to ``points[i]``.
     normals : (n, 3) float64
-        Output: the unit normal of the list's plane (unsigned: the eigenvector as found).
+        Output: the unit normal of the list's plane, :func:`pca_normals`'s.
     variation : (n,) float64
         Output: the surface variation ``w0 / (w0 + w1 + w2)`` of the covariance's eigenvalues
-        (ascending); ``inf`` where the list is collinear or coincident (no plane).
+        (ascending); ``inf`` where the list is collinear or coincident (no plane: where
+        :func:`pca_normals` flags it degenerate).
     spread : (n,) float64
         Output: the RMS distance of the list to its plane, ``sqrt(w0 / count)``.
     """
@@ -121,9 +125,12 @@ def list_planes(points, indptr, indices, centres, normals, variation, spread):
             planar = w[1] > DEGENERATE_RATIO * w[2] and total > 0.0
             variation[i] = lowest / total if planar else np.inf
             spread[i] = math.sqrt(lowest / (indptr[i + 1] - indptr[i]))
+            nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
+            if nx * hints[i, 0] + ny * hints[i, 1] + nz * hints[i, 2] < 0.0:
+                nx, ny, nz = -nx, -ny, -nz
+            normals[i, 0], normals[i, 1], normals[i, 2] = nx, ny, nz
             for d in range(3):
                 centres[i, d] = centre[d]
-                normals[i, d] = v[d, 0]
 
 
 @parallel_kernel
