@@ -13,7 +13,8 @@ iterations (``--paper-iterations`` for "paper", 1 by default: the issue's target
 iteration), reads its peak resident size, scores the result against the true surface and times
 pykdtree's k=25 query on the same points in Morton order, the reference of the ratio column.
 ``jet`` is CGAL's jet smoothing with k=48 and 2 passes (``pip install cgal``), the peer the
-``fast`` preset is measured against. Clouds under 1,000,000 points are denoised and queried
+``fast`` preset is measured against; ``scales`` is the preset "default" with
+``select_scales=True``. Clouds under 1,000,000 points are denoised and queried
 three times and the fastest of each kept (their times are a fraction of a second). Errors are in
 1e-4 of the bounding-box diagonal: the mean distance to the true surface over all points, and
 over the points within 1% of the diagonal of a sharp edge. Writes
@@ -39,6 +40,8 @@ UNIT = 1e-4
 
 #: The peer of the ``fast`` preset (issue 13): CGAL jet smoothing, k=48, 2 passes.
 JET = {"k": 48, "passes": 2}
+#: The pseudo-presets: the ``denoise`` parameters each stands for.
+VARIANTS = {"scales": {"preset": "default", "select_scales": True}}
 #: Below this many points the runs and the reference query are repeated (best of three).
 REPEAT_BELOW = 1_000_000
 
@@ -92,7 +95,7 @@ def _denoise(points, preset, iterations, repeats):
     import pssd_fast
     from pssd_fast import datasets
 
-    run = {"preset": preset, "iterations": iterations}
+    run = {"iterations": iterations, **VARIANTS.get(preset, {"preset": preset})}
     # Every kernel (the grid query of long lists too), then the preset's own calls, compiled
     # or loaded before timing; the second cloud takes the coarse-to-fine route.
     pssd_fast.warmup()
@@ -127,7 +130,8 @@ def table(cells):
     for c in cells:
         coarse = c.get("coarse")
         grid = "–" if not coarse else f"{coarse['cells']:,} ({coarse['mean_points']:.1f})"
-        name = "CGAL jet" if c["preset"] == "jet" else c["preset"]
+        name = {"jet": "CGAL jet", "scales": "default, select_scales"}.get(c["preset"],
+                                                                           c["preset"])
         lines.append(f"| {c['points']:,} | {c['noise']:.2%} | {c['threads']} | {name} | {grid} | "
                      f"{c['k']} | "
                      f"{c['iterations']} | {c['mean_before']:.1f} / {c['edge_before']:.1f} | "

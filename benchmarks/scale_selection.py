@@ -189,7 +189,7 @@ def thin_wall_weights(points, filtered, graph, lists, sigma_n):
     for robust, out, kept in ((True, height, coef), (False, plain, np.empty((0, 7)))):
         kernels.mls.aware_fit(points, points, filtered, np.empty(0), graph.indptr,
                               graph.indices, sigma_n, robust, out, np.empty(n),
-                              np.empty(n, np.int8), kept)
+                              np.empty(n, np.int8), kept, np.empty(0, np.bool_))
     longest = lists.indices.shape[0] // n
     residual = np.empty((n, longest))
     residuals_about(points, filtered, lists.indices.reshape(n, longest), coef, residual)
@@ -216,7 +216,7 @@ class ScaleMove:
         self.picked = []
         self.scales = None
 
-    def __call__(self, points, nrm, graph, sigma_n, clock, mass=None):
+    def __call__(self, points, nrm, graph, sigma_n, clock, mass=None, walk=None, lists=None):
         n = points.shape[0]
         filtered = core.filter_normals(points, nrm, graph)
         k = graph.indices.shape[0] // n
@@ -266,7 +266,7 @@ class ScaleMove:
         self.flat.append(flat)
         moved, held = core.project(points, filtered, height)
         rms = np.sqrt(rss[rows, pick] / np.maximum(weight[rows, pick], 1.0))
-        return moved, filtered, rms, np.full(n, 6, np.int8), held
+        return moved, filtered, rms, np.full(n, 6, np.int8), held, None
 
 
 @contextmanager
@@ -291,18 +291,22 @@ def _pair(scores):
     return " / ".join("-" if x is None else f"{x:.1f}" for x in scores)
 
 
-def run_sheets(gaps=(4.0, 7.5, 15.0), n_points=50_000, curved="walked"):
+def run_sheets(gaps=(4.0, 7.5, 15.0), n_points=50_000, curved="walked", library=False):
     """Mean distance of each point to its own sheet, in sigmas, without and with the rule."""
     lines = ["| gap (sigma) | default | with the rule |", "|---|---|---|"]
     for gap in gaps:
         points, height, clean_xy = sheets.sheets(n_points, gap)
         plain = sheets.score(pssd_fast.denoise(points).points, height, clean_xy)
-        with selected_scales(curved):
-            rule = sheets.score(pssd_fast.denoise(points).points, height, clean_xy)
+        if library:
+            rule = sheets.score(pssd_fast.denoise(points, select_scales=True).points, height,
+                                clean_xy)
+        else:
+            with selected_scales(curved):
+                rule = sheets.score(pssd_fast.denoise(points).points, height, clean_xy)
         lines.append(f"| {gap:g} | {plain:.2f} | {rule:.2f} |")
         print(lines[-1], flush=True)
     RESULTS.mkdir(exist_ok=True)
-    name = "sheets" + CURVED[curved]
+    name = "sheets" + ("_library" if library else CURVED[curved])
     write_atomic(RESULTS / f"scale_selection_{name}.md", "\n".join(lines) + "\n")
 
 
@@ -316,12 +320,14 @@ def main(argv=None):
     parser.add_argument("--sheets", action="store_true", help="the thin-wall case instead")
     parser.add_argument("--curved", choices=list(CURVED), default="walked",
                         help="the height where the plane test fails (step 4)")
+    parser.add_argument("--library", action="store_true",
+                        help="run the library's denoise(select_scales=True) as the rule")
     parser.add_argument("--cubic", type=float, default=None, metavar="TAU",
                         help="also end a walk where the cubic terms explain more than noise "
                              "(step 3); e.g. 4")
     args = parser.parse_args(argv)
     if args.sheets:
-        return run_sheets(curved=args.curved)
+        return run_sheets(curved=args.curved, library=args.library)
     if args.dense:
         args.sizes, args.shapes = [None], list(versus.SHAPES)
     cache = versus.load_peer_cache()["cells"]
@@ -335,8 +341,11 @@ def main(argv=None):
                 peers = cache[versus._key(shape, noise, n_points)]
                 best = [_best(peers, col) for col in versus.COLUMNS]
                 plain = case.score(pssd_fast.denoise(case.points).points)
-                with selected_scales(args.curved, args.cubic):
-                    rule = case.score(pssd_fast.denoise(case.points).points)
+                if args.library:
+                    rule = case.score(pssd_fast.denoise(case.points, select_scales=True).points)
+                else:
+                    with selected_scales(args.curved, args.cubic):
+                        rule = case.score(pssd_fast.denoise(case.points).points)
                 ok = all(b is None or r < b for r, b in zip(rule, best))
                 won += ok
                 total += 1
@@ -347,6 +356,7 @@ def main(argv=None):
     RESULTS.mkdir(exist_ok=True)
     name = "dense" if args.dense else "_".join(str(n) for n in args.sizes)
     name += CURVED[args.curved] + ("" if args.cubic is None else f"_cubic{args.cubic:g}")
+    name = name + "_library" if args.library else name
     write_atomic(RESULTS / f"scale_selection_{name}.md", "\n".join(lines) + "\n")
 
 

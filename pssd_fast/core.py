@@ -23,8 +23,10 @@ FIT_DEGREES = {"cubic": kernels.mls.CUBIC, "quadratic": kernels.mls.QUADRATIC,
                "plane": kernels.mls.PLANE}
 #: Fit codes of the feature-aware fit (number of coefficients fitted).
 AWARE_FIT_DEGREES = {"quadratic": 6, "plane": 3, "mean_height": 1, "none": 0}
-# No rows: :func:`kernels.mls.aware_fit` keeps no coefficients.
+# No rows, no entries: :func:`kernels.mls.aware_fit` keeps no coefficients, and does not say
+# where it took the robust fit.
 _NO_COEF = np.empty((0, 7))
+_NO_TAKEN = np.empty(0, np.bool_)
 
 
 def default_h(graph, h=None):
@@ -167,8 +169,66 @@ def aware_fit(points, nrm, graph, sigma_n, mass=None, robust=False):
     degree = np.empty(n, np.int8)
     mass = np.empty(0) if mass is None else mass
     kernels.mls.aware_fit(points, points, nrm, mass, graph.indptr, graph.indices, sigma_n,
-                          robust, height, rms, degree, _NO_COEF)
+                          robust, height, rms, degree, _NO_COEF, _NO_TAKEN)
     return height, rms, degree
+
+
+def robust_fits(points, nrm, graph, sigma_n):
+    """:func:`aware_fit` with its robust alternative, and the fits kept: height, RMS residual,
+    degree, coefficients with the inverse list radius ``(n, 7)``, and where the robust fit
+    was taken (a list reaching across a thin wall)."""
+    n = points.shape[0]
+    height, rms = np.empty(n), np.empty(n)
+    degree = np.empty(n, np.int8)
+    coef = np.empty((n, 7))
+    taken = np.empty(n, np.bool_)
+    kernels.mls.aware_fit(points, points, nrm, np.empty(0), graph.indptr, graph.indices,
+                          sigma_n, True, height, rms, degree, coef, taken)
+    return height, rms, degree, coef, taken
+
+
+def scale_fits(points, nrm, lists, scales, sigma_n, k, coef, across):
+    """The nested plane, quadratic and cubic of each point's ``lists`` at each of ``scales``
+    (prefix lengths): the columns of :func:`pssd_fast.kernels.scales.scale_fits` as a
+    :class:`ScaleFits`."""
+    shape = (points.shape[0], scales.shape[0])
+    fits = ScaleFits(*(np.empty(shape) for _ in ScaleFits._fields))
+    kernels.scales.scale_fits(points, nrm, lists.indptr, lists.indices, scales, sigma_n, k, coef,
+                              across, *fits)
+    return fits
+
+
+class ScaleFits(NamedTuple):
+    """Per point and scale (columns): the heights of the quadratic and the plane, the
+    residual sums of squares of the quadratic, the plane and the cubic, the summed weight, and
+    the prefix's radius (:func:`pssd_fast.kernels.scales.scale_fits`)."""
+
+    quad: np.ndarray
+    plane: np.ndarray
+    rss: np.ndarray
+    rss_plane: np.ndarray
+    rss_cubic: np.ndarray
+    weight: np.ndarray
+    radius: np.ndarray
+
+    def variance(self):
+        """The quadratic's residual variance per point and scale, ``rss / (weight - 6)``."""
+        return self.rss / np.maximum(self.weight - 6.0, 1.0)
+
+
+def walk_scales(fits, first, noise2, tests, fallback, fallback_rms):
+    """Each point's scale and its height there (:func:`pssd_fast.kernels.scales.walk_scales`):
+    ``tests`` holds the margins ``tau``, ``tau_cubic`` and ``tau_plane``. Returns the height,
+    the RMS residual, the column kept and whether the plane was taken."""
+    n = fits.quad.shape[0]
+    height, rms = np.empty(n), np.empty(n)
+    pick = np.empty(n, np.int64)
+    flat = np.empty(n, np.bool_)
+    kernels.scales.walk_scales(fits.quad, fits.plane, fits.rss, fits.rss_plane, fits.rss_cubic,
+                               fits.weight, first, noise2, tests["tau"], tests["tau_cubic"],
+                               tests["tau_plane"], fallback, fallback_rms, height, rms, pick,
+                               flat)
+    return height, rms, pick, flat
 
 
 def surface_fits(surface, nrm, lists, sigma_n):
@@ -180,7 +240,7 @@ def surface_fits(surface, nrm, lists, sigma_n):
     degree = np.empty(m, np.int8)
     coef = np.empty((m, 7))
     kernels.mls.aware_fit(surface, surface, nrm, np.empty(0), lists.indptr, lists.indices,
-                          sigma_n, False, np.empty(m), rms, degree, coef)
+                          sigma_n, False, np.empty(m), rms, degree, coef, _NO_TAKEN)
     return coef, rms, degree
 
 

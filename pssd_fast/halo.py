@@ -177,8 +177,8 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
             if first:
                 nrm = inputs.shifted(points, nrm, lists, planes, k)
         clock = Clock(None, 0, 1)
-        moved, filtered, rms, degree, held = aware.fit_and_move(points, nrm, lists, sigma_n,
-                                                                clock)
+        moved, filtered, rms, degree, held, _ = aware.fit_and_move(points, nrm, lists, sigma_n,
+                                                                   clock)
         feature = None
         if radius is not None:
             feature = aware.voted_feature(points, nrm, lists, radius)[:n_own].copy()

@@ -32,6 +32,7 @@ def warmup():
     denoise(points, k=10, iterations=2, preset="fast")
     denoise(points.astype(np.float32), points, k=10, iterations=1)
     denoise(points, k=10, iterations=1, preset="fast", orient="outward")
+    denoise(points, k=10, iterations=1, select_scales=True)
     outlier_score(points, k=10)
     # Lists as long as the default's at scan sizes come from the grid query.
     sphere = rng.normal(size=(GRID_K + 1, 3))

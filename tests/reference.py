@@ -613,3 +613,117 @@ def blended(point, targets, distance):
     weights = 1.0 / np.maximum(distance, 1e-300)
     steps = np.array(targets) - point
     return point + (weights[:, None] * steps).sum(axis=0) / weights.sum()
+
+
+# A scale per point (docs/ALGORITHM.md, "A scale per point").
+SCALES = {"factors": (0.25, 0.5, 1.0, 2.0, 3.0, 4.5), "smallest": 8,
+          "radius_over_noise": 4.0, "later_noise": 0.03, "tau": 2.0, "tau_cubic": 4.0,
+          "tau_plane": 1.0}
+QUARTILE_OF_UNIT = 0.3186  # lower quartile of |r| for a unit normal r
+SCALE_FITS = ("quad", "plane", "rss", "rss_plane", "rss_cubic", "weight", "radius")
+
+
+def scale_fits(points, normals, lists, scales, sigma_n, k, thin):
+    """Each point's weighted plane, quadratic and cubic over the first ``s`` of its list
+    (``lists[i]``, self first), by ``np.linalg.lstsq``, in the frame of the point and the
+    normal of its first listed point: heights, residual sums of squares, summed weight and
+    prefix radius per scale. Weights: normal agreement alone; where ``thin`` (a dict) holds a
+    point, the heights of its list above the fit of a thin wall, also ``exp(-(r / s)^2)`` with
+    ``s`` the lower quartile of ``|r|`` over the first ``k`` over ``QUARTILE_OF_UNIT``. NaN
+    where the normal equations are not well posed or the weights sum to less than the number
+    of monomials."""
+    n = len(lists)
+    out = {name: np.full((n, len(scales)), np.nan) for name in SCALE_FITS}
+    for i in range(n):
+        members = np.asarray(lists[i])
+        nrm = normals[members[0]]
+        u, v = _basis(nrm)
+        d = points[members] - points[i]
+        radius = np.sqrt((d * d).sum(axis=1).max())
+        scale = 1.0 / radius if radius > 0 else 1.0
+        x, y, z = d @ u * scale, d @ v * scale, d @ nrm
+        w = np.exp(-((1.0 - np.minimum(np.abs(normals[members] @ nrm), 1.0)) / sigma_n) ** 2)
+        if i in thin:
+            r = np.abs(thin[i])
+            quartile = np.sort(r[:k])[(min(k, len(r)) - 1) // 4]
+            if quartile > 0:
+                w = w * np.exp(-(thin[i] * QUARTILE_OF_UNIT / quartile) ** 2)
+        basis = np.column_stack([np.ones_like(x), y, x, x * y, y * y, x * x, x ** 3, x * x * y,
+                                 x * y * y, y ** 3])
+        for s, length in enumerate(scales):
+            count = min(length, len(members))
+            sw = np.sqrt(w[:count])
+            for m, height, rss in ((6, "quad", "rss"), (3, "plane", "rss_plane"),
+                                   (10, None, "rss_cubic")):
+                if w[:count].sum() >= m and _well_posed(basis[:count, :m], w[:count]):
+                    a = basis[:count, :m] * sw[:, None]
+                    coef = np.linalg.lstsq(a, z[:count] * sw, rcond=None)[0]
+                    if height is not None:
+                        out[height][i, s] = coef[0]
+                    out[rss][i, s] = np.sum((a @ coef - z[:count] * sw) ** 2)
+            out["weight"][i, s] = w[:count].sum()
+            out["radius"][i, s] = np.sqrt((d[count - 1] ** 2).sum())
+    return out
+
+
+def walk_scales(fits, first, noise2, fallback, fallback_rms):
+    """Each point's scale: from column ``first``, the next is kept while the residual its
+    ring adds per unit weight is at most ``noise2 (1 + tau sqrt(2 / added))`` and its cubic
+    terms explain at most ``noise2 (1 + tau_cubic sqrt(1/2))`` each; the plane where its
+    curvature terms explain at most ``noise2 (1 + tau_plane sqrt(2/3))`` each. Height, RMS
+    residual, column and whether the plane was taken; ``fallback`` where not finite."""
+    n, n_scales = fits["quad"].shape
+    height, rms = np.empty(n), np.empty(n)
+    pick, flat = np.empty(n, int), np.empty(n, bool)
+    for i in range(n):
+        kept = first
+        if np.isfinite(fits["quad"][i, first]):
+            for s in range(first + 1, n_scales):
+                added = max(fits["weight"][i, s] - fits["weight"][i, s - 1], 1e-9)
+                rate = (fits["rss"][i, s] - fits["rss"][i, s - 1]) / added / noise2
+                gain = (fits["rss"][i, s] - fits["rss_cubic"][i, s]) / 4 / noise2
+                fits_ring = rate <= 1 + SCALES["tau"] * np.sqrt(2 / added)
+                wrinkled = gain > 1 + SCALES["tau_cubic"] * np.sqrt(0.5)
+                if not (np.isfinite(fits["quad"][i, s]) and fits_ring) or wrinkled:
+                    break
+                kept = s
+        pick[i] = kept
+        curvature = (fits["rss_plane"][i, kept] - fits["rss"][i, kept]) / 3 / noise2
+        flat[i] = np.isfinite(fits["plane"][i, kept]) and curvature <= (
+            1 + SCALES["tau_plane"] * np.sqrt(2 / 3))
+        h = fits["plane"][i, kept] if flat[i] else fits["quad"][i, kept]
+        if np.isfinite(h):
+            height[i] = h
+            rms[i] = np.sqrt(fits["rss"][i, kept] / max(fits["weight"][i, kept], 1.0))
+        else:
+            height[i], rms[i] = fallback[i], fallback_rms[i]
+    return height, rms, pick, flat
+
+
+def thin_wall_heights(points, normals, lists, sigma_n):
+    """``heights(i, members)``: the heights of ``members`` above point ``i``'s robust
+    feature-aware fit over ``lists[i]`` (:func:`frame_coefficients`), for :func:`scale_fits`'s
+    ``thin``."""
+    def heights(i, members):
+        coef, scale, _, _ = frame_coefficients(points[i], normals[i], points[lists[i]],
+                                               normals[lists[i]], sigma_n, robust=True)
+        u, v = _basis(normals[i])
+        rel = points[members] - points[i]
+        return rel @ normals[i] - _monomials(rel @ u / scale, rel @ v / scale)[:, :6] @ coef
+    return heights
+
+
+def scale_iteration_fit(points, filtered, k_lists, long_lists, lengths, first, noise2,
+                        sigma_n=0.05):
+    """The fit of ``select_scales`` for one iteration: the robust feature-aware fit at ``k``
+    (:func:`aware_fit`) says where a list reaches across a thin wall; nested fits over
+    ``long_lists`` at ``lengths``; the walk. Height, RMS residual, column, plane taken, and
+    whether the walked fit was finite (else the fit at ``k`` stands)."""
+    k = len(k_lists[0])
+    height, rms, _ = aware_fit(points, filtered, k_lists, sigma_n, robust=True)
+    plain, _, _ = aware_fit(points, filtered, k_lists, sigma_n)
+    heights = thin_wall_heights(points, filtered, k_lists, sigma_n)
+    thin = {i: heights(i, long_lists[i]) for i in range(len(points)) if height[i] != plain[i]}
+    fits = scale_fits(points, filtered, long_lists, lengths, sigma_n, k, thin)
+    height, rms, pick, flat = walk_scales(fits, first, noise2, height, rms)
+    return height, rms, pick, flat, np.isfinite(fits["quad"][np.arange(len(points)), pick])

@@ -56,7 +56,8 @@ def test_help_is_complete():
     status, out, _ = pssd("denoise", "--help")
     assert status == 0
     for option in ["--method", "--iterations", "--preset", "--k", "--lam", "--n-jobs", "--threads",
-                   "--keep-normals", "--no-shift-normals", "--rebuild-graph",
+                   "--keep-normals", "--no-shift-normals", "--select-scales",
+                   "--rebuild-graph",
                    "--no-rebuild-graph",
                    "--force", "--quiet", "--verbose"] + [
                        "--" + d.replace("_", "-") for d in cli.METHOD_OPTIONS]:
@@ -326,6 +327,18 @@ def test_shifted_normals_reach_the_library(tmp_path, cloud, flags, shift):
     expected = pssd_fast.denoise(cloud.points, iterations=1, shift_normals=shift)
     np.testing.assert_array_equal(np.load(out)["points"], expected.points)
     other = pssd_fast.denoise(cloud.points, iterations=1, shift_normals=not shift)
+    assert np.abs(other.points - expected.points).max() > 0  # the flag changes the result
+
+
+def test_selected_scales_reach_the_library(tmp_path, cloud):
+    source, out = tmp_path / "in.npy", tmp_path / "out.npz"
+    np.save(source, cloud.points)
+    status = cli.main(["denoise", str(source), str(out), "--iterations", "1",
+                       "--select-scales", "--quiet"])
+    assert status == 0
+    expected = pssd_fast.denoise(cloud.points, iterations=1, select_scales=True)
+    np.testing.assert_array_equal(np.load(out)["points"], expected.points)
+    other = pssd_fast.denoise(cloud.points, iterations=1)
     assert np.abs(other.points - expected.points).max() > 0  # the flag changes the result
 
 
@@ -658,6 +671,7 @@ def test_tile_points_read_and_write_zarr(tmp_path):
     (("--remove-outliers",), "does not take --remove-outliers"),
     (("--keep-normals",), "does not take --keep-normals"),
     (("--no-shift-normals",), "does not take --no-shift-normals"),
+    (("--select-scales",), "does not take --select-scales"),
 ])
 def test_tile_points_name_what_they_do_not_take(tmp_path, small, extra, match):
     path = tmp_path / "small.xyz"

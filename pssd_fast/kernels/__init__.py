@@ -6,7 +6,7 @@ written by exactly one loop iteration, so results do not depend on the number of
 This package never imports from the Python layer of ``pssd_fast``.
 """
 from . import (bilateral, cells, feature, graph, knn, likelihood, linalg, mls, normals, order,
-               orient, outliers, update)
+               orient, outliers, scales, update)
 
 __all__ = ["bilateral", "cells", "feature", "graph", "knn", "likelihood", "linalg", "mls",
-           "normals", "order", "orient", "outliers", "update"]
+           "normals", "order", "orient", "outliers", "scales", "update"]

@@ -7,6 +7,7 @@ import numpy as np
 from .. import core
 from .._validation import check_k
 from ..graph import knn_graph
+from . import scales
 
 #: The noise-driven choice of ``k`` (preset "default"). A probe fit with ``probe_k``
 #: neighbours measures the noise ``sigma`` (median RMS residual of the unweighted quadratic
@@ -38,28 +39,39 @@ def step(points, nrm, graph, lam, params, clock, last=True, mass=None):
     iteration still computes both (from the fit's RMS residual, and by the paper's voting at
     the paper's constants) so that every preset returns them.
     """
-    moved, filtered, rms, degree, held = fit_and_move(points, nrm, graph, params["sigma_n"],
-                                                      clock, mass)
+    moved, filtered, rms, degree, held, kept = fit_and_move(
+        points, nrm, graph, params["sigma_n"], clock, mass, params.get("scale_plan"),
+        params.get("scale_lists"))
     extra = None
     if last:
         lik, _ = clock.run("likelihood", core.sampling_likelihood, rms, "exp")
         feat = clock.run("feature", voted_feature, points, nrm, graph,
                          region_radius(core.mean_spacing(graph)))
         extra = (lik, feat)
-    return moved, filtered, extra, step_record(clock.times, held.sum(), rms.sum(),
-                                               rms.shape[0], np.bincount(degree, minlength=7))
+    record = step_record(clock.times, held.sum(), rms.sum(), rms.shape[0],
+                         np.bincount(degree, minlength=7))
+    if kept is not None:
+        record["scales"] = kept
+    return moved, filtered, extra, record
 
 
-def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None):
+def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None, walk=None, lists=None):
     """The move of :func:`step`: the moved points, the filtered normals, the fit's RMS
-    residual and degree, and the points held in place (their step was not finite)."""
+    residual and degree, the points held in place (their step was not finite) and, with a
+    ``walk`` (the iteration's :class:`~pssd_fast.pipelines.scales.ScalePlan`, and ``lists``
+    of its longest length), what the walks kept (else None)."""
     filtered = clock.run("filter", core.filter_normals, points, nrm, graph)
-    # The robust fit keeps a thin wall's sides apart; cell means (``mass``) have averaged them
-    # already, and on them it only costs accuracy (docs/DECISIONS.md, "Thin walls").
-    height, rms, degree = clock.run("mls", core.aware_fit, points, filtered, graph, sigma_n,
-                                    mass, mass is None)
+    kept = None
+    if walk is None:
+        # The robust fit keeps a thin wall's sides apart; cell means (``mass``) have averaged
+        # them already, and on them it only costs accuracy (docs/DECISIONS.md, "Thin walls").
+        height, rms, degree = clock.run("mls", core.aware_fit, points, filtered, graph, sigma_n,
+                                        mass, mass is None)
+    else:
+        height, rms, degree, kept = clock.run("mls", scales.fit, points, filtered, graph, lists,
+                                              sigma_n, walk)
     moved, held = clock.run("update", core.project, points, filtered, height)
-    return moved, filtered, rms, degree, held
+    return moved, filtered, rms, degree, held, kept
 
 
 def region_radius(spacing):
