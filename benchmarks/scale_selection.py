@@ -6,9 +6,12 @@ Usage::
     python -m benchmarks.scale_selection --sizes 30000 --shapes plane sphere --noise 0.005
     python -m benchmarks.scale_selection --dense                # the 12 cells of versus.md
     python -m benchmarks.scale_selection --sizes 10000 30000 --cubic 4   # with the cubic test
+    python -m benchmarks.scale_selection --sizes 10000 30000 --library   # select_scales=True
 
 Not part of the library: it measures a rule for docs/DECISIONS.md ("Sparse clouds") before it
-is built into the kernels. It runs ``denoise(points)`` at its defaults with the move of the
+is built into the kernels. The rule with ``--cubic 4`` is in the library as
+``denoise(points, select_scales=True)`` (with the noise from a probe of the input and lists up
+to 4.5 ``k``); ``--library`` runs that instead, in the same tables. It runs ``denoise(points)`` at its defaults with the move of the
 feature-aware iterations replaced (and restores it afterwards); everything else, the probe
 that picks ``k`` included, is the library's. Peer minima come from the cache of
 ``benchmarks.versus`` (its sized cells); results go to ``results/scale_selection_<sizes>.md``.

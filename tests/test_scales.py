@@ -224,7 +224,7 @@ def test_selected_scales_are_reported(selected):
     stats = selected.stats
     assert stats["params"]["select_scales"] is True
     assert stats["scales"]["lengths"][2] == stats["k"]
-    assert 0 < stats["scales"]["noise"] < 0.05
+    assert 0 < stats["scales"]["noise"] < 0.05 and stats["scales"]["seconds"] > 0
     for record in stats["iterations"]:
         kept = record["scales"]
         assert sum(kept["kept"]) + record["fit_degree"]["mean_height"] + record["fit_degree"][
@@ -238,6 +238,15 @@ def test_selected_scales_do_not_depend_on_the_threads(sphere, selected):
     two = pssd_fast.denoise(points, select_scales=True, n_jobs=2)
     np.testing.assert_array_equal(one.points, two.points)
     np.testing.assert_array_equal(one.likelihood, two.likelihood)
+
+
+def test_selected_scales_without_rebuild_graph_re_sort_their_lists(sphere, selected):
+    out = pssd_fast.denoise(sphere.points, select_scales=True, rebuild_graph=False)
+    # One query of the longest lists (the plan's), re-sorted by the later iterations.
+    assert [("neighbors" in r["times"]) for r in out.stats["iterations"]] == [False] + [True] * 3
+    errors = [sphere.surface_distance(r.points).mean() for r in (out, selected)]
+    assert errors[0] == pytest.approx(errors[1], rel=0.05)
+    assert out.stats["rebuild_graph"] is False
 
 
 def test_selected_scales_take_given_normals(sphere):
