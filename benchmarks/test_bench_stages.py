@@ -47,11 +47,14 @@ def test_stage(benchmark, prepared, stage):
     benchmark(calls[stage])
 
 
-@pytest.mark.parametrize("method, preset", [("robust", "default"), ("robust", "fast"),
-                                            ("robust", "paper"), ("bilateral", "paper"),
-                                            ("mls", "paper")])
-def test_method_one_iteration(benchmark, prepared, method, preset):
+@pytest.mark.parametrize("method, preset, options", [
+    ("robust", "default", {}), ("robust", "default", {"select_scales": True}),
+    ("robust", "fast", {}), ("robust", "paper", {}), ("bilateral", "paper", {}),
+    ("mls", "paper", {})], ids=["default", "default-select_scales", "fast", "paper",
+                                "bilateral", "mls"])
+def test_method_one_iteration(benchmark, prepared, method, preset, options):
     n, points, _, _ = prepared
     benchmark.group = f"method-{n // 1000}k"
     benchmark.pedantic(pssd_fast.denoise, args=(points,),
-                       kwargs={"method": method, "preset": preset, "iterations": 1}, rounds=3)
+                       kwargs={"method": method, "preset": preset, "iterations": 1, **options},
+                       rounds=3)
