@@ -11,8 +11,8 @@ Usage::
 Not part of the library: it measures a rule for docs/DECISIONS.md ("Sparse clouds") before it
 is built into the kernels. The rule with ``--cubic 4`` is in the library as
 ``denoise(points, select_scales=True)`` (with the noise from a probe of the input and lists up
-to 4.5 ``k``); ``--library`` runs that instead, in the same tables. It runs ``denoise(points)`` at its defaults with the move of the
-feature-aware iterations replaced (and restores it afterwards); everything else, the probe
+to 4.5 ``k``); ``--library`` runs that instead, in the same tables. Otherwise it runs
+``denoise(points)`` at its defaults with the move of the feature-aware iterations replaced (and restores it afterwards); everything else, the probe
 that picks ``k`` included, is the library's. Peer minima come from the cache of
 ``benchmarks.versus`` (its sized cells); results go to ``results/scale_selection_<sizes>.md``.
 
@@ -24,8 +24,12 @@ The rule, for each point and iteration:
    over the longest list accumulates the normal equations of every scale.
 2. Thin walls: where the default's own fit at ``k`` took its robust alternative (its list
    reaches across to another sheet), each neighbour also weighs ``exp(-(r / s)^2)``, ``r``
-   its height above that fit and ``s`` the cloud's robust noise (:func:`thin_wall_weights`),
-   so that the other sheet counts at no scale.
+   its height above that fit and ``s`` the lower quartile of the point's own ``|r|`` over its
+   ``k`` nearest, over 0.3186, so that the other sheet counts at no scale. Steps 1 and 2 are
+   the library's kernel (:func:`pssd_fast.core.scale_fits`); until it was, the prototype had a
+   kernel of its own and took ``s`` from the whole cloud (the cloud's median of the points'
+   median ``|r|``, over 0.6745): the tables measured before commit 6523321 come from that
+   version.
 3. Walking up the scales from the smallest whose median list radius is at least
    ``RADIUS_OVER_NOISE`` times the noise at ``k`` (smaller lists cut the noise off and see too
    little of it), a scale is kept while the residual it adds per unit weight stays below
@@ -53,18 +57,14 @@ and the 100,000-point part) instead, at their sizes there.
 instead, with and without the rule.
 """
 import argparse
-import math
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
-from numba import njit, prange
 
 import pssd_fast
-from pssd_fast import core, kernels
+from pssd_fast import core
 from pssd_fast.graph import knn_graph
-from pssd_fast.kernels.config import CHUNK
-from pssd_fast.kernels.linalg import cholesky_prefix, cholesky_solve, orthonormal_basis
 from pssd_fast.pipelines import aware
 
 from . import sheets, versus
@@ -79,126 +79,6 @@ LATER_NOISE = 0.03
 #: results' file names.
 CURVED = {"walked": "", "at-k": "_at_k", "default": "_flat"}
 RESULTS = Path(__file__).resolve().parent / "results"
-
-
-@njit(fastmath=True)
-def _height(factor, rhs, b, szz, m, rank):
-    """Height at the origin and residual sum of squares of the fit of the first ``m``
-    monomials, from the Cholesky ``factor`` of ``rank`` pivots; NaN where they are too few."""
-    if rank < m:
-        return np.nan, np.nan
-    for p in range(m):
-        b[p] = rhs[p]
-    cholesky_solve(factor, b, m)
-    r = szz
-    for p in range(m):
-        r -= b[p] * rhs[p]
-    return b[0], max(r, 0.0)
-
-
-@njit(parallel=True, fastmath=True)
-def scale_fits(points, normals, indptr, indices, scales, sigma_n, extra, quad, plane, rss,
-               rss_plane, weight, radius, rss_cubic):
-    """Height of the quadratic and of the plane, their residual sums of squares (and the
-    cubic's), the summed weight and the list radius of each point at each scale (columns).
-    ``extra[i, t]``: a factor on the weight of the ``t``-th neighbour of point ``i``."""
-    inv_sn = 1.0 / sigma_n
-    n_scales = scales.shape[0]
-    n = points.shape[0]
-    for c in prange((n + CHUNK - 1) // CHUNK):
-        # Scratch per chunk of points, not per point.
-        a = np.zeros((10, 10))
-        acc = np.zeros((10, 10))
-        bacc = np.zeros(10)
-        b = np.zeros(10)
-        phi = np.zeros(10)
-        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            acc[:, :] = 0.0
-            bacc[:] = 0.0
-            start = indptr[i]
-            count = indptr[i + 1] - start
-            first = indices[start]
-            nx, ny, nz = normals[first, 0], normals[first, 1], normals[first, 2]
-            ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
-            px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-            r2 = 0.0
-            for t in range(count):
-                j = indices[start + t]
-                r2 = max(r2, (points[j, 0] - px) ** 2 + (points[j, 1] - py) ** 2
-                         + (points[j, 2] - pz) ** 2)
-            inv_r = 1.0 / math.sqrt(r2) if r2 > 0.0 else 1.0
-            szz = 0.0
-            sw = 0.0
-            s = 0
-            for t in range(count):
-                j = indices[start + t]
-                dx, dy, dz = points[j, 0] - px, points[j, 1] - py, points[j, 2] - pz
-                x = (dx * ux + dy * uy + dz * uz) * inv_r
-                y = (dx * vx + dy * vy + dz * vz) * inv_r
-                z = dx * nx + dy * ny + dz * nz
-                u = (1.0 - min(abs(nx * normals[j, 0] + ny * normals[j, 1] + nz * normals[j, 2]),
-                               1.0)) * inv_sn
-                w = math.exp(-u * u) * extra[i, t]
-                phi[0], phi[1], phi[2], phi[3], phi[4], phi[5] = 1.0, y, x, x * y, y * y, x * x
-                phi[6], phi[7], phi[8], phi[9] = x * x * x, x * x * y, x * y * y, y * y * y
-                for p in range(10):
-                    bacc[p] += w * phi[p] * z
-                    for q in range(p + 1):
-                        acc[p, q] += w * phi[p] * phi[q]
-                szz += w * z * z
-                sw += w
-                while s < n_scales and (t + 1 == scales[s] or t + 1 == count):
-                    a[:, :] = acc
-                    rank = cholesky_prefix(a, 10, 1e-9)
-                    quad[i, s], rss[i, s] = _height(a, bacc, b, szz, 6, rank)
-                    rss_cubic[i, s] = _height(a, bacc, b, szz, 10, rank)[1]
-                    plane[i, s], rss_plane[i, s] = _height(a, bacc, b, szz, 3, rank)
-                    weight[i, s] = sw
-                    radius[i, s] = math.sqrt(dx * dx + dy * dy + dz * dz)
-                    s += 1
-
-
-@njit(parallel=True, fastmath=True)
-def residuals_about(points, normals, lists, coef, out):
-    """``out[i, t]``: the height of the ``t``-th neighbour of point ``i`` above the fit
-    ``coef[i]`` of :func:`pssd_fast.kernels.mls.aware_fit` (same frame: the point and the
-    normal of its first neighbour, tangent coordinates scaled by ``coef[i, 6]``)."""
-    for i in prange(lists.shape[0]):
-        first = lists[i, 0]
-        nx, ny, nz = normals[first, 0], normals[first, 1], normals[first, 2]
-        ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
-        c = coef[i]
-        for t in range(lists.shape[1]):
-            j = lists[i, t]
-            dx = points[j, 0] - points[i, 0]
-            dy = points[j, 1] - points[i, 1]
-            dz = points[j, 2] - points[i, 2]
-            x = (dx * ux + dy * uy + dz * uz) * c[6]
-            y = (dx * vx + dy * vy + dz * vz) * c[6]
-            out[i, t] = (dx * nx + dy * ny + dz * nz
-                         - (c[0] + c[1] * y + c[2] * x + c[3] * x * y + c[4] * y * y
-                            + c[5] * x * x))
-
-
-def thin_wall_weights(points, filtered, graph, lists, sigma_n):
-    """The factor on each neighbour's weight, ``(n, longest)``: where the default's fit at
-    ``k`` took its robust alternative (a list reaching across a thin wall),
-    ``exp(-(r / s)^2)`` with ``r`` the neighbour's height above that fit and ``s`` the
-    cloud's robust noise (the median over points of the median ``|r|`` of their ``k``
-    nearest, over 0.6745); 1 elsewhere. Also the height of the default's fit."""
-    n = points.shape[0]
-    k = graph.indices.shape[0] // n
-    height, plain, coef = np.empty(n), np.empty(n), np.empty((n, 7))
-    for robust, out, kept in ((True, height, coef), (False, plain, np.empty((0, 7)))):
-        kernels.mls.aware_fit(points, points, filtered, np.empty(0), graph.indptr,
-                              graph.indices, sigma_n, robust, out, np.empty(n),
-                              np.empty(n, np.int8), kept, np.empty(0, np.bool_))
-    longest = lists.indices.shape[0] // n
-    residual = np.empty((n, longest))
-    residuals_about(points, filtered, lists.indices.reshape(n, longest), coef, residual)
-    spread = np.median(np.median(np.abs(residual[:, :k]), axis=1)) / 0.6745
-    across = height != plain  # the robust fit replaced the plain one
-    return np.where(across[:, None], np.exp(-(residual / spread) ** 2), 1.0), height, across
 
 
 class ScaleMove:
@@ -226,12 +106,10 @@ class ScaleMove:
         scales = np.array(sorted({max(8, round(f * k)) for f in SCALE_FACTORS}), np.int64)
         scales = scales[scales < n]
         lists = knn_graph(points, int(scales[-1]), False)
-        extra, default, across = thin_wall_weights(points, filtered, graph, lists, sigma_n)
-        quad, plane, rss, rss_plane, weight, radius, rss_cubic = (np.empty((n, len(scales)))
-                                                                  for _ in range(7))
-        scale_fits(points, filtered, lists.indptr, lists.indices, scales, sigma_n, extra, quad,
-                   plane, rss, rss_plane, weight, radius, rss_cubic)
-        variance = rss / np.maximum(weight - 6.0, 1.0)
+        default, _, _, coef, across = core.robust_fits(points, filtered, graph, sigma_n)
+        fits = core.scale_fits(points, filtered, lists, scales, sigma_n, k, coef, across)
+        quad, plane, rss, rss_plane, rss_cubic, weight, radius = fits
+        variance = fits.variance()
         at_k = min(int(np.searchsorted(scales, k)), len(scales) - 1)
         noise_at_k = np.sqrt(np.nanmedian(variance[:, at_k]))
         wide = np.flatnonzero(np.median(radius, axis=0) >= RADIUS_OVER_NOISE * noise_at_k)
