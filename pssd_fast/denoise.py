@@ -466,7 +466,6 @@ def iterate(current, given, step, k, iterations, rebuild_graph, probe, lam, para
         step_params = params if walk is None else {**params, **walk}
         moved, out_normals, extra, record = step(current, nrm, graph, lam, step_params, clock,
                                                  iteration == iterations - 1, **weighting)
-        walk = None
         record["degenerate_normals"] = int(degenerate.sum())
         record["mean_step"] = float(np.linalg.norm(moved - current, axis=1).mean())
         records.append(record)

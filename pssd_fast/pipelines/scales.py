@@ -54,10 +54,10 @@ def plan(points, given, k, sigma_n, stride, shift):
     (shifted if ``shift``; or the caller's ``given``), filtered. The fits of
     :func:`pssd_fast.core.scale_fits` (with the thin-wall weights of :func:`fit`) run over the
     prefixes of the sample's lists that span the area of each length (``length / stride``
-    neighbours). The first column is the shortest
-    whose median radius is at least ``radius_over_noise`` times the noise at ``k`` (the square
-    root of the median residual variance there); the noise variance is the median residual
-    variance at that column. At ``stride`` 1 these are the first iteration's own fits.
+    neighbours). The first column is the shortest whose median radius is at least
+    ``radius_over_noise`` times the noise at ``k`` (the square root of the median residual
+    variance there); the noise variance is the median residual variance at that column. At
+    ``stride`` 1 these are the first iteration's own fits.
     """
     n = points.shape[0]
     scales = lengths(k, n)
