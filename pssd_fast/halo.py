@@ -23,8 +23,8 @@ import numpy as np
 
 from . import core, inputs
 from ._threads import threads
-from .graph import bounds, knn_graph
-from .pipelines import aware
+from .graph import bounds, knn_graph, truncate_graph
+from .pipelines import aware, scales
 from .progress import Clock
 
 #: Tiles start at multiples of this rank: the feature kernel grows its regions for blocks of
@@ -127,7 +127,7 @@ def _own(points, n_own):
     return mask
 
 
-def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius, n_jobs):
+def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius, walk, n_jobs):
     """One feature-aware iteration of a tile's own points, the first ``n_own`` of ``points``.
 
     Parameters
@@ -144,6 +144,9 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
         As in :func:`pssd_fast.pipelines.aware.step`.
     radius : float or None
         ``R`` of the feature intensity, on the last iteration; else None.
+    walk : ScalePlan or None
+        The iteration's plan of ``select_scales``
+        (:class:`pssd_fast.pipelines.scales.ScalePlan`), or None.
 
     Returns
     -------
@@ -151,15 +154,29 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
         None when the halo is too thin. Else, for the own points: ``moved``, ``normals`` (the
         filtered ones), ``rms``, ``feature`` (None but on the last iteration); and the counts
         of the iteration's record: ``held``, ``rms_sum``, ``degree`` counts, ``degenerate``,
-        ``step_sum``.
+        ``step_sum``, and with a ``walk`` the points that kept each length (``kept``) and
+        took the plane (``flat``).
     """
     region = None if points.shape[0] == n else region
-    if region is not None and points.shape[0] <= k:
+    longest = k if walk is None else int(walk.lengths[-1])
+    if region is not None and points.shape[0] <= longest:
         return None
     with threads(n_jobs):
-        lists = knn_graph(points, k, False)
+        long_lists = None
+        if walk is None:
+            lists = knn_graph(points, k, False)
+        else:
+            # The walks' lists, cut to k, are the iteration's (as in pssd_fast.denoise).
+            long_lists = knn_graph(points, longest, False)
+            lists = truncate_graph(long_lists, points, k)
         if region is not None:
-            reach = _closure(lists, _closure(lists, _own(points, n_own)))
+            reach = _own(points, n_own)
+            if walk is not None:
+                # The walked fits read the long lists and their members' filtered normals.
+                if not _exact(long_lists, points, region, reach):
+                    return None
+                reach = _closure(long_lists, reach)
+            reach = _closure(lists, _closure(lists, reach))
             if normals is None:
                 reach = _closure(lists, reach)  # shifted normals read their candidates' lists
             if not _exact(lists, points, region, reach):
@@ -177,8 +194,8 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
             if first:
                 nrm = inputs.shifted(points, nrm, lists, planes, k)
         clock = Clock(None, 0, 1)
-        moved, filtered, rms, degree, held, _ = aware.fit_and_move(points, nrm, lists, sigma_n,
-                                                                   clock)
+        moved, filtered, rms, degree, held, kept = aware.fit_and_move(
+            points, nrm, lists, sigma_n, clock, None, walk, long_lists)
         feature = None
         if radius is not None:
             feature = aware.voted_feature(points, nrm, lists, radius)[:n_own].copy()
@@ -189,6 +206,8 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
             "degree": np.bincount(degree[:n_own], minlength=7),
             "degenerate": int(degenerate[:n_own].sum()),
             "step_sum": float(np.linalg.norm(moved[:n_own] - points[:n_own], axis=1).sum()),
+            "scales": None if kept is None else scales.kept_counts(
+                walk.lengths, kept[0][:n_own], kept[1][:n_own]),
         }
 
 
@@ -223,11 +242,11 @@ def orient_pointwise(points, normals, orient, centroid):
     normals[flip] *= -1.0
 
 
-def iterate(current, given, k, iterations, sigma_n, spans, width, runner):
+def iterate(current, given, k, iterations, sigma_n, spans, width, runner, scale_plan=None):
     """The ``iterations`` of the feature-aware pipeline on ``current`` (Morton order), tile by
     tile over the rank ranges ``spans``, each iteration's tiles run by ``runner`` (see
     :class:`pssd_fast.tiled._Runner`); ``given``: the caller's normals or None, ``width``: the
-    first halo width. As :func:`pssd_fast.denoise.iterate` returns them: the moved points,
+    first halo width, ``scale_plan``: the plan of ``select_scales`` or None. As :func:`pssd_fast.denoise.iterate` returns them: the moved points,
     the last normals, ``(likelihood, feature intensity)`` and one record per iteration."""
     n = current.shape[0]
     widths = [width] * len(spans)
@@ -246,7 +265,7 @@ def iterate(current, given, k, iterations, sigma_n, spans, width, runner):
             (a, b), (rows, region) = spans[i], _candidates(current, *spans[i], width, cloud)
             return (current[rows], None if normals is None else normals[rows],
                     t == 0 and given is not None, centroid, b - a, n, k, sigma_n, region,
-                    radius)
+                    radius, None if scale_plan is None else scale_plan.at(t))
 
         radius = None
         if t == iterations - 1:
@@ -270,6 +289,10 @@ def record(out, n, widths, started):
     found["degenerate_normals"] = sum(o["degenerate"] for o in out)
     found["mean_step"] = sum(o["step_sum"] for o in out) / n
     found["halo_widths"] = [float(min(widths)), float(max(widths))]
+    if out[0]["scales"] is not None:
+        found["scales"] = {"lengths": out[0]["scales"]["lengths"],
+                           "kept": np.sum([o["scales"]["kept"] for o in out], axis=0).tolist(),
+                           "flat": sum(o["scales"]["flat"] for o in out)}
     return found
 
 

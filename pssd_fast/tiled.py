@@ -29,7 +29,7 @@ from ._validation import (
 from .denoise import PRESETS, iterate, result
 from .graph import bounds, morton_order
 from .kernels.order import gather_rows
-from .pipelines import STEPS, aware, coarse
+from .pipelines import STEPS, aware, coarse, scales
 from .progress import Clock, reporter
 
 #: Dask's local schedulers, by the names ``client`` takes for them.
@@ -37,11 +37,12 @@ LOCAL_SCHEDULERS = ("threads", "processes", "sync")
 #: What :func:`denoise_file` reads and writes, by extension.
 FILE_KINDS = {".npy": "npy", ".zarr": "zarr", ".las": "las", ".laz": "las"}
 #: The feature-aware pipeline's parameters other than ``sigma_n``, at their defaults.
-PARAMS = {"keep_normals": False, "shift_normals": True}
+PARAMS = {"keep_normals": False, "shift_normals": True, "select_scales": False}
 
 
 def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset="default",
-            iterations=None, orient=None, sigma_n=0.05, n_jobs=None, progress=None):
+            iterations=None, orient=None, sigma_n=0.05, select_scales=False, n_jobs=None,
+            progress=None):
     """Denoise ``points`` tile by tile on Dask; the result of :func:`pssd_fast.denoise`.
 
     Parameters
@@ -58,8 +59,10 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     preset : {"default", "fast"}
         The preset of :func:`pssd_fast.denoise`; its coarse-to-fine route is the one that
         tiles.
-    iterations, orient, sigma_n, n_jobs, progress
-        As in :func:`pssd_fast.denoise`; ``n_jobs`` threads run each task's kernels and
+    iterations, orient, sigma_n, select_scales, n_jobs, progress
+        As in :func:`pssd_fast.denoise` (``select_scales`` on the points only, as there; the
+        plan of its walks is made from the whole cloud before the tiles, and each task's halo
+        covers the lists of ``4.5 k``); ``n_jobs`` threads run each task's kernels and
         ``progress`` also hears of each finished tile (stages ``tile_cells`` and
         ``tile_update``).
 
@@ -96,7 +99,9 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     current = np.empty_like(pts)
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
-    params = {**PARAMS, "sigma_n": sigma_n}
+    if not isinstance(select_scales, (bool, np.bool_)):
+        raise TypeError(f"select_scales must be True or False; got {select_scales!r}")
+    params = {**PARAMS, "sigma_n": sigma_n, "select_scales": bool(select_scales)}
     with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
         k, scale, _ = aware.choose_k(current, given, *setting["probe"])
         found = sigma = None
@@ -108,18 +113,29 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
             _check_points_route(preset)
             spans = halo.tiles(n, tile_points)
             centroid = current.mean(axis=0)
+            plan = planned = None
+            reach = k
+            if select_scales:
+                planned = time.perf_counter()
+                plan = scales.plan(current, given, k, sigma_n, scale["probe_stride"],
+                                   PARAMS["shift_normals"])[0]
+                planned = time.perf_counter() - planned
+                reach = int(plan.lengths[-1])
             current, out_normals, extra, records = halo.iterate(
                 current, given, k, iterations, sigma_n, spans,
-                halo.first_width(scale["probe_radius"], scale["probe_k"], k), runner)
+                halo.first_width(scale["probe_radius"], scale["probe_k"], reach), runner, plan)
             if orient is not None:
                 # Propagation over the whole cloud's lists does not tile: one by one.
                 halo.orient_pointwise(current, out_normals, _relative(orient, centre), centroid)
             tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
                      "scheduler": runner.name, "route": "halo"}
+            stats = _stats(n, k, preset, scale, True, orient, iterations, params, n_threads,
+                           records, tiled, started)
+            stats["scales"] = None if plan is None else {
+                "lengths": plan.lengths.tolist(), "first": plan.first,
+                "noise": float(np.sqrt(plan.noise2)), "seconds": planned}
             return result(pts, dtype, order, centre, current, out_normals, extra, np.arange(n),
-                          (pts.astype(dtype), n_jobs),
-                          _stats(n, k, preset, scale, True, orient, iterations, params,
-                                 n_threads, records, tiled, started))
+                          (pts.astype(dtype), n_jobs), stats)
         rows, starts, edge, k, rebuild_graph = found
         tiles = _tiles(starts, tile_points)
         parts = [rows[starts[c0]:starts[c1]] for c0, c1 in tiles]
@@ -161,7 +177,7 @@ def _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params, n_thr
     """A tiled run's ``stats``, as :func:`pssd_fast.denoise` gives them, with ``"tiles"``."""
     return {
         "method": "robust", "n_points": n, "k": k, "lam": None, "preset": preset,
-        "pipeline": "aware", "auto_k": scale, "noise": scale["noise"],
+        "pipeline": "aware", "auto_k": scale, "noise": scale["noise"], "scales": None,
         "rebuild_graph": bool(rebuild_graph),
         "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
         "outliers": None, "n_iterations": iterations, "params": params, "n_jobs": n_threads,
@@ -422,7 +438,7 @@ def _file_step(own_path, sources, region, first, given, centroid, n, k, sigma_n,
     found = halo.step(np.ascontiguousarray(points["xyz"]),
                       None if first and not given else np.ascontiguousarray(points["nrm"]),
                       first and given, centroid, own.shape[0], n, k, sigma_n, region, radius,
-                      n_jobs)
+                      None, n_jobs)
     if found is None:
         return None
     moved, normals = found.pop("moved"), found.pop("normals")

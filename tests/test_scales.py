@@ -147,11 +147,14 @@ def test_the_iteration_fit_matches_the_reference(cloud):
     lengths = scales.lengths(k, points.shape[0])
     lists = knn_graph(points, int(lengths[-1]), False)
     walk = scales.ScalePlan(lengths, 1, 2e-5)
-    height, rms, degree, kept = scales.fit(points, filtered, graph, lists, 0.05, walk)
+    height, rms, degree, pick_got, flat_got = scales.fit(points, filtered, graph, lists, 0.05,
+                                                          walk)
+    kept = scales.kept_counts(lengths, pick_got, flat_got)
     want_height, want_rms, pick, flat, walked = reference.scale_iteration_fit(
         points, filtered, _lists(graph), _lists(lists), lengths, 1, 2e-5)
     np.testing.assert_allclose(height, want_height, rtol=1e-6, atol=1e-9)
     np.testing.assert_allclose(rms, want_rms, rtol=1e-6, atol=1e-9)
+    np.testing.assert_array_equal(pick_got, np.where(walked, pick, -1))
     assert kept["kept"] == np.bincount(pick[walked], minlength=len(lengths)).tolist()
     assert kept["flat"] == int(flat[walked].sum())
     np.testing.assert_array_equal(degree[walked], np.where(flat, 3, 6)[walked])

@@ -138,6 +138,34 @@ def test_halos_too_thin_are_widened_until_exact(sparse, sparse_in_core, monkeypa
     _assert_same(got, sparse_in_core)
 
 
+def test_halos_cover_the_lists_of_selected_scales(monkeypatch):
+    """select_scales: the plan is made before the tiles and each task's halo covers the walks'
+    long lists (shortened here to 1.5 k, and the first width to a quarter list radius, so
+    that the tiles fail their checks, run again and stay cheap)."""
+    from pssd_fast import halo
+    from pssd_fast.pipelines import scales
+
+    monkeypatch.setitem(scales.SCALES, "factors", (0.5, 1.0, 1.5))
+    monkeypatch.setattr(halo, "FIRST_WIDTH", 0.25)
+    points = datasets.cad_part(n_points=30_000, noise=0.002, seed=3).points
+    expected = pssd_fast.denoise(points, select_scales=True, iterations=2)
+    seen = []
+    got = tiled.denoise(points, tile_points=4_000, select_scales=True, iterations=2,
+                        client="sync", progress=lambda *a: seen.append(a[2]))
+    assert got.stats["tiles"]["route"] == "halo"
+    assert sum(s.startswith("tile_step") for s in seen) > 2 * 2 * got.stats["tiles"]["count"]
+    _assert_same(got, expected)
+    assert [r["scales"] for r in got.stats["iterations"]] == \
+        [r["scales"] for r in expected.stats["iterations"]]
+    assert {**got.stats["scales"], "seconds": 0} == {**expected.stats["scales"], "seconds": 0}
+    assert got.stats["params"]["select_scales"] is expected.stats["params"]["select_scales"]
+
+
+def test_select_scales_must_be_a_bool(sparse):
+    with pytest.raises(TypeError, match="select_scales must be True or False"):
+        tiled.denoise(sparse, select_scales="yes")
+
+
 def test_halos_take_given_normals():
     cloud = datasets.cad_part(n_points=30_000, noise=0.002, seed=6)
     expected = pssd_fast.denoise(cloud.points, -cloud.normals)

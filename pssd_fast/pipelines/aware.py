@@ -39,9 +39,9 @@ def step(points, nrm, graph, lam, params, clock, last=True, mass=None):
     iteration still computes both (from the fit's RMS residual, and by the paper's voting at
     the paper's constants) so that every preset returns them.
     """
+    walk = params.get("scale_plan")
     moved, filtered, rms, degree, held, kept = fit_and_move(
-        points, nrm, graph, params["sigma_n"], clock, mass, params.get("scale_plan"),
-        params.get("scale_lists"))
+        points, nrm, graph, params["sigma_n"], clock, mass, walk, params.get("scale_lists"))
     extra = None
     if last:
         lik, _ = clock.run("likelihood", core.sampling_likelihood, rms, "exp")
@@ -51,7 +51,7 @@ def step(points, nrm, graph, lam, params, clock, last=True, mass=None):
     record = step_record(clock.times, held.sum(), rms.sum(), rms.shape[0],
                          np.bincount(degree, minlength=7))
     if kept is not None:
-        record["scales"] = kept
+        record["scales"] = scales.kept_counts(walk.lengths, *kept)
     return moved, filtered, extra, record
 
 
@@ -59,7 +59,8 @@ def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None, walk=None, lists
     """The move of :func:`step`: the moved points, the filtered normals, the fit's RMS
     residual and degree, the points held in place (their step was not finite) and, with a
     ``walk`` (the iteration's :class:`~pssd_fast.pipelines.scales.ScalePlan`, and ``lists``
-    of its longest length), what the walks kept (else None)."""
+    of its longest length), what the walks kept: each point's column and whether it took the
+    plane (:func:`~pssd_fast.pipelines.scales.fit`; else None)."""
     filtered = clock.run("filter", core.filter_normals, points, nrm, graph)
     kept = None
     if walk is None:
@@ -68,8 +69,8 @@ def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None, walk=None, lists
         height, rms, degree = clock.run("mls", core.aware_fit, points, filtered, graph, sigma_n,
                                         mass, mass is None)
     else:
-        height, rms, degree, kept = clock.run("mls", scales.fit, points, filtered, graph, lists,
-                                              sigma_n, walk)
+        height, rms, degree, *kept = clock.run("mls", scales.fit, points, filtered, graph,
+                                               lists, sigma_n, walk)
     moved, held = clock.run("update", core.project, points, filtered, height)
     return moved, filtered, rms, degree, held, kept
 

@@ -99,10 +99,10 @@ def fit(points, filtered, graph, lists, sigma_n, walk):
     """The heights of the walked fits, as :func:`pssd_fast.core.aware_fit` gives its own.
 
     ``graph``: the pipeline's lists of ``k``; ``lists``: the longest prefix's; ``walk``: the
-    :class:`ScalePlan` of the iteration (:meth:`ScalePlan.at`). Where a walked
-    fit is not finite, the default fit at ``k`` (with its robust alternative) stands. Returns
-    the height, the RMS residual, the degree (6, or 3 where the plane was taken) and what the
-    walks kept (``{"lengths", "kept", "flat"}``, for ``stats``).
+    :class:`ScalePlan` of the iteration (:meth:`ScalePlan.at`). Where a walked fit is not
+    finite, the default fit at ``k`` (with its robust alternative) stands. Returns the height,
+    the RMS residual, the degree (6, or 3 where the plane was taken) and what the walks kept:
+    each point's column (-1 where the fit at ``k`` stood) and whether it took the plane.
     """
     k = graph.indices.shape[0] // points.shape[0]
     default, default_rms, degree, coef, across = core.robust_fits(points, filtered, graph,
@@ -112,7 +112,12 @@ def fit(points, filtered, graph, lists, sigma_n, walk):
                                                default_rms)
     walked = np.isfinite(fits.quad[np.arange(points.shape[0]), pick])
     degree = np.where(walked, np.where(flat, 3, 6), degree).astype(np.int8)
-    record = {"lengths": walk.lengths.tolist(),
-              "kept": np.bincount(pick[walked], minlength=len(walk.lengths)).tolist(),
-              "flat": int(flat[walked].sum())}
-    return height, rms, degree, record
+    return height, rms, degree, np.where(walked, pick, -1), flat & walked
+
+
+def kept_counts(lengths, pick, flat):
+    """An iteration's record of the walks for ``stats``: the ``lengths``, how many points
+    kept each (``pick``, -1 for none) and how many took the plane (``flat``)."""
+    return {"lengths": lengths.tolist(),
+            "kept": np.bincount(pick[pick >= 0], minlength=len(lengths)).tolist(),
+            "flat": int(flat.sum())}
