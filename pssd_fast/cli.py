@@ -434,7 +434,8 @@ def _check_tiled(args, method_params, remove_outliers):
         ("--method", args.method != "robust"), ("--k", args.k is not None),
         ("--lam", args.lam is not None), ("--rebuild-graph", args.rebuild_graph is not None),
         ("--remove-outliers", remove_outliers),
-        *((_flag(dest), True) for dest in method_params if dest != "sigma_n"))
+        *((_flag(dest), True) for dest in method_params
+          if dest not in ("sigma_n", "select_scales")))
         if given]
     if args.preset == "paper":
         unused.append("--preset paper")

@@ -204,7 +204,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             ``rebuild_graph=False`` the lists are queried once and re-sorted later, 2 to 3
             times faster).
             ``stats["scales"]`` gives what the probe set, each iteration's record what the
-            walks kept. :func:`pssd_fast.tiled.denoise` takes it too.
+            walks kept. The tiled runs of :mod:`pssd_fast.tiled` take it too.
 
         ``h``, ``radius_factor``, ``delta``, ``alpha``, ``beta`` and ``likelihood`` shape the
         paper's pipeline only; the other presets refuse them (ValueError) rather than ignore

@@ -61,8 +61,8 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
         tiles.
     iterations, orient, sigma_n, select_scales, n_jobs, progress
         As in :func:`pssd_fast.denoise` (``select_scales`` on the points only, as there; the
-        plan of its walks is made from the whole cloud before the tiles, and each task's halo
-        covers the lists of ``4.5 k``); ``n_jobs`` threads run each task's kernels and
+        plan of its walks is made before the tiles, and each task's halo covers the lists of
+        ``4.5 k``); ``n_jobs`` threads run each task's kernels and
         ``progress`` also hears of each finished tile (stages ``tile_cells`` and
         ``tile_update``).
 
@@ -99,9 +99,7 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     current = np.empty_like(pts)
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
-    if not isinstance(select_scales, (bool, np.bool_)):
-        raise TypeError(f"select_scales must be True or False; got {select_scales!r}")
-    params = {**PARAMS, "sigma_n": sigma_n, "select_scales": bool(select_scales)}
+    params = {**PARAMS, "sigma_n": sigma_n, "select_scales": _check_select(select_scales)}
     with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
         k, scale, _ = aware.choose_k(current, given, *setting["probe"])
         found = sigma = None
@@ -113,14 +111,8 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
             _check_points_route(preset)
             spans = halo.tiles(n, tile_points)
             centroid = current.mean(axis=0)
-            plan = planned = None
-            reach = k
-            if select_scales:
-                planned = time.perf_counter()
-                plan = scales.plan(current, given, k, sigma_n, scale["probe_stride"],
-                                   PARAMS["shift_normals"])[0]
-                planned = time.perf_counter() - planned
-                reach = int(plan.lengths[-1])
+            plan, planned = _plan(select_scales, current, given, k, sigma_n, scale)
+            reach = k if plan is None else int(plan.lengths[-1])
             current, out_normals, extra, records = halo.iterate(
                 current, given, k, iterations, sigma_n, spans,
                 halo.first_width(scale["probe_radius"], scale["probe_k"], reach), runner, plan)
@@ -129,13 +121,10 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
                 halo.orient_pointwise(current, out_normals, _relative(orient, centre), centroid)
             tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
                      "scheduler": runner.name, "route": "halo"}
-            stats = _stats(n, k, preset, scale, True, orient, iterations, params, n_threads,
-                           records, tiled, started)
-            stats["scales"] = None if plan is None else {
-                "lengths": plan.lengths.tolist(), "first": plan.first,
-                "noise": float(np.sqrt(plan.noise2)), "seconds": planned}
             return result(pts, dtype, order, centre, current, out_normals, extra, np.arange(n),
-                          (pts.astype(dtype), n_jobs), stats)
+                          (pts.astype(dtype), n_jobs),
+                          _stats(n, k, preset, scale, True, orient, iterations, params,
+                                 n_threads, records, tiled, started, plan, planned))
         rows, starts, edge, k, rebuild_graph = found
         tiles = _tiles(starts, tile_points)
         parts = [rows[starts[c0]:starts[c1]] for c0, c1 in tiles]
@@ -173,11 +162,15 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
 
 
 def _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads, records,
-           tiled, started):
-    """A tiled run's ``stats``, as :func:`pssd_fast.denoise` gives them, with ``"tiles"``."""
+           tiled, started, plan=None, planned=None):
+    """A tiled run's ``stats``, as :func:`pssd_fast.denoise` gives them, with ``"tiles"``;
+    ``plan``: that of ``select_scales`` (made in ``planned`` seconds) or None."""
     return {
         "method": "robust", "n_points": n, "k": k, "lam": None, "preset": preset,
-        "pipeline": "aware", "auto_k": scale, "noise": scale["noise"], "scales": None,
+        "pipeline": "aware", "auto_k": scale, "noise": scale["noise"],
+        "scales": None if plan is None else {
+            "lengths": plan.lengths.tolist(), "first": plan.first,
+            "noise": float(np.sqrt(plan.noise2)), "seconds": planned},
         "rebuild_graph": bool(rebuild_graph),
         "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
         "outliers": None, "n_iterations": iterations, "params": params, "n_jobs": n_threads,
@@ -186,7 +179,8 @@ def _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params, n_thr
 
 
 def denoise_file(source, destination, *, tile_points=2_000_000, client=None, preset="default",
-                 iterations=None, orient=None, sigma_n=0.05, fields=ondisk.RESULT_FIELDS,
+                 iterations=None, orient=None, sigma_n=0.05, select_scales=False,
+                 fields=ondisk.RESULT_FIELDS,
                  n_jobs=None, progress=None, scratch=None, overwrite=False):
     """Denoise the points of an ``.npy``, Zarr or LAS/LAZ file into another, out of core, tile
     by tile on Dask.
@@ -212,7 +206,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         ``fields`` asked for (as ``pssd denoise --fields`` writes them: ``nx``, ``ny``, ``nz``
         for the normals, float32 extra bytes where new), every other record byte, the header,
         the VLRs and the EVLRs as read.
-    tile_points, client, preset, iterations, orient, sigma_n, n_jobs, progress
+    tile_points, client, preset, iterations, orient, sigma_n, select_scales, n_jobs, progress
         As in :func:`denoise`; progress also hears of the passes over the file (``buckets``,
         ``tiles``) and of the output (``write``).
     fields : sequence of str
@@ -246,6 +240,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
                          f"formats: pssd_fast.io.read, then denoise)")
     setting, tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
                                                           iterations, client)
+    select_scales = _check_select(select_scales)
     orient = None if orient is None else check_orient(orient)
     unknown = sorted(set(fields) - set(ondisk.RESULT_FIELDS))
     if unknown:
@@ -264,7 +259,8 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     # Beside the destination, so that the last rename stays on one file system.
     output = destination.with_name(f".{destination.stem}.{os.getpid()}.partial"
                                    f"{destination.suffix}")
-    params = {**PARAMS, "sigma_n": sigma_n}
+    params = {**PARAMS, "sigma_n": sigma_n, "select_scales": select_scales}
+    plan = planned = None
     try:
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
             first = Clock(report, 0, iterations)
@@ -284,10 +280,12 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
                 _check_points_route(preset)
                 rebuild_graph = True
                 spans = halo.tiles(n, tile_points)
+                plan, planned = _plan(select_scales, cloud, given, k, sigma_n, scale)
+                reach = k if plan is None else int(plan.lengths[-1])
                 parts, records = _file_points(cloud, spans, folder, runner, first, k,
                                               iterations, sigma_n, halo.first_width(
-                                                  scale["probe_radius"], scale["probe_k"], k),
-                                              orient)
+                                                  scale["probe_radius"], scale["probe_k"],
+                                                  reach), orient, plan)
                 tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
                          "route": "halo"}
             else:
@@ -306,7 +304,25 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
             shutil.rmtree(output, ignore_errors=True)
         output.unlink(missing_ok=True)
     return _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads,
-                  records, tiled, started)
+                  records, tiled, started, plan, planned)
+
+
+def _check_select(select_scales):
+    """``select_scales``, checked."""
+    if not isinstance(select_scales, (bool, np.bool_)):
+        raise TypeError(f"select_scales must be True or False; got {select_scales!r}")
+    return bool(select_scales)
+
+
+def _plan(select_scales, points, given, k, sigma_n, scale):
+    """The plan of ``select_scales`` (made from every ``probe_stride``-th point, as in core)
+    and the seconds it took; None and None without it."""
+    if not select_scales:
+        return None, None
+    started = time.perf_counter()
+    plan = scales.plan(points, given, k, sigma_n, scale["probe_stride"],
+                       PARAMS["shift_normals"])[0]
+    return plan, time.perf_counter() - started
 
 
 def _file_cells(cloud, found, folder, runner, first, report, k, iterations, sigma_n,
@@ -344,10 +360,11 @@ def _file_cells(cloud, found, folder, runner, first, report, k, iterations, sigm
     return parts, records, k, rebuild_graph, tiled
 
 
-def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, width, orient):
+def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, width, orient,
+                 plan):
     """The iterations of :func:`denoise_file` on the points, tiles with halos
-    (:mod:`pssd_fast.halo`), each tile's points in a state file between iterations: the part
-    files and the iterations' records."""
+    (:mod:`pssd_fast.halo`), each tile's points in a state file between iterations (``plan``:
+    that of ``select_scales`` or None): the part files and the iterations' records."""
     n = cloud.shape[0]
     paths = [folder / f"state_0_{i}.bin" for i in range(len(spans))]
     pieces, total = first.run("tiles", cloud.states, paths, spans)
@@ -375,8 +392,9 @@ def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, wi
                 ondisk.ranked(nearest, spans, np.dtype(np.float64)), n))
         out = halo.each_tile(runner, "tile_step", t, iterations, _file_step, widths,
                              lambda i, width: (paths[i], *sources(i, width), t == 0, given,
-                                               centroid, n, k, sigma_n, radius, outputs[i],
-                                               cloud.centre))
+                                               centroid, n, k, sigma_n, radius,
+                                               None if plan is None else plan.at(t),
+                                               outputs[i], cloud.centre))
         pieces = [o.pop("boxes") for o in out]
         records.append(halo.record(out, n, widths, started))
         paths = outputs
@@ -426,8 +444,8 @@ def _file_spacing(own_path, sources, region, n, k, output, n_jobs):
     return True
 
 
-def _file_step(own_path, sources, region, first, given, centroid, n, k, sigma_n, radius, output,
-               centre, n_jobs):
+def _file_step(own_path, sources, region, first, given, centroid, n, k, sigma_n, radius, walk,
+               output, centre, n_jobs):
     """:func:`pssd_fast.halo.step` of a tile in its state file; the moved points saved to
     ``output``, a state file, or on the last iteration (``radius`` given) a part file whose
     likelihood column holds the residual for now. Returns the step's counts and the
@@ -438,7 +456,7 @@ def _file_step(own_path, sources, region, first, given, centroid, n, k, sigma_n,
     found = halo.step(np.ascontiguousarray(points["xyz"]),
                       None if first and not given else np.ascontiguousarray(points["nrm"]),
                       first and given, centroid, own.shape[0], n, k, sigma_n, region, radius,
-                      None, n_jobs)
+                      walk, n_jobs)
     if found is None:
         return None
     moved, normals = found.pop("moved"), found.pop("normals")

@@ -671,7 +671,6 @@ def test_tile_points_read_and_write_zarr(tmp_path):
     (("--remove-outliers",), "does not take --remove-outliers"),
     (("--keep-normals",), "does not take --keep-normals"),
     (("--no-shift-normals",), "does not take --no-shift-normals"),
-    (("--select-scales",), "does not take --select-scales"),
 ])
 def test_tile_points_name_what_they_do_not_take(tmp_path, small, extra, match):
     path = tmp_path / "small.xyz"
@@ -679,6 +678,18 @@ def test_tile_points_name_what_they_do_not_take(tmp_path, small, extra, match):
     status, _, err = pssd("denoise", path, tmp_path / "out.xyz", "--tile-points", "1000",
                           *extra)
     assert status == 1 and match in err
+
+
+def test_tile_points_take_select_scales(tmp_path, small):
+    source, out = tmp_path / "small.npy", tmp_path / "out.npy"
+    np.save(source, small)
+    status, _, err = pssd("denoise", source, out, "--tile-points", "300", "--select-scales",
+                          "--iterations", "1", "--scheduler", "sync")
+    assert status == 0, err
+    expected = pssd_fast.denoise(small, select_scales=True, iterations=1)
+    np.testing.assert_array_equal(np.load(out), expected.points)
+    plain = pssd_fast.denoise(small, iterations=1)
+    assert np.abs(plain.points - expected.points).max() > 0
 
 
 def test_scheduler_needs_tile_points(tmp_path, small):

@@ -138,32 +138,51 @@ def test_halos_too_thin_are_widened_until_exact(sparse, sparse_in_core, monkeypa
     _assert_same(got, sparse_in_core)
 
 
-def test_halos_cover_the_lists_of_selected_scales(monkeypatch):
-    """select_scales: the plan is made before the tiles and each task's halo covers the walks'
-    long lists (shortened here to 1.5 k, and the first width to a quarter list radius, so
-    that the tiles fail their checks, run again and stay cheap)."""
+@pytest.fixture
+def short_scales(monkeypatch):
+    """The walks' long lists shortened to 1.5 k, and the first halo width to a quarter list
+    radius, so that the tiles fail their checks, run again, and stay cheap."""
     from pssd_fast import halo
     from pssd_fast.pipelines import scales
 
     monkeypatch.setitem(scales.SCALES, "factors", (0.5, 1.0, 1.5))
     monkeypatch.setattr(halo, "FIRST_WIDTH", 0.25)
     points = datasets.cad_part(n_points=30_000, noise=0.002, seed=3).points
-    expected = pssd_fast.denoise(points, select_scales=True, iterations=2)
+    return points, pssd_fast.denoise(points, select_scales=True, iterations=2)
+
+
+def _same_walks(stats, expected):
+    assert [r["scales"] for r in stats["iterations"]] == \
+        [r["scales"] for r in expected.stats["iterations"]]
+    assert {**stats["scales"], "seconds": 0} == {**expected.stats["scales"], "seconds": 0}
+    assert stats["params"]["select_scales"] is True
+
+
+def test_halos_cover_the_lists_of_selected_scales(short_scales):
+    """select_scales: the plan is made before the tiles and each task's halo covers the walks'
+    long lists."""
+    points, expected = short_scales
     seen = []
     got = tiled.denoise(points, tile_points=4_000, select_scales=True, iterations=2,
                         client="sync", progress=lambda *a: seen.append(a[2]))
     assert got.stats["tiles"]["route"] == "halo"
     assert sum(s.startswith("tile_step") for s in seen) > 2 * 2 * got.stats["tiles"]["count"]
     _assert_same(got, expected)
-    assert [r["scales"] for r in got.stats["iterations"]] == \
-        [r["scales"] for r in expected.stats["iterations"]]
-    assert {**got.stats["scales"], "seconds": 0} == {**expected.stats["scales"], "seconds": 0}
-    assert got.stats["params"]["select_scales"] is expected.stats["params"]["select_scales"]
+    _same_walks(got.stats, expected)
 
 
-def test_select_scales_must_be_a_bool(sparse):
-    with pytest.raises(TypeError, match="select_scales must be True or False"):
-        tiled.denoise(sparse, select_scales="yes")
+@pytest.mark.usefixtures("small_chunks")
+def test_a_file_tiled_out_of_core_selects_scales_as_in_core(tmp_path, short_scales):
+    points, expected = short_scales
+    source, out = tmp_path / "in.npy", tmp_path / "out.npy"
+    np.save(source, points)
+    stats = tiled.denoise_file(source, out, tile_points=4_000, select_scales=True,
+                               iterations=2, client="sync")
+    assert stats["tiles"]["route"] == "halo"
+    np.testing.assert_array_equal(np.load(out), expected.points)
+    _same_walks(stats, expected)
+
+
 
 
 def test_halos_take_given_normals():
@@ -204,6 +223,7 @@ def test_the_mean_read_by_ranges_is_numpys(n, block):
     ({"client": 3}, TypeError, "client"),
     ({"preset": "paper"}, ValueError, "preset"),
     ({"sigma_n": -1.0}, ValueError, "sigma_n"),
+    ({"select_scales": "yes"}, TypeError, "select_scales must be True or False"),
 ])
 def test_bad_arguments_are_named(kwargs, error, match):
     with pytest.raises(error, match=match):
@@ -405,6 +425,7 @@ def test_an_existing_output_is_kept_unless_overwritten(tmp_path):
     ({"client": 3}, TypeError, "client"),
     ({"preset": "paper"}, ValueError, "preset"),
     ({"iterations": 0}, ValueError, "iterations"),
+    ({"select_scales": 1}, TypeError, "select_scales must be True or False"),
 ])
 def test_bad_file_arguments_are_named(tmp_path, kwargs, error, match):
     np.save(tmp_path / "in.npy", np.zeros((50, 3)))
