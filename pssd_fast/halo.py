@@ -154,8 +154,8 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
         None when the halo is too thin. Else, for the own points: ``moved``, ``normals`` (the
         filtered ones), ``rms``, ``feature`` (None but on the last iteration); and the counts
         of the iteration's record: ``held``, ``rms_sum``, ``degree`` counts, ``degenerate``,
-        ``step_sum``, and with a ``walk`` the points that kept each length (``kept``) and
-        took the plane (``flat``).
+        ``step_sum``, and ``scales``: with a ``walk``, how many own points kept each length
+        and took the plane (:func:`pssd_fast.pipelines.scales.kept_counts`), else None.
     """
     region = None if points.shape[0] == n else region
     longest = k if walk is None else int(walk.lengths[-1])
@@ -246,8 +246,9 @@ def iterate(current, given, k, iterations, sigma_n, spans, width, runner, scale_
     """The ``iterations`` of the feature-aware pipeline on ``current`` (Morton order), tile by
     tile over the rank ranges ``spans``, each iteration's tiles run by ``runner`` (see
     :class:`pssd_fast.tiled._Runner`); ``given``: the caller's normals or None, ``width``: the
-    first halo width, ``scale_plan``: the plan of ``select_scales`` or None. As :func:`pssd_fast.denoise.iterate` returns them: the moved points,
-    the last normals, ``(likelihood, feature intensity)`` and one record per iteration."""
+    first halo width, ``scale_plan``: the plan of ``select_scales`` or None. As
+    :func:`pssd_fast.denoise.iterate` returns them: the moved points, the last normals,
+    ``(likelihood, feature intensity)`` and one record per iteration."""
     n = current.shape[0]
     widths = [width] * len(spans)
     normals = given
