@@ -75,9 +75,9 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     Raises
     ------
     ValueError
-        Where the in-core run would not take the coarse-to-fine route (the noise is small
-        against the point spacing, see docs/ALGORITHM.md): such a cloud is iterated on its
-        points, which does not tile without halos; ``pssd_fast.denoise`` runs it.
+        Preset "fast" on a cloud it would iterate on its points (the noise small against the
+        point spacing): it keeps its first lists through the iterations, which a tile's task
+        of one iteration cannot.
     ImportError
         Without Dask.
     """
