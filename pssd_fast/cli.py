@@ -137,10 +137,10 @@ def _parser():
     den.add_argument("--no-shift-normals", dest="shift_normals", action="store_false",
                      help="first iteration of presets default and fast: keep each point's own "
                           "PCA normal instead of the flattest nearby list's")
-    den.add_argument("--select-scales", action="store_true",
+    den.add_argument("--select-scales", action=argparse.BooleanOptionalAction, default=None,
                      help="presets default and fast, on the points: a neighbourhood size per "
-                          "point, walked up to 4.5 k while the wider list still fits (sparse "
-                          "clouds; slower)")
+                          "point, walked up to 4.5 k while the wider list still fits (default: "
+                          "on for clouds of at most 50,000 points under preset default)")
     den.add_argument("--orient", type=_orientation, default=None, metavar="HOW",
                      help="sign of the estimated normals: outward, up, or a viewpoint X,Y,Z "
                           "(normals towards it), made consistent over the neighbour graph "
@@ -518,8 +518,8 @@ def _denoise(args):
         params["keep_normals"] = True
     if not args.shift_normals:
         params["shift_normals"] = False
-    if args.select_scales:
-        params["select_scales"] = True
+    if args.select_scales is not None:
+        params["select_scales"] = args.select_scales
     jobs = _jobs(args)
     # Data on stdout: every message goes to stderr.
     say = sys.stderr if any(_is_stdio(out) for _, out in jobs) else sys.stdout

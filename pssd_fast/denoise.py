@@ -20,7 +20,7 @@ from .progress import Clock, reporter
 #: Parameters of each method beyond the common ones, with their defaults.
 METHOD_DEFAULTS = {
     "robust": {"h": None, **core.FEATURE_DEFAULTS, "likelihood": "exp", "sigma_n": 0.05,
-               "shift_normals": True, "select_scales": False, "keep_normals": False},
+               "shift_normals": True, "select_scales": None, "keep_normals": False},
     "bilateral": {"sigma_c": None, "sigma_s": None, "keep_normals": False},
     "mls": {"h": None, "keep_normals": False},
 }
@@ -40,11 +40,12 @@ AWARE_ONLY = ("sigma_n", "shift_normals", "select_scales")
 #: formulation.
 PRESETS = {
     "default": {"pipeline": "aware", "k": None, "lam": None, "iterations": 4,
-                "rebuild_graph": True, "probe": (100_000, 96)},
+                "rebuild_graph": True, "probe": (100_000, 96), "scales_up_to": 50_000},
     "fast": {"pipeline": "aware", "k": None, "lam": None, "iterations": 2,
-             "rebuild_graph": False, "probe": (5_000, 32), "without_cells_k": 48},
+             "rebuild_graph": False, "probe": (5_000, 32), "without_cells_k": 48,
+             "scales_up_to": 0},
     "paper": {"pipeline": "paper", "k": 25, "lam": 0.5, "iterations": 2, "rebuild_graph": True,
-              "probe": (100_000, 96)},
+              "probe": (100_000, 96), "scales_up_to": 0},
 }
 
 
@@ -193,18 +194,19 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             its nearest quarter of ``k``, whose plane passes near it, instead of its own list's:
             beside a sharp edge, a list that does not reach across it (docs/ALGORITHM.md,
             "Shifted normals"). No effect where ``normals`` are given.
-        select_scales : bool, default False
+        select_scales : bool or None, default None
             Feature-aware pipeline, on the points (not on the cell means of the
             coarse-to-fine route): each point fits nested quadratics over prefixes of a list
             of ``4.5 k`` and keeps the widest that still fits its neighbours within the noise,
-            instead of the fit at ``k`` (docs/ALGORITHM.md, "A scale per point"). Wins most
-            of the sparse clouds the default loses to CGAL (10,000 to 30,000 points; README,
-            "Sparse clouds"); costs a kNN query and a fit over lists of ``4.5 k`` an iteration
-            (5 to 9 times the default's time at 30,000 to 100,000 points; with
-            ``rebuild_graph=False`` the lists are queried once and re-sorted later, 2 to 3
-            times faster).
-            ``stats["scales"]`` gives what the probe set, each iteration's record what the
-            walks kept. The tiled runs of :mod:`pssd_fast.tiled` take it too.
+            instead of the fit at ``k`` (docs/ALGORITHM.md, "A scale per point"). ``None``:
+            on where preset "default" iterates on the points of a cloud of at most 50,000
+            points (after ``remove_outliers``), where it wins the sparse clouds the fit at
+            ``k`` loses to CGAL (README, "Sparse clouds"); off otherwise. It costs a kNN query
+            and a fit over lists of ``4.5 k`` an iteration (about 9 times the fit at ``k`` at
+            30,000 points; with ``rebuild_graph=False`` the lists are queried once and
+            re-sorted later, 2 to 3 times faster). ``stats["params"]["select_scales"]`` says
+            whether a run took it, ``stats["scales"]`` what the probe set, each iteration's
+            record what the walks kept. The tiled runs of :mod:`pssd_fast.tiled` take it too.
 
         ``h``, ``radius_factor``, ``delta``, ``alpha``, ``beta`` and ``likelihood`` shape the
         paper's pipeline only; the other presets refuse them (ValueError) rather than ignore
@@ -347,6 +349,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         if rebuild_graph is None:
             rebuild_graph = setting["rebuild_graph"] if cells is None else cells.rebuild_graph
         scale_plan = None
+        if "select_scales" in params:
+            params["select_scales"] = scales.resolve(params["select_scales"],
+                                                     setting["scales_up_to"], n, cells is None)
         if params.get("select_scales") and cells is None:
             stride = scale["probe_stride"] if auto else -(-n // setting["probe"][0])
             # Its lists (at stride 1, the first iteration's) replace the probe of k's.
@@ -522,11 +527,13 @@ def _method_params(method, method_params):
             params[name] = check_float(params[name], name, positive=True)
     if "likelihood" in params:
         check_choice(params["likelihood"], "likelihood", tuple(core.LIKELIHOOD_FORMS))
-    for name in ("keep_normals", "shift_normals", "select_scales"):
+    for name in ("keep_normals", "shift_normals"):
         if name in params:
             if not isinstance(params[name], (bool, np.bool_)):
                 raise TypeError(f"{name} must be True or False; got {params[name]!r}")
             params[name] = bool(params[name])
+    if "select_scales" in params:
+        params["select_scales"] = scales.check(params["select_scales"])
     return params
 
 

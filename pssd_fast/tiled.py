@@ -36,12 +36,13 @@ from .progress import Clock, reporter
 LOCAL_SCHEDULERS = ("threads", "processes", "sync")
 #: What :func:`denoise_file` reads and writes, by extension.
 FILE_KINDS = {".npy": "npy", ".zarr": "zarr", ".las": "las", ".laz": "las"}
-#: The feature-aware pipeline's parameters other than ``sigma_n``, at their defaults.
-PARAMS = {"keep_normals": False, "shift_normals": True, "select_scales": False}
+#: The feature-aware pipeline's parameters other than ``sigma_n`` and ``select_scales``, at
+#: their defaults.
+PARAMS = {"keep_normals": False, "shift_normals": True}
 
 
 def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset="default",
-            iterations=None, orient=None, sigma_n=0.05, select_scales=False, n_jobs=None,
+            iterations=None, orient=None, sigma_n=0.05, select_scales=None, n_jobs=None,
             progress=None):
     """Denoise ``points`` tile by tile on Dask; the result of :func:`pssd_fast.denoise`.
 
@@ -99,7 +100,8 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     current = np.empty_like(pts)
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
-    params = {**PARAMS, "sigma_n": sigma_n, "select_scales": _check_select(select_scales)}
+    select_scales = scales.check(select_scales)
+    params = {**PARAMS, "sigma_n": sigma_n}
     with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
         k, scale, _ = aware.choose_k(current, given, *setting["probe"])
         found = sigma = None
@@ -107,11 +109,13 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
             sigma = aware.noise_sigma(current, given, scale)
             found = coarse.layout(current, sigma, preset)
         scale["coarse"] = None
+        params["select_scales"] = scales.resolve(select_scales, setting["scales_up_to"], n,
+                                                 found is None)
         if found is None:
             _check_points_route(preset)
             spans = halo.tiles(n, tile_points)
             centroid = current.mean(axis=0)
-            plan, planned = _plan(select_scales, current, given, k, sigma_n, scale)
+            plan, planned = _plan(params["select_scales"], current, given, k, sigma_n, scale)
             reach = k if plan is None else int(plan.lengths[-1])
             current, out_normals, extra, records = halo.iterate(
                 current, given, k, iterations, sigma_n, spans,
@@ -179,7 +183,7 @@ def _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params, n_thr
 
 
 def denoise_file(source, destination, *, tile_points=2_000_000, client=None, preset="default",
-                 iterations=None, orient=None, sigma_n=0.05, select_scales=False,
+                 iterations=None, orient=None, sigma_n=0.05, select_scales=None,
                  fields=ondisk.RESULT_FIELDS,
                  n_jobs=None, progress=None, scratch=None, overwrite=False):
     """Denoise the points of an ``.npy``, Zarr or LAS/LAZ file into another, out of core, tile
@@ -240,7 +244,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
                          f"formats: pssd_fast.io.read, then denoise)")
     setting, tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
                                                           iterations, client)
-    select_scales = _check_select(select_scales)
+    select_scales = scales.check(select_scales)
     orient = None if orient is None else check_orient(orient)
     unknown = sorted(set(fields) - set(ondisk.RESULT_FIELDS))
     if unknown:
@@ -259,7 +263,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     # Beside the destination, so that the last rename stays on one file system.
     output = destination.with_name(f".{destination.stem}.{os.getpid()}.partial"
                                    f"{destination.suffix}")
-    params = {**PARAMS, "sigma_n": sigma_n, "select_scales": select_scales}
+    params = {**PARAMS, "sigma_n": sigma_n}
     plan = planned = None
     try:
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
@@ -276,11 +280,13 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
                 sigma = aware.noise_sigma(cloud, given, scale)
                 found = cloud.layout(sigma, preset)
             scale["coarse"] = None
+            params["select_scales"] = scales.resolve(select_scales, setting["scales_up_to"],
+                                                     n, found is None)
             if found is None:
                 _check_points_route(preset)
                 rebuild_graph = True
                 spans = halo.tiles(n, tile_points)
-                plan, planned = _plan(select_scales, cloud, given, k, sigma_n, scale)
+                plan, planned = _plan(params["select_scales"], cloud, given, k, sigma_n, scale)
                 reach = k if plan is None else int(plan.lengths[-1])
                 parts, records = _file_points(cloud, spans, folder, runner, first, k,
                                               iterations, sigma_n, halo.first_width(
@@ -305,13 +311,6 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         output.unlink(missing_ok=True)
     return _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads,
                   records, tiled, started, plan, planned)
-
-
-def _check_select(select_scales):
-    """``select_scales``, checked."""
-    if not isinstance(select_scales, (bool, np.bool_)):
-        raise TypeError(f"select_scales must be True or False; got {select_scales!r}")
-    return bool(select_scales)
 
 
 def _plan(select_scales, points, given, k, sigma_n, scale):

@@ -57,6 +57,7 @@ def test_help_is_complete():
     assert status == 0
     for option in ["--method", "--iterations", "--preset", "--k", "--lam", "--n-jobs", "--threads",
                    "--keep-normals", "--no-shift-normals", "--select-scales",
+                   "--no-select-scales",
                    "--rebuild-graph",
                    "--no-rebuild-graph",
                    "--force", "--quiet", "--verbose"] + [
@@ -72,7 +73,7 @@ def test_denoise_ply_keeps_every_other_attribute(tmp_path, ply_with_extras):
     out = tmp_path / "clean.ply"
     status, stdout, err = pssd("denoise", path, out, "--iterations", "1", "--verbose")
     assert status == 0, err
-    assert "iteration 1: neighbors" in stdout
+    assert "iteration 1: normals" in stdout
     xyz = np.column_stack([vertex[a] for a in "xyz"]).astype(np.float64)
     probe = pssd_fast.denoise(xyz, iterations=1).stats["auto_k"]
     assert (f"k = {probe['k']} chosen from the estimated noise {probe['noise']:.4g} (probe: 96 "
@@ -164,7 +165,7 @@ def test_render_computes_the_fields_pssd_denoise_stores(tmp_path, ply_with_extra
                                 progress=lambda i, n, stage, s: stages.append((i, n, stage)))
         np.testing.assert_array_equal(computed, field_values(name, out.points, out.normals,
                                                              out.fields))
-        assert (2, 2, "feature") in stages and (1, 2, "neighbors") in stages  # progress
+        assert (2, 2, "feature") in stages and (1, 2, "normals") in stages  # progress
     # Curvature is one measure of the drawn points, whatever else the file holds.
     np.testing.assert_array_equal(field_values("curvature", raw.points, stored=out.fields),
                                   field_values("curvature", raw.points))
@@ -330,15 +331,16 @@ def test_shifted_normals_reach_the_library(tmp_path, cloud, flags, shift):
     assert np.abs(other.points - expected.points).max() > 0  # the flag changes the result
 
 
-def test_selected_scales_reach_the_library(tmp_path, cloud):
+@pytest.mark.parametrize("flag, select", [("--select-scales", True),
+                                          ("--no-select-scales", False)])
+def test_selected_scales_reach_the_library(tmp_path, cloud, flag, select):
     source, out = tmp_path / "in.npy", tmp_path / "out.npz"
     np.save(source, cloud.points)
-    status = cli.main(["denoise", str(source), str(out), "--iterations", "1",
-                       "--select-scales", "--quiet"])
+    status = cli.main(["denoise", str(source), str(out), "--iterations", "1", flag, "--quiet"])
     assert status == 0
-    expected = pssd_fast.denoise(cloud.points, iterations=1, select_scales=True)
+    expected = pssd_fast.denoise(cloud.points, iterations=1, select_scales=select)
     np.testing.assert_array_equal(np.load(out)["points"], expected.points)
-    other = pssd_fast.denoise(cloud.points, iterations=1)
+    other = pssd_fast.denoise(cloud.points, iterations=1, select_scales=not select)
     assert np.abs(other.points - expected.points).max() > 0  # the flag changes the result
 
 

@@ -6,6 +6,7 @@ import pytest
 import pssd_fast
 from benchmarks import sheets
 from pssd_fast import core, datasets, kernels
+from pssd_fast.denoise import PRESETS
 from pssd_fast.graph import knn_graph
 from pssd_fast.kernels.linalg import orthonormal_basis
 from pssd_fast.pipelines import scales
@@ -218,9 +219,36 @@ def selected(sphere):
     return pssd_fast.denoise(sphere.points, select_scales=True)
 
 
-def test_selected_scales_denoise_a_sparse_sphere_below_the_default(sphere, selected):
-    plain = sphere.surface_distance(pssd_fast.denoise(sphere.points).points).mean()
-    assert sphere.surface_distance(selected.points).mean() < 0.9 * plain
+def test_selected_scales_denoise_a_sparse_sphere_below_the_fit_at_k(sphere, selected):
+    plain = pssd_fast.denoise(sphere.points, select_scales=False)
+    assert plain.stats["params"]["select_scales"] is False and plain.stats["scales"] is None
+    errors = [sphere.surface_distance(r.points).mean() for r in (selected, plain)]
+    assert errors[0] < 0.9 * errors[1]
+
+
+def test_the_default_selects_scales_on_a_small_cloud(sphere, selected):
+    out = pssd_fast.denoise(sphere.points)
+    assert out.stats["params"]["select_scales"] is True
+    np.testing.assert_array_equal(out.points, selected.points)
+    np.testing.assert_array_equal(out.normals, selected.normals)
+
+
+def test_the_default_fits_at_k_above_its_limit(sphere, monkeypatch):
+    points = np.array(sphere.points)[:1500]
+    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 1499)
+    out = pssd_fast.denoise(points, iterations=1)
+    assert out.stats["params"]["select_scales"] is False and out.stats["scales"] is None
+    np.testing.assert_array_equal(
+        out.points, pssd_fast.denoise(points, iterations=1, select_scales=False).points)
+    # At the limit, on.
+    assert pssd_fast.denoise(points[:1499], iterations=1).stats["scales"] is not None
+
+
+@pytest.mark.parametrize("n, on_points, given, taken", [
+    (10, True, None, True), (11, True, None, False), (10, False, None, False),
+    (11, True, True, True), (10, True, False, False), (10, False, True, True)])
+def test_resolve(n, on_points, given, taken):
+    assert scales.resolve(given, 10, n, on_points) is taken
 
 
 def test_selected_scales_are_reported(selected):
@@ -271,10 +299,12 @@ def test_selected_scales_keep_two_close_sheets_apart():
 def test_the_coarse_route_does_not_select_scales(sphere):
     out = pssd_fast.denoise(sphere.points, preset="fast", select_scales=True)
     assert out.stats["auto_k"]["coarse"] is not None and out.stats["scales"] is None
+    auto = pssd_fast.denoise(sphere.points, preset="fast")
+    assert auto.stats["params"]["select_scales"] is False and auto.stats["scales"] is None
 
 
 @pytest.mark.parametrize("kwargs, error, message", [
-    ({"select_scales": "yes"}, TypeError, "select_scales must be True or False"),
+    ({"select_scales": "yes"}, TypeError, "select_scales must be True, False or None"),
     ({"select_scales": True, "preset": "paper"}, ValueError,
      "select_scales only applies to the feature-aware"),
 ])

@@ -4,6 +4,7 @@ import pytest
 
 import pssd_fast
 from pssd_fast import datasets, tiled
+from pssd_fast.denoise import PRESETS
 
 pytest.importorskip("dask")
 
@@ -32,6 +33,14 @@ def noisy():
 def in_core(noisy):
     return {preset: pssd_fast.denoise(noisy.points, preset=preset)
             for preset in ("default", "fast")}
+
+
+@pytest.fixture(autouse=True)
+def fit_at_k(monkeypatch):
+    """The default fits at ``k`` here, whatever the size, so that these tests of the tiles stay
+    cheap; the walks of ``select_scales`` tile in the tests that ask for them (and in
+    :func:`test_the_default_selects_scales_on_the_whole_cloud`)."""
+    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 0)
 
 
 def test_a_million_points_in_sixteen_tiles_give_the_in_core_result():
@@ -185,6 +194,19 @@ def test_a_file_tiled_out_of_core_selects_scales_as_in_core(tmp_path, short_scal
 
 
 
+def test_the_default_selects_scales_on_the_whole_cloud(short_scales, monkeypatch):
+    """The size that turns the walks on is the cloud's, not a tile's."""
+    points, expected = short_scales
+    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 30_000)
+    got = tiled.denoise(points, tile_points=4_000, iterations=2)
+    _assert_same(got, expected)
+    _same_walks(got.stats, expected)
+    # Each tile is below this limit, the cloud is not.
+    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 29_999)
+    off = tiled.denoise(points, tile_points=4_000, iterations=1)
+    assert off.stats["scales"] is None and off.stats["params"]["select_scales"] is False
+
+
 def test_halos_take_given_normals():
     cloud = datasets.cad_part(n_points=30_000, noise=0.002, seed=6)
     expected = pssd_fast.denoise(cloud.points, -cloud.normals)
@@ -223,7 +245,7 @@ def test_the_mean_read_by_ranges_is_numpys(n, block):
     ({"client": 3}, TypeError, "client"),
     ({"preset": "paper"}, ValueError, "preset"),
     ({"sigma_n": -1.0}, ValueError, "sigma_n"),
-    ({"select_scales": "yes"}, TypeError, "select_scales must be True or False"),
+    ({"select_scales": "yes"}, TypeError, "select_scales must be True, False or None"),
 ])
 def test_bad_arguments_are_named(kwargs, error, match):
     with pytest.raises(error, match=match):
@@ -425,7 +447,7 @@ def test_an_existing_output_is_kept_unless_overwritten(tmp_path):
     ({"client": 3}, TypeError, "client"),
     ({"preset": "paper"}, ValueError, "preset"),
     ({"iterations": 0}, ValueError, "iterations"),
-    ({"select_scales": 1}, TypeError, "select_scales must be True or False"),
+    ({"select_scales": 1}, TypeError, "select_scales must be True, False or None"),
 ])
 def test_bad_file_arguments_are_named(tmp_path, kwargs, error, match):
     np.save(tmp_path / "in.npy", np.zeros((50, 3)))

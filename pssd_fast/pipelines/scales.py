@@ -23,6 +23,25 @@ SCALES = {"factors": (0.25, 0.5, 1.0, 2.0, 3.0, 4.5), "smallest": 8,
           "tau_plane": 1.0}
 
 
+def check(select_scales):
+    """``select_scales`` as given: True, False or None (the preset decides, :func:`resolve`)."""
+    if select_scales is None:
+        return None
+    if not isinstance(select_scales, (bool, np.bool_)):
+        raise TypeError(f"select_scales must be True, False or None; got {select_scales!r}")
+    return bool(select_scales)
+
+
+def resolve(select_scales, up_to, n, on_points):
+    """Whether a run of ``n`` points selects scales: as given, or where ``select_scales`` is
+    None, on the points (``on_points``; not on cell means) of a cloud of at most ``up_to``
+    points (the preset's ``scales_up_to``; docs/DECISIONS.md, "A scale per point by
+    default")."""
+    if select_scales is None:
+        return bool(on_points and n <= up_to)
+    return select_scales
+
+
 class ScalePlan(NamedTuple):
     """What the walks of every iteration share: the prefix ``lengths``, the column the first
     iteration starts from and the noise variance it tests against."""
