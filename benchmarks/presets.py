@@ -6,6 +6,7 @@ Usage::
     python -m benchmarks.presets --sizes 100000 1000000 --presets default fast paper
     python -m benchmarks.presets --sizes 30000 100000 --noises 0.0025 0.005 0.01 \
         --presets fast jet --out fast_vs_jet
+    python -m benchmarks.presets --sizes 30000 100000 --presets at-k scales --out select_scales
 
 Each (size, noise, preset) cell runs in a fresh process: the child loads the generated CAD part
 from a ``.npy`` file, compiles on small clouds, denoises the whole cloud with the preset's own
@@ -13,12 +14,12 @@ iterations (``--paper-iterations`` for "paper", 1 by default: the issue's target
 iteration), reads its peak resident size, scores the result against the true surface and times
 pykdtree's k=25 query on the same points in Morton order, the reference of the ratio column.
 ``jet`` is CGAL's jet smoothing with k=48 and 2 passes (``pip install cgal``), the peer the
-``fast`` preset is measured against; ``scales`` is the preset "default" with
-``select_scales=True``. Clouds under 1,000,000 points are denoised and queried
-three times and the fastest of each kept (their times are a fraction of a second). Errors are in
-1e-4 of the bounding-box diagonal: the mean distance to the true surface over all points, and
-over the points within 1% of the diagonal of a sharp edge. Writes
-``benchmarks/results/presets.md`` and ``.json``.
+``fast`` preset is measured against; ``scales`` and ``at-k`` are the preset "default" with
+``select_scales=True`` and ``False`` (the default decides by the size). Clouds under 1,000,000
+points are denoised and queried three times and the fastest of each kept (their times are a
+fraction of a second). Errors are in 1e-4 of the bounding-box diagonal: the mean distance to
+the true surface over all points, and over the points within 1% of the diagonal of a sharp
+edge. Writes ``benchmarks/results/presets.md`` and ``.json``.
 """
 import argparse
 import json
@@ -41,7 +42,8 @@ UNIT = 1e-4
 #: The peer of the ``fast`` preset (issue 13): CGAL jet smoothing, k=48, 2 passes.
 JET = {"k": 48, "passes": 2}
 #: The pseudo-presets: the ``denoise`` parameters each stands for.
-VARIANTS = {"scales": {"preset": "default", "select_scales": True}}
+VARIANTS = {"scales": {"preset": "default", "select_scales": True},
+            "at-k": {"preset": "default", "select_scales": False}}
 #: Below this many points the runs and the reference query are repeated (best of three).
 REPEAT_BELOW = 1_000_000
 
@@ -130,8 +132,8 @@ def table(cells):
     for c in cells:
         coarse = c.get("coarse")
         grid = "–" if not coarse else f"{coarse['cells']:,} ({coarse['mean_points']:.1f})"
-        name = {"jet": "CGAL jet", "scales": "default, select_scales"}.get(c["preset"],
-                                                                           c["preset"])
+        name = {"jet": "CGAL jet", "scales": "default, select_scales",
+                "at-k": "default, fit at k"}.get(c["preset"], c["preset"])
         lines.append(f"| {c['points']:,} | {c['noise']:.2%} | {c['threads']} | {name} | {grid} | "
                      f"{c['k']} | "
                      f"{c['iterations']} | {c['mean_before']:.1f} / {c['edge_before']:.1f} | "

@@ -108,7 +108,8 @@ class ScaleMove:
         lists = knn_graph(points, int(scales[-1]), False)
         default, _, _, coef, across = core.robust_fits(points, filtered, graph, sigma_n)
         fits = core.scale_fits(points, filtered, lists, scales, sigma_n, k, coef, across)
-        quad, plane, rss, rss_plane, rss_cubic, weight, radius = fits
+        # The prototype keeps the flat heights (the library's tapered ones are left out).
+        quad, plane, rss, rss_plane, rss_cubic, weight, radius, _ = fits
         variance = fits.variance()
         at_k = min(int(np.searchsorted(scales, k)), len(scales) - 1)
         noise_at_k = np.sqrt(np.nanmedian(variance[:, at_k]))

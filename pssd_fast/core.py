@@ -200,8 +200,9 @@ def scale_fits(points, nrm, lists, scales, sigma_n, k, coef, across):
 
 class ScaleFits(NamedTuple):
     """Per point and scale (columns): the heights of the quadratic and the plane, the
-    residual sums of squares of the quadratic, the plane and the cubic, the summed weight, and
-    the prefix's radius (:func:`pssd_fast.kernels.scales.scale_fits`)."""
+    residual sums of squares of the quadratic, the plane and the cubic, the summed weight, the
+    prefix's radius and the height of the tapered quadratic
+    (:func:`pssd_fast.kernels.scales.scale_fits`)."""
 
     quad: np.ndarray
     plane: np.ndarray
@@ -210,6 +211,7 @@ class ScaleFits(NamedTuple):
     rss_cubic: np.ndarray
     weight: np.ndarray
     radius: np.ndarray
+    tapered: np.ndarray
 
     def variance(self):
         """The quadratic's residual variance per point and scale, ``rss / (weight - 6)``."""
@@ -225,9 +227,9 @@ def walk_scales(fits, first, noise2, tests, fallback, fallback_rms):
     pick = np.empty(n, np.int64)
     flat = np.empty(n, np.bool_)
     kernels.scales.walk_scales(fits.quad, fits.plane, fits.rss, fits.rss_plane, fits.rss_cubic,
-                               fits.weight, first, noise2, tests["tau"], tests["tau_cubic"],
-                               tests["tau_plane"], fallback, fallback_rms, height, rms, pick,
-                               flat)
+                               fits.weight, fits.tapered, first, noise2, tests["tau"],
+                               tests["tau_cubic"], tests["tau_plane"], fallback, fallback_rms,
+                               height, rms, pick, flat)
     return height, rms, pick, flat
 
 

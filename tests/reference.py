@@ -617,10 +617,10 @@ def blended(point, targets, distance):
 
 # A scale per point (docs/ALGORITHM.md, "A scale per point").
 SCALES = {"factors": (0.25, 0.5, 1.0, 2.0, 3.0, 4.5), "smallest": 8,
-          "radius_over_noise": 4.0, "later_noise": 0.03, "tau": 2.0, "tau_cubic": 4.0,
+          "radius_over_noise": 4.0, "later_noise": 0.03, "tau": 3.5, "tau_cubic": 2.5,
           "tau_plane": 1.0}
 QUARTILE_OF_UNIT = 0.3186  # lower quartile of |r| for a unit normal r
-SCALE_FITS = ("quad", "plane", "rss", "rss_plane", "rss_cubic", "weight", "radius")
+SCALE_FITS = ("quad", "plane", "rss", "rss_plane", "rss_cubic", "weight", "radius", "tapered")
 
 
 def scale_fits(points, normals, lists, scales, sigma_n, k, thin):
@@ -631,7 +631,8 @@ def scale_fits(points, normals, lists, scales, sigma_n, k, thin):
     point, the heights of its list above the fit of a thin wall, also ``exp(-(r / s)^2)`` with
     ``s`` the lower quartile of ``|r|`` over the first ``k`` over ``QUARTILE_OF_UNIT``. NaN
     where the normal equations are not well posed or the weights sum to less than the number
-    of monomials."""
+    of monomials. ``tapered``: the quadratic's height with each weight also times
+    ``1 - d^2 / R^2``, ``d`` the neighbour's distance and ``R`` the prefix's last one's."""
     n = len(lists)
     out = {name: np.full((n, len(scales)), np.nan) for name in SCALE_FITS}
     for i in range(n):
@@ -652,17 +653,23 @@ def scale_fits(points, normals, lists, scales, sigma_n, k, thin):
                                  x * y * y, y ** 3])
         for s, length in enumerate(scales):
             count = min(length, len(members))
-            sw = np.sqrt(w[:count])
-            for m, height, rss in ((6, "quad", "rss"), (3, "plane", "rss_plane"),
-                                   (10, None, "rss_cubic")):
-                if w[:count].sum() >= m and _well_posed(basis[:count, :m], w[:count]):
+            distance2 = (d[:count] ** 2).sum(axis=1)
+            last = distance2[-1]
+            taper = 1.0 - distance2 / last if last > 0 else np.ones(count)
+            for m, weights, height, rss in ((6, w[:count], "quad", "rss"),
+                                            (3, w[:count], "plane", "rss_plane"),
+                                            (10, w[:count], None, "rss_cubic"),
+                                            (6, w[:count] * taper, "tapered", None)):
+                if weights.sum() >= m and _well_posed(basis[:count, :m], weights):
+                    sw = np.sqrt(weights)
                     a = basis[:count, :m] * sw[:, None]
                     coef = np.linalg.lstsq(a, z[:count] * sw, rcond=None)[0]
                     if height is not None:
                         out[height][i, s] = coef[0]
-                    out[rss][i, s] = np.sum((a @ coef - z[:count] * sw) ** 2)
+                    if rss is not None:
+                        out[rss][i, s] = np.sum((a @ coef - z[:count] * sw) ** 2)
             out["weight"][i, s] = w[:count].sum()
-            out["radius"][i, s] = np.sqrt((d[count - 1] ** 2).sum())
+            out["radius"][i, s] = np.sqrt(last)
     return out
 
 
@@ -670,8 +677,10 @@ def walk_scales(fits, first, noise2, fallback, fallback_rms):
     """Each point's scale: from column ``first``, the next is kept while the residual its
     ring adds per unit weight is at most ``noise2 (1 + tau sqrt(2 / added))`` and its cubic
     terms explain at most ``noise2 (1 + tau_cubic sqrt(1/2))`` each; the plane where its
-    curvature terms explain at most ``noise2 (1 + tau_plane sqrt(2/3))`` each. Height, RMS
-    residual, column and whether the plane was taken; ``fallback`` where not finite."""
+    curvature terms explain at most ``noise2 (1 + tau_plane sqrt(2/3))`` each. Height (the
+    plane's, else the tapered quadratic's where it and the flat one are finite, else the
+    flat one's), RMS residual, column and whether the plane was taken; ``fallback`` where
+    not finite."""
     n, n_scales = fits["quad"].shape
     height, rms = np.empty(n), np.empty(n)
     pick, flat = np.empty(n, int), np.empty(n, bool)
@@ -692,6 +701,8 @@ def walk_scales(fits, first, noise2, fallback, fallback_rms):
         flat[i] = np.isfinite(fits["plane"][i, kept]) and curvature <= (
             1 + SCALES["tau_plane"] * np.sqrt(2 / 3))
         h = fits["plane"][i, kept] if flat[i] else fits["quad"][i, kept]
+        if not flat[i] and np.isfinite(h) and np.isfinite(fits["tapered"][i, kept]):
+            h = fits["tapered"][i, kept]
         if np.isfinite(h):
             height[i] = h
             rms[i] = np.sqrt(fits["rss"][i, kept] / max(fits["weight"][i, kept], 1.0))

@@ -71,6 +71,20 @@ def test_scale_fits_agree_with_least_squares(shape):
     np.testing.assert_array_equal(got.weight[:, 2], got.weight[:, 3])
 
 
+def test_the_taper_lowers_the_bias_on_a_sphere():
+    # Noise-free points on the unit sphere with their true normals: each point lies on the
+    # surface, so a fit's height is its bias alone (the quartic terms a quadratic misses).
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(3000, 3))
+    points /= np.linalg.norm(points, axis=1, keepdims=True)
+    graph = knn_graph(points, 200, False)
+    lengths = np.array([25, 50, 100, 200], np.int64)
+    got = core.scale_fits(points, points.copy(), graph, lengths, SIGMA_N, 50,
+                          np.zeros((3000, 7)), np.zeros(3000, np.bool_))
+    flat, tapered = np.median(np.abs(got.quad), axis=0), np.median(np.abs(got.tapered), axis=0)
+    assert (tapered < 0.7 * flat).all(), (flat, tapered)
+
+
 @pytest.mark.parametrize("case", ["collinear", "duplicates", "two points"])
 def test_degenerate_lists_have_no_fits(case):
     if case == "collinear":
@@ -99,9 +113,11 @@ def _random_fits(rng, n, n_scales):
     fits = {"quad": rng.normal(size=(n, n_scales)), "plane": rng.normal(size=(n, n_scales)),
             "rss": rss, "rss_plane": rss + rng.uniform(0.0, 10.0, (n, n_scales)),
             "rss_cubic": rss - rng.uniform(0.0, 1.0, (n, n_scales)) * rss,
-            "weight": weight, "radius": np.cumsum(rng.uniform(size=(n, n_scales)), axis=1)}
+            "weight": weight, "radius": np.cumsum(rng.uniform(size=(n, n_scales)), axis=1),
+            "tapered": rng.normal(size=(n, n_scales))}
     # Degenerate fits: NaN heights and residuals, as the kernel leaves them.
-    for name, share in (("quad", 0.05), ("plane", 0.05), ("rss_cubic", 0.1)):
+    for name, share in (("quad", 0.05), ("plane", 0.05), ("rss_cubic", 0.1),
+                        ("tapered", 0.1)):
         fits[name][rng.uniform(size=(n, n_scales)) < share] = np.nan
     fits["rss"][np.isnan(fits["quad"])] = np.nan
     return fits
@@ -118,10 +134,14 @@ def test_walk_scales_agree_with_loops(first):
     for g, w in zip(got, want):
         np.testing.assert_allclose(g, w, rtol=1e-12, atol=0)
     height, _, pick, flat = got
-    # Every outcome occurs: walks stopped at each column, planes and quadratics, fallbacks.
+    # Every outcome occurs: walks stopped at each column, planes and quadratics (tapered or
+    # not), fallbacks.
     assert set(np.unique(pick)) == set(range(first, 5))
     assert 0 < flat.sum() < len(flat)
     assert (height == fallback).any()
+    kept = np.arange(2000), pick
+    assert (height == fits["tapered"][kept]).any()
+    assert ((height == fits["quad"][kept]) & ~flat).any()
 
 
 def test_the_constants_match_the_reference():

@@ -40,7 +40,7 @@ def _height_above(c, x, y, z):
 
 @parallel_kernel
 def scale_fits(points, normals, indptr, indices, scales, sigma_n, k, coef, across, quad, plane,
-               rss, rss_plane, rss_cubic, weight, radius):
+               rss, rss_plane, rss_cubic, weight, radius, tapered):
     """Nested fits of each point's list at each scale (a prefix of its list).
 
     Parameters
@@ -63,18 +63,21 @@ def scale_fits(points, normals, indptr, indices, scales, sigma_n, k, coef, acros
         Where that fit took its robust alternative (a list reaching across a thin wall): there
         each neighbour also weighs ``exp(-(r / s)^2)``, ``r`` its height above ``coef`` and
         ``s`` the lower quartile of ``|r|`` over the first ``k`` over ``QUARTILE_OF_UNIT``.
-    quad, plane, rss, rss_plane, rss_cubic, weight, radius : (n, S) float64
+    quad, plane, rss, rss_plane, rss_cubic, weight, radius, tapered : (n, S) float64
         Output per scale: the heights at the origin of the quadratic and of the plane (NaN
         where the normal equations have too few pivots), the residual sums of squares of the
-        quadratic, the plane and the cubic (10 monomials), the summed weight, and the distance
-        to the last neighbour of the prefix. A fit whose weights sum to less than its number
-        of monomials is NaN too.
+        quadratic, the plane and the cubic (10 monomials), the summed weight, the distance
+        ``R`` to the last neighbour of the prefix, and the height of the quadratic whose
+        weights also taper as ``1 - d^2 / R^2`` over the prefix (``d`` a neighbour's
+        distance). A fit whose weights sum to less than its number of monomials is NaN too.
 
     Notes
     -----
     Frame: origin ``p_i``, axis the normal of its first listed point, tangent coordinates
     scaled by the whole list's radius. The three fits share one Cholesky factor of the cubic's
-    normal equations (monomials ordered so that each fit is a leading block).
+    normal equations (monomials ordered so that each fit is a leading block). The tapered
+    fit's sums are the flat ones less sums weighted by ``d^2`` over ``R^2``, so it too needs
+    one pass over the list.
     """
     inv_sn = 1.0 / sigma_n
     n_scales = scales.shape[0]
@@ -86,15 +89,23 @@ def scale_fits(points, normals, indptr, indices, scales, sigma_n, k, coef, acros
         b = np.zeros(CUBIC)
         phi = np.zeros(CUBIC)
         residual = np.zeros(max(k, 1))
+        # Sums weighted by d^2 as well, for the tapered quadratic.
+        a2 = np.zeros((QUADRATIC, QUADRATIC))
+        acc2 = np.zeros((QUADRATIC, QUADRATIC))
+        bacc2 = np.zeros(QUADRATIC)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             acc[:, :] = 0.0
             bacc[:] = 0.0
+            acc2[:, :] = 0.0
+            bacc2[:] = 0.0
+            sw2 = 0.0
             start = indptr[i]
             count = indptr[i + 1] - start
             for s in range(n_scales):
                 quad[i, s] = plane[i, s] = np.nan
                 rss[i, s] = rss_plane[i, s] = rss_cubic[i, s] = np.nan
                 weight[i, s] = radius[i, s] = 0.0
+                tapered[i, s] = np.nan
             if count == 0:
                 continue
             first = indices[start]
@@ -144,6 +155,12 @@ def scale_fits(points, normals, indptr, indices, scales, sigma_n, k, coef, acros
                         acc[p, q] += w * phi[p] * phi[q]
                 szz += w * z * z
                 sw += w
+                d2 = dx * dx + dy * dy + dz * dz
+                for p in range(QUADRATIC):
+                    bacc2[p] += w * d2 * phi[p] * z
+                    for q in range(p + 1):
+                        acc2[p, q] += w * d2 * phi[p] * phi[q]
+                sw2 += w * d2
                 while s < n_scales and (t + 1 == scales[s] or t + 1 == count):
                     a[:, :] = acc
                     rank = cholesky_prefix(a, CUBIC, 1e-9)
@@ -151,18 +168,27 @@ def scale_fits(points, normals, indptr, indices, scales, sigma_n, k, coef, acros
                     rss_cubic[i, s] = _nested(a, bacc, b, szz, sw, CUBIC, rank)[1]
                     plane[i, s], rss_plane[i, s] = _nested(a, bacc, b, szz, sw, PLANE, rank)
                     weight[i, s] = sw
-                    radius[i, s] = math.sqrt(dx * dx + dy * dy + dz * dz)
+                    radius[i, s] = math.sqrt(d2)
+                    inv_r2 = 1.0 / d2 if d2 > 0.0 else 0.0
+                    for p in range(QUADRATIC):
+                        b[p] = bacc[p] - bacc2[p] * inv_r2
+                        for q in range(p + 1):
+                            a2[p, q] = acc[p, q] - acc2[p, q] * inv_r2
+                    if (cholesky_prefix(a2, QUADRATIC, 1e-9) == QUADRATIC
+                            and sw - sw2 * inv_r2 >= QUADRATIC):
+                        cholesky_solve(a2, b, QUADRATIC)
+                        tapered[i, s] = b[0]
                     s += 1
 
 
 @parallel_kernel
-def walk_scales(quad, plane, rss, rss_plane, rss_cubic, weight, first, noise2, tau, tau_cubic,
-                tau_plane, fallback, fallback_rms, height, rms, pick, flat):
+def walk_scales(quad, plane, rss, rss_plane, rss_cubic, weight, tapered, first, noise2, tau,
+                tau_cubic, tau_plane, fallback, fallback_rms, height, rms, pick, flat):
     """Each point's scale, walking up from ``first``, and its height there.
 
     Parameters
     ----------
-    quad, plane, rss, rss_plane, rss_cubic, weight : (n, S) float64
+    quad, plane, rss, rss_plane, rss_cubic, weight, tapered : (n, S) float64
         The fits of :func:`scale_fits`.
     first : int
         The column the walks start from.
@@ -173,7 +199,9 @@ def walk_scales(quad, plane, rss, rss_plane, rss_cubic, weight, first, noise2, t
     fallback, fallback_rms : (n,) float64
         The height and RMS residual of a point whose fit at its scale is not finite.
     height, rms : (n,) float64
-        Output: the height above the point, and the RMS residual of the quadratic there.
+        Output: the height above the point (the plane's, else the tapered quadratic's where
+        it and the flat one are finite, else the flat one's), and the RMS residual of the
+        (flat) quadratic there.
     pick : (n,) int64
         Output: the column kept. A scale is kept while the residual its ring adds per unit
         weight stays below ``noise2 (1 + tau sqrt(2 / added weight))`` and its four cubic
@@ -202,6 +230,9 @@ def walk_scales(quad, plane, rss, rss_plane, rss_cubic, weight, first, noise2, t
             curvature = (rss_plane[i, kept] - rss[i, kept]) / 3.0 / noise2
             flat[i] = math.isfinite(plane[i, kept]) and curvature <= plane_limit
             h = plane[i, kept] if flat[i] else quad[i, kept]
+            if not flat[i] and math.isfinite(h) and math.isfinite(tapered[i, kept]):
+                # The walk tested flat fits; the taper lowers the bias of the one kept.
+                h = tapered[i, kept]
             if math.isfinite(h):
                 height[i] = h
                 rms[i] = math.sqrt(rss[i, kept] / max(weight[i, kept], 1.0))

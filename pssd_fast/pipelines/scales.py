@@ -19,7 +19,7 @@ from ..graph import knn_graph, truncate_graph
 #: ``later_noise`` times the first iteration's noise variance. ``tau``, ``tau_cubic`` and
 #: ``tau_plane``: the margins of the walk's tests (:func:`pssd_fast.kernels.scales.walk_scales`).
 SCALES = {"factors": (0.25, 0.5, 1.0, 2.0, 3.0, 4.5), "smallest": 8,
-          "radius_over_noise": 4.0, "later_noise": 0.03, "tau": 2.0, "tau_cubic": 4.0,
+          "radius_over_noise": 4.0, "later_noise": 0.03, "tau": 3.5, "tau_cubic": 2.5,
           "tau_plane": 1.0}
 
 
