@@ -8,13 +8,16 @@ Usage::
     python -m benchmarks.versus --sizes 10000 30000               # 8 shapes, sparse clouds
     python -m benchmarks.versus --sizes 10000 30000 --peers-only  # only fill the peer cache
     python -m benchmarks.versus --sizes 10000 --shapes sphere cube --noise 0.005
+    python -m benchmarks.versus --sizes 10000 30000 --seed 1    # other draws: out of sample
 
 Shapes: Fandisk, the dragon head and Igea as in Table 1 (``benchmarks.models``, paper point
 counts, unit diagonal) and the library's generated CAD-like part
 (``pssd_fast.datasets.cad_part``, 100,000 points). With ``--sizes`` every chosen shape is sampled
 at each of the given point counts instead, and the shapes may also be the other generated ones
 (plane, sphere, cylinder, cube; default: all eight). Noise: isotropic Gaussian, sigma 0.25%,
-0.5% and 1% of the bounding-box diagonal, seed 0. Errors in 1e-4 of the diagonal: *mean* is the
+0.5% and 1% of the bounding-box diagonal, seed 0 (``--seed``: another draw of the noise, and
+of the generated shapes' samples, whose cells are then out of sample; results go to
+``..._seed<N>.md``). Errors in 1e-4 of the diagonal: *mean* is the
 mean point-to-surface distance, *edge* the mean over points whose clean position lies within 1%
 of the diagonal of an edge sharper than 30 degrees (none on the plane and the sphere: their edge
 cells are "-" and not compared). Shapes in :data:`IN_SAMPLE` are marked in the tables.
@@ -71,15 +74,16 @@ COLUMNS = ("mean", "edge")
 @dataclass(frozen=True)
 class Case:
     """One cell: the noisy input and a scorer returning (mean, edge) in 1e-4 of the diagonal
-    (edge None when no point lies near an edge)."""
+    (edge None when no point lies near an edge), and the seed of its draw."""
 
     shape: str
     noise: float
     points: np.ndarray
     score: Callable[[np.ndarray], tuple]
+    seed: int = 0
 
 
-def make_case(shape, noise, n_points=None, model_cache=None):
+def make_case(shape, noise, n_points=None, model_cache=None, seed=0):
     """The noisy input of ``shape`` at ``noise`` and its scorer.
 
     Parameters
@@ -87,36 +91,38 @@ def make_case(shape, noise, n_points=None, model_cache=None):
     shape : str
         A paper model (``models.MODELS``) or a generated shape (``datasets.GENERATORS``).
     noise : float
-        Noise sigma as a fraction of the diagonal (seed 0).
+        Noise sigma as a fraction of the diagonal.
     n_points : int, optional
         Points; default the paper's count for a model, ``CAD_POINTS`` for a generated shape.
     model_cache : dict, optional
         (shape, n_points) -> loaded model, shared between the noise levels of one shape.
+    seed : int
+        The draw of the noise (and of a generated shape's samples; a model's stay fixed).
     """
     if shape in datasets.GENERATORS:
-        return _generated_case(shape, noise, CAD_POINTS if n_points is None else n_points)
-    return _model_case(shape, noise, n_points, {} if model_cache is None else model_cache)
+        return _generated_case(shape, noise, CAD_POINTS if n_points is None else n_points, seed)
+    return _model_case(shape, noise, n_points, {} if model_cache is None else model_cache, seed)
 
 
-def _generated_case(shape, noise, n_points):
+def _generated_case(shape, noise, n_points, seed):
     """A generated shape, scored by its analytic distance in 1e-4 of its diagonal."""
-    cloud = datasets.make(shape, n_points=n_points, noise=noise, seed=0)
+    cloud = datasets.make(shape, n_points=n_points, noise=noise, seed=seed)
     near = cloud.edge_distance < models.EDGE_BAND * cloud.diagonal
     unit = UNIT * cloud.diagonal
     return Case(shape, noise, np.array(cloud.points),
-                lambda points: _split(cloud.surface_distance(points) / unit, near))
+                lambda points: _split(cloud.surface_distance(points) / unit, near), seed)
 
 
-def _model_case(shape, noise, n_points, model_cache):
+def _model_case(shape, noise, n_points, model_cache, seed):
     """A paper model (unit diagonal), scored by the distance to its mesh."""
     from .metrics import surface_distance
     if (shape, n_points) not in model_cache:
         model_cache[shape, n_points] = models.load(shape, n_points=n_points)
     model = model_cache[shape, n_points]
     near = model.edge_distance < models.EDGE_BAND
-    return Case(shape, noise, model.noisy(noise, seed=0),
+    return Case(shape, noise, model.noisy(noise, seed=seed),
                 lambda points: _split(surface_distance(points, model.vertices, model.faces)
-                                      / UNIT, near))
+                                      / UNIT, near), seed)
 
 
 def _split(dist, near):
@@ -124,9 +130,11 @@ def _split(dist, near):
     return float(dist.mean()), float(dist[near].mean()) if near.any() else None
 
 
-def _key(shape, noise, n_points=None):
-    """The peer-cache key of a cell: "shape|noise", and "|N" for a sized cell."""
-    return f"{shape}|{noise:g}" + ("" if n_points is None else f"|{n_points}")
+def _key(shape, noise, n_points=None, seed=0):
+    """The peer-cache key of a cell: "shape|noise", "|N" for a sized cell and "|seedS" for a
+    seed other than 0."""
+    return (f"{shape}|{noise:g}" + ("" if n_points is None else f"|{n_points}")
+            + ("" if seed == 0 else f"|seed{seed}"))
 
 
 def load_peer_cache(path=PEER_CACHE):
@@ -214,7 +222,7 @@ def measure_row(case, peer_rows, repeats, log):
     """One table row: the noisy and our scores and times, and each peer family's minima."""
     noisy = case.score(case.points)
     row = {"shape": case.shape, "noise": case.noise, "points": len(case.points),
-           "in_sample": case.shape in IN_SAMPLE,
+           "in_sample": case.shape in IN_SAMPLE and case.seed == 0, "seed": case.seed,
            "noisy": {"mean": noisy[0], "edge": noisy[1]},
            "knn_seconds": knn_reference(case.points)}
     for preset in ("default", "fast", "paper"):
@@ -276,7 +284,9 @@ def markdown(rows, compile_seconds, sized=False):
     lead = "| shape |" + (" points |" if sized else "") + " noise |"
     rule = "|---|---|" + ("---|" if sized else "")
     no_edge = any(r["noisy"]["edge"] is None for r in rows)
-    out = [f"Machine: {machine()}. JIT compilation before timing: {compile_seconds:.1f} s.", "",
+    seeds = sorted({r.get("seed", 0) for r in rows})
+    out = [f"Machine: {machine()}. JIT compilation before timing: {compile_seconds:.1f} s. "
+           f"Noise seed: {', '.join(map(str, seeds))}.", "",
            "Errors in 1e-4 of the bounding-box diagonal, *mean* / *edge* (points within 1% of "
            "the diagonal of an edge sharper than 30 degrees"
            + ("; \"-\" where a shape has none" if no_edge else "")
@@ -336,6 +346,8 @@ def parse_args(argv=None):
                              "per cell: use --out elsewhere when changing it)")
     parser.add_argument("--out", type=Path, default=RESULTS,
                         help="folder for the results and the peer cache")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="the draw of the noise (0: the cells the constants were chosen on)")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
     if args.shapes is None:
@@ -350,9 +362,10 @@ def parse_args(argv=None):
 def cells(args):
     """(shape, noise, n_points, cache key) of every cell, in table order."""
     if args.sizes:
-        return [(shape, noise, n, _key(shape, noise, n))
+        return [(shape, noise, n, _key(shape, noise, n, args.seed))
                 for shape in args.shapes for n in args.sizes for noise in args.noise]
-    return [(shape, noise, args.cad_points if shape == "cad_part" else None, _key(shape, noise))
+    return [(shape, noise, args.cad_points if shape == "cad_part" else None,
+             _key(shape, noise, seed=args.seed))
             for shape in args.shapes for noise in args.noise]
 
 
@@ -364,7 +377,7 @@ def main(argv=None):
     model_cache = {}
     rows = []
     for shape, noise, n_points, key in cells(args):
-        case = make_case(shape, noise, n_points, model_cache)
+        case = make_case(shape, noise, n_points, model_cache, args.seed)
         log(f"{shape} {noise:.2%} ({len(case.points)} points)")
         peer_rows = peer_cell(case, key, cache_path, args.refresh_peers, log)
         if not args.peers_only:
@@ -373,7 +386,8 @@ def main(argv=None):
         return rows
     sized = bool(args.sizes)
     text = markdown(rows, compile_seconds, sized)
-    write_results(args.out, "versus_sparse" if sized else "versus", text,
+    stem = ("versus_sparse" if sized else "versus") + (f"_seed{args.seed}" if args.seed else "")
+    write_results(args.out, stem, text,
                   {"compile_seconds": compile_seconds, "rows": rows}, indent=1)
     log(text)
     return rows

@@ -56,3 +56,23 @@ def test_sized_run_compares_only_real_cells(tmp_path):
     assert "| plane | 2,000 | 0.50% |" in text and "win / -" in text
     assert "Cells won: 4 of 6." in text and "cube 2,000 pts 0.50% edge vs jet" in text
     assert "In-sample" not in text
+
+
+def test_another_seed_draws_other_cells_and_files(tmp_path):
+    first, other = versus.make_case("cube", 0.005, 2000), versus.make_case("cube", 0.005, 2000,
+                                                                           seed=1)
+    assert first.seed == 0 and other.seed == 1
+    assert not (first.points == other.points).all()
+    assert versus._key("cube", 0.005, 2000, 1) == "cube|0.005|2000|seed1"
+    assert versus._key("cube", 0.005, 2000) == "cube|0.005|2000"
+    fake = {"mean": 1e9, "edge": 1e9, "seconds": 1.0}
+    cells = {versus._key(s, 0.005, 2000, 1): _fake_cell(fake) for s in ("cad_part", "cube")}
+    (tmp_path / versus.PEER_CACHE.name).write_text(json.dumps({"machine": "test",
+                                                                "cells": cells}))
+    rows = versus.main(["--sizes", "2000", "--shapes", "cad_part", "cube", "--noise", "0.005",
+                        "--seed", "1", "--out", str(tmp_path), "--quiet"])
+    assert [r["seed"] for r in rows] == [1, 1]
+    assert not any(r["in_sample"] for r in rows)  # the part's constants came from seed 0
+    text = (tmp_path / "versus_sparse_seed1.md").read_text()
+    assert "Noise seed: 1." in text and "In-sample" not in text
+    assert not (tmp_path / "versus_sparse.md").exists()
