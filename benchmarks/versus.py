@@ -17,10 +17,10 @@ at each of the given point counts instead, and the shapes may also be the other 
 (plane, sphere, cylinder, cube; default: all eight). Noise: isotropic Gaussian, sigma 0.25%,
 0.5% and 1% of the bounding-box diagonal, seed 0 (``--seed``: another draw of the noise, and
 of the generated shapes' samples, whose cells are then out of sample; results go to
-``..._seed<N>.md``). Errors in 1e-4 of the diagonal: *mean* is the
-mean point-to-surface distance, *edge* the mean over points whose clean position lies within 1%
-of the diagonal of an edge sharper than 30 degrees (none on the plane and the sphere: their edge
-cells are "-" and not compared). Shapes in :data:`IN_SAMPLE` are marked in the tables.
+``..._seed<N>.md``). Errors in 1e-4 of the diagonal: *mean* is the mean point-to-surface
+distance, *edge* the mean over points whose clean position lies within 1% of the diagonal of
+an edge sharper than 30 degrees (none on the plane and the sphere: their edge cells are "-"
+and not compared). Shapes in :data:`IN_SAMPLE` are marked in the tables (at seed 0 only).
 
 Peers: CGAL jet smoothing (k in {24, 48, 96}, 1 or 2 passes) and CGAL bilateral smoothing
 (k in {60, 120}, 3 passes). "Best" is taken strictly: for each family and each cell, the
