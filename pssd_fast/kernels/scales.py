@@ -156,11 +156,12 @@ def scale_fits(points, normals, indptr, indices, scales, sigma_n, k, coef, acros
                 szz += w * z * z
                 sw += w
                 d2 = dx * dx + dy * dy + dz * dz
+                wd2 = w * d2
                 for p in range(QUADRATIC):
-                    bacc2[p] += w * d2 * phi[p] * z
+                    bacc2[p] += wd2 * phi[p] * z
                     for q in range(p + 1):
-                        acc2[p, q] += w * d2 * phi[p] * phi[q]
-                sw2 += w * d2
+                        acc2[p, q] += wd2 * phi[p] * phi[q]
+                sw2 += wd2
                 while s < n_scales and (t + 1 == scales[s] or t + 1 == count):
                     a[:, :] = acc
                     rank = cholesky_prefix(a, CUBIC, 1e-9)
