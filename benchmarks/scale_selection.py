@@ -143,10 +143,12 @@ class ScaleMove:
         else:
             height = default
         height = np.where(flat, plane[rows, pick], height)
-        height = np.where(np.isfinite(height), height, default)
+        walked = np.isfinite(height)
+        height = np.where(walked, height, default)
         self.across.append(int(across.sum()))
         self.flat.append(flat)
-        moved, held = core.project(points, filtered, height)
+        support = np.where(walked, radius[rows, pick], graph.list_radius())
+        moved, held = core.project(points, filtered, height, support)
         rms = np.sqrt(rss[rows, pick] / np.maximum(weight[rows, pick], 1.0))
         return moved, filtered, rms, np.full(n, 6, np.int8), held, None
 

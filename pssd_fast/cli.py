@@ -37,7 +37,10 @@ DEMO_FILES = ("noisy", "denoised", "curvature", "likelihood", "feature", "denois
               "denoised_displacement")
 STAGE_COUNT = {"robust": 7, "mls": 3, "bilateral": 3}
 #: What ``pssd denoise --fields`` may add; all of them by default (where the method has them).
-RESULT_FIELDS = ("likelihood", "feature_intensity", "displacement", "outlier_score", "normals")
+RESULT_FIELDS = ("likelihood", "feature_intensity", "displacement", "outlier_score", "normals",
+                 "held")
+#: Those added when ``--fields`` is not given (where the method computes them).
+DEFAULT_FIELDS = RESULT_FIELDS[:-1]
 
 
 class CommandError(Exception):
@@ -123,8 +126,8 @@ def _parser():
                           "ply.gz, las...")
     den.add_argument("--fields", default=None, metavar="LIST",
                      help=f"comma-separated fields to add: {', '.join(RESULT_FIELDS)}, or "
-                          f"none (default: all the method computes, where the output format "
-                          f"can hold them; an input's own normals are always updated)")
+                          f"none (default: all the method computes but held, where the output "
+                          f"format can hold them; an input's own normals are always updated)")
     den.add_argument("--method", choices=("robust", "bilateral", "mls"), default="robust",
                      help="robust (the paper's method), bilateral (BIL) or mls (default robust)")
     _add_common(den)
@@ -149,6 +152,11 @@ def _parser():
     den.add_argument("--remove-outliers", action="store_true",
                      help="drop the points whose outlier score exceeds 1 before denoising "
                           "(the score is written as outlier_score either way)")
+    den.add_argument("--classes", type=_classes, default=None, metavar="LIST",
+                     help="denoise only the points of these classes of the input's "
+                          "classification field (LAS classes, e.g. 2,6 for ground and "
+                          "buildings); the other points keep their records as they are and are "
+                          "no point's neighbours (default: every point)")
     den.add_argument("--tile-points", type=int, default=None, metavar="N",
                      help="run in tiles of at most N points on Dask (pip install "
                           "'pssd_fast[dask]'), with the same result; presets default and fast, "
@@ -216,6 +224,18 @@ def _parser():
     render.add_argument("--quiet", action="store_true", help="print nothing but errors")
     render.set_defaults(run=_render, method="robust")
     return parser
+
+
+def _classes(text):
+    """``--classes``: comma-separated class codes."""
+    try:
+        codes = tuple(int(c) for c in text.split(",") if c.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"want comma-separated class numbers such as 2,6; got {text!r}") from None
+    if not codes:
+        raise argparse.ArgumentTypeError("want at least one class number, such as 2")
+    return codes
 
 
 def _orientation(text):
@@ -387,10 +407,10 @@ def _added_fields(args, result, out, had_normals):
 
     have = {"likelihood": result.likelihood, "feature_intensity": result.feature_intensity,
             "displacement": result.displacement, "outlier_score": result.outlier_score,
-            "normals": result.normals}
+            "normals": result.normals, "held": result.held}
     fmt = args.format if _is_stdio(out) else None
     if args.fields is None:
-        scalars = [n for n in RESULT_FIELDS if n != "normals" and have[n] is not None]
+        scalars = [n for n in DEFAULT_FIELDS if n != "normals" and have[n] is not None]
         names = [*io.storable(out, scalars, format=fmt), "normals"]
     else:
         names = [n.strip() for n in args.fields.split(",") if n.strip()]
@@ -409,11 +429,14 @@ def _added_fields(args, result, out, had_normals):
         if refused:
             raise CommandError(f"--fields: {out} cannot hold {', '.join(refused)} (use .npz, "
                                f".ply, .las or text)")
-    fields = {n: np.asarray(have[n], dtype=np.float32) for n in names if n != "normals"}
+    # ``held`` is a flag (0 or 1), the others are float32.
+    fields = {n: np.asarray(have[n], dtype=np.uint8 if n == "held" else np.float32)
+              for n in names if n != "normals"}
     return fields, "normals" in names or had_normals
 
 
-def _run_tiled(points, normals, args, method_params, progress, orient, remove_outliers):
+def _run_tiled(points, normals, args, method_params, progress, orient, remove_outliers,
+               **labels):
     """``--tile-points``: :func:`pssd_fast.tiled.denoise` with the options it shares."""
     from . import tiled
 
@@ -433,7 +456,7 @@ def _check_tiled(args, method_params, remove_outliers):
     unused = [name for name, given in (
         ("--method", args.method != "robust"), ("--k", args.k is not None),
         ("--lam", args.lam is not None), ("--rebuild-graph", args.rebuild_graph is not None),
-        ("--remove-outliers", remove_outliers),
+        ("--remove-outliers", remove_outliers), ("--classes", args.classes is not None),
         *((_flag(dest), True) for dest in method_params
           if dest not in ("sigma_n", "select_scales")))
         if given]
@@ -555,8 +578,15 @@ def _denoise_file(args, params, inp, out, say):
     if orient is not None and cloud.normals is not None:
         raise CommandError(f"--orient applies to estimated normals; {inp} has normals, whose "
                            "signs are kept")
+    labels = {}
+    if args.classes is not None:
+        if "classification" not in cloud.fields:
+            raise CommandError(f"--classes: {inp} has no classification field (LAS/LAZ "
+                               "files have one; other formats need a 'classification' column)")
+        labels = {"classification": cloud.fields["classification"], "classes": args.classes}
     result, seconds = _run_denoise(cloud.points, cloud.normals, args, params, say,
-                                   orient=orient, remove_outliers=args.remove_outliers)
+                                   orient=orient, remove_outliers=args.remove_outliers,
+                                   **labels)
     if args.remove_outliers:
         cloud = io.select(cloud, result.kept)
     fields, with_normals = _added_fields(args, result, out, cloud.normals is not None)

@@ -256,12 +256,24 @@ def evaluate_fits(points, surface, nrm, coef, nearest, distance):
     return moved, held
 
 
-def project(points, nrm, height):
-    """``p_i + height_i n_i``; points whose step is not finite stay where they are."""
+def project(points, nrm, height, support):
+    """``p_i + height_i n_i`` for unit normals ``nrm``; a point whose step is not finite, or
+    longer than its ``support`` (the radius of the list its fit was made over), stays where it
+    is (docs/DECISIONS.md, "No point flung"). Returns the points and the mask of those held."""
     step = height[:, None] * nrm
-    held = ~np.isfinite(step).all(axis=1)
+    held = ~(np.abs(height) <= support) | ~np.isfinite(step).all(axis=1)
     step[held] = 0.0
     return points + step, held
+
+
+def hold_unsupported(points, moved, support, held=None):
+    """``moved`` (in place) with each point that moved farther from ``points`` than its
+    ``support`` (the radius of the list behind its move), or not to a finite place, put back;
+    and the mask of the points held, those of ``held`` included (docs/DECISIONS.md, "No point
+    flung")."""
+    far = ~(np.sqrt(np.einsum("ij,ij->i", moved - points, moved - points)) <= support)
+    moved[far] = points[far]
+    return moved, far if held is None else far | held
 
 
 def sampling_likelihood(resid, form, dbar=None):

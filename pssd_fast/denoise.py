@@ -1,18 +1,19 @@
 """`denoise`: resolves the parameters, then runs the iterations of the chosen pipeline."""
 import functools
+import numbers
 import time
 from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
 
-from . import core, inputs, stages
+from . import core, duplicates, inputs, stages
 from ._threads import threads
 from ._validation import (
-    as_normals, as_points, check_choice, check_float, check_int, check_k, check_orient,
+    MIN_K, as_normals, as_points, check_choice, check_float, check_int, check_k, check_orient,
     check_size,
 )
-from .graph import bounds, knn_graph, morton_order, refresh_graph, truncate_graph
+from .graph import bounds, knn_graph, refresh_graph, truncate_graph
 from .kernels.order import gather_rows, scatter_rows
 from .pipelines import STEPS, aware, coarse, scales
 from .progress import Clock, reporter
@@ -67,6 +68,12 @@ class DenoiseResult:
         Feature intensity ``s_i`` of the last iteration (robust method only).
     displacement : (n,) ndarray
         ``|p_noisy - p_denoised|``, the quantity of the paper's Table 1 and Fig. 8.
+    held : (n,) bool ndarray
+        Where a move of the point was refused and the point kept its place instead: a move
+        that was not finite, or longer than the radius of the neighbour list behind it (on the
+        points, in any iteration; on the cell means of the coarse-to-fine route, in the last
+        step onto their fits). ``stats["held_points"]`` counts them (docs/DECISIONS.md, "No
+        point flung").
     outlier_score : (n,) ndarray
         :func:`pssd_fast.outlier_score` of the input points (before any iteration, ``k = 64``);
         above 1: flagged as an outlier. Computed on first access (a query of 64 neighbours,
@@ -81,11 +88,13 @@ class DenoiseResult:
         (``"times"``), the derived scales (``h``, ``mean_spacing``, ``region_radius``,
         ``mean_residual``), fallback counts (``fit_degree`` counts of cubic, quadratic and
         plane fits; ``degenerate_normals``; ``held_points``, points left in place because their
-        step was not finite), region sizes and the mean step; plus the run's settings
-        (``"k"``; ``"pipeline"``: "paper" or "aware"; ``"auto_k"``: the noise probe behind a
-        ``k`` chosen from the data, else None, with ``"coarse"``: the cells of the
-        coarse-to-fine route and its final fit, else None; ``"noise"``: the noise it
-        estimated, else None) and ``"total_seconds"``. JSON-serialisable.
+        step was not finite or longer than its list's radius), region sizes and the mean step;
+        plus the run's settings (``"k"``; ``"pipeline"``: "paper" or "aware"; ``"auto_k"``:
+        the noise probe behind a ``k`` chosen from the data, else None, with ``"coarse"``: the
+        cells of the coarse-to-fine route and its final fit, else None; ``"noise"``: the noise
+        it estimated, else None), ``"duplicates"`` (rows merged into another at their position,
+        :mod:`pssd_fast.duplicates`), ``"held_points"`` (the points of ``held``) and
+        ``"total_seconds"``. JSON-serialisable.
     """
 
     points: np.ndarray
@@ -93,22 +102,26 @@ class DenoiseResult:
     likelihood: Optional[np.ndarray]
     feature_intensity: Optional[np.ndarray]
     displacement: np.ndarray
+    held: np.ndarray
     kept: np.ndarray
     stats: dict = field(repr=False)
-    # The score once known, else what computes it: the input rows the result holds and n_jobs.
+    # The score once known, else what computes it: the input rows the result holds and n_jobs,
+    # or a function.
     _outliers: object = field(default=None, repr=False, compare=False)
 
     @functools.cached_property
     def outlier_score(self):
         if isinstance(self._outliers, np.ndarray):
             return self._outliers
+        if callable(self._outliers):
+            return self._outliers()
         points, n_jobs = self._outliers
         return stages.outlier_score(points, n_jobs=n_jobs)
 
 
 def denoise(points, normals=None, *, method="robust", iterations=None, k=None, lam=None,
-            preset="default", rebuild_graph=None, orient=None, remove_outliers=False, n_jobs=None,
-            progress=None, **method_params):
+            preset="default", rebuild_graph=None, orient=None, remove_outliers=False,
+            classification=None, classes=None, n_jobs=None, progress=None, **method_params):
     """Denoise a point-sampled surface while keeping its sharp features.
 
     Parameters
@@ -164,6 +177,15 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     remove_outliers : bool, default False
         Drop the points whose ``outlier_score`` exceeds 1 before denoising; ``kept`` says
         which input rows the result holds.
+    classification : array_like of int, shape (n,), optional
+        A class code per point, such as the LAS ``classification`` (2 ground, 6 building...);
+        only with ``classes``.
+    classes : iterable of int, optional
+        Denoise only the points whose ``classification`` is one of these. The others are no
+        point's neighbours and keep their exact coordinates (and given normals; else NaN
+        normals), NaN ``likelihood``, ``feature_intensity`` and ``outlier_score``, and zero
+        ``displacement``; ``remove_outliers`` drops outliers among the chosen points only.
+        ``stats["classes"]`` counts both. Default: every point.
     n_jobs : int or None, default None
         Threads for the kernels: ``None`` or -1 use every thread numba may use (by default one
         per core), a positive number that many (capped at that maximum). Numba's setting is
@@ -265,6 +287,11 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     .. [1] "Robust Denoising of Point-Sampled Surfaces" (the paper). ``docs/ALGORITHM.md``
        describes the method as implemented, with every ambiguity of the paper decided.
     """
+    if classes is not None or classification is not None:
+        return _only_classes(points, normals, classification, classes, {
+            "method": method, "iterations": iterations, "k": k, "lam": lam, "preset": preset,
+            "rebuild_graph": rebuild_graph, "orient": orient, "remove_outliers": remove_outliers,
+            "n_jobs": n_jobs, "progress": progress, **method_params})
     check_choice(method, "method", METHODS)
     check_choice(preset, "preset", tuple(PRESETS))
     setting = PRESETS[preset]
@@ -320,11 +347,12 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             raise ValueError(f"only {pts.shape[0]} of {n} points remain after removing "
                              f"outliers, too few for k = {k}; lower k or keep the outliers")
         n = pts.shape[0]
-    order = morton_order(pts)
+    order, groups = duplicates.ordered(pts)
+    distinct = check_distinct(order.shape[0], n, k)
     # Work relative to the bounding-box centre: georeferenced coordinates (1e6 m offsets) would
     # otherwise cost the kNN distances most of their digits.
     centre = 0.5 * np.add(*bounds(pts))
-    current = np.empty_like(pts)
+    current = np.empty((distinct, 3))
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
     step = STEPS[pipeline if method == "robust" else method]
@@ -343,7 +371,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
                 k = cells.k
                 probe = None
             else:
-                k = min(setting.get("without_cells_k") or k, n - 1)
+                k = min(setting.get("without_cells_k") or k, distinct - 1)
                 if probe is not None and k > scale["probe_k"]:
                     probe = None  # too short to serve: freed before the longer lists are built
         if rebuild_graph is None:
@@ -351,21 +379,22 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         scale_plan = None
         if "select_scales" in params:
             params["select_scales"] = scales.resolve(params["select_scales"],
-                                                     setting["scales_up_to"], n, cells is None)
+                                                     setting["scales_up_to"], distinct,
+                                                     cells is None)
         if params.get("select_scales") and cells is None:
-            stride = scale["probe_stride"] if auto else -(-n // setting["probe"][0])
+            stride = scale["probe_stride"] if auto else -(-distinct // setting["probe"][0])
             # Its lists (at stride 1, the first iteration's) replace the probe of k's.
             planned = time.perf_counter()
             scale_plan, probe = scales.plan(current, given, k, params["sigma_n"], stride,
                                             params["shift_normals"])
             planned = time.perf_counter() - planned
-        current, out_normals, extra, records = iterate(
+        current, out_normals, extra, records, held = iterate(
             current, given, step, k, iterations, rebuild_graph, probe, lam, params, orient,
             centre, report, None if cells is None else cells.counts, scale_plan)
         if cells is not None:
             clock = Clock(report, iterations - 1, iterations)
             surface, surface_normals, extra = coarse.collapse(cells, current, out_normals, extra)
-            current, out_normals, nearest, fit = coarse.refine(
+            current, out_normals, nearest, fit, held = coarse.refine(
                 fine, surface, surface_normals, cells.surface_k, params["sigma_n"], clock)
             records[-1]["times"].update(clock.times)
             extra = tuple(x[nearest] for x in extra)
@@ -375,6 +404,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     stats = {
         "method": method,
         "n_points": n,
+        "duplicates": n - distinct,
         "k": k,
         "lam": lam,
         "preset": preset,
@@ -390,6 +420,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             "flagged": int((score_all > 1.0).sum()), "removed": n_input - n,
             "seconds": outlier_seconds},
         "n_iterations": iterations,
+        "held_points": int(held.sum()),
         "params": dict(params),
         "n_jobs": n_threads,
         "iterations": records,
@@ -397,22 +428,25 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     }
     # A copy (in the input's dtype): the caller may change the input before the access.
     outliers = (pts.astype(dtype), n_jobs) if score is None else score.astype(dtype, copy=False)
-    return result(pts, dtype, order, centre, current, out_normals, extra, kept, outliers, stats)
+    return result(pts, dtype, (order, groups), centre, current, out_normals, extra, held, kept,
+                  outliers, stats)
 
 
-def result(pts, dtype, order, centre, current, out_normals, extra, kept, outliers, stats):
+def result(pts, dtype, order, centre, current, out_normals, extra, held, kept, outliers, stats):
     """The :class:`DenoiseResult` of a run on ``pts`` (the input rows denoised, in the caller's
-    order) whose outputs ``current``, ``out_normals`` and ``extra`` are in Morton ``order``,
-    relative to ``centre``; ``outliers``: the scores or what computes them."""
-    shift = _to_caller_order(current, order)
+    order) whose outputs ``current``, ``out_normals``, ``extra`` and ``held`` are in the order
+    of ``(order, groups)`` (:func:`pssd_fast.duplicates.ordered`), relative to ``centre``;
+    ``outliers``: the scores or what computes them."""
+    shift = _to_caller_order(current, *order)
     lik, feat = (None, None) if extra is None else (
-        _to_caller_order(x, order).astype(dtype, copy=False) for x in extra)
+        _to_caller_order(x, *order).astype(dtype, copy=False) for x in extra)
     return DenoiseResult(
         points=(shift + centre).astype(dtype, copy=False),
-        normals=_to_caller_order(out_normals, order).astype(dtype, copy=False),
+        normals=_to_caller_order(out_normals, *order).astype(dtype, copy=False),
         likelihood=lik,
         feature_intensity=feat,
         displacement=np.linalg.norm(shift - (pts - centre), axis=1).astype(dtype, copy=False),
+        held=_to_caller_order(held, *order),
         _outliers=outliers,
         kept=kept,
         stats=stats,
@@ -429,13 +463,13 @@ def iterate(current, given, step, k, iterations, rebuild_graph, probe, lam, para
     factor on its weight in the fits, or None; ``scale_plan``: the
     :class:`~pssd_fast.pipelines.scales.ScalePlan` of ``select_scales`` (with one, ``probe`` is
     None or lists of its longest length), or None. Returns the moved points, the last
-    iteration's normals and ``(likelihood, feature intensity)`` (or None), and one record per
-    iteration.
+    iteration's normals and ``(likelihood, feature intensity)`` (or None), one record per
+    iteration and the mask of the points held in place in at least one of them.
     """
     # A cell mean weighs as many points as it stands for in the fits.
     weighting = {} if counts is None else {"mass": counts.astype(np.float64)}
     records = []
-    out_normals = graph = extra = lists = None
+    out_normals = graph = extra = lists = held = None
     for iteration in range(iterations):
         clock = Clock(report, iteration, iterations)
         walk = None
@@ -469,19 +503,97 @@ def iterate(current, given, step, k, iterations, rebuild_graph, probe, lam, para
             nrm, degenerate = clock.run("normals", inputs.estimated_normals, current, graph,
                                         out_normals, first, centre, shift_k)
         step_params = params if walk is None else {**params, **walk}
-        moved, out_normals, extra, record = step(current, nrm, graph, lam, step_params, clock,
-                                                 iteration == iterations - 1, **weighting)
+        moved, out_normals, extra, record, held_now = step(
+            current, nrm, graph, lam, step_params, clock, iteration == iterations - 1,
+            **weighting)
+        held = held_now if held is None else held | held_now
         record["degenerate_normals"] = int(degenerate.sum())
         record["mean_step"] = float(np.linalg.norm(moved - current, axis=1).mean())
         records.append(record)
         current = moved
         if not params["keep_normals"]:
             given = None
-    return current, out_normals, extra, records
+    return current, out_normals, extra, records, held
 
 
-def _to_caller_order(values, order):
-    """``values`` (rows in Morton order ``order``) back in the caller's order."""
+def _only_classes(points, normals, classification, classes, options):
+    """:func:`denoise` of the points whose ``classification`` is in ``classes``, the others
+    kept as they are (see its ``classes``)."""
+    pts, dtype = as_points(points)
+    n = pts.shape[0]
+    chosen, wanted = check_classes(classification, classes, n)
+    given = None if normals is None else as_normals(normals, n)
+    part = denoise(pts[chosen], None if given is None else given[chosen], **options)
+    denoised = np.flatnonzero(chosen)[part.kept]
+    holds = ~chosen
+    holds[denoised] = True
+    kept = np.flatnonzero(holds)
+    at = np.searchsorted(kept, denoised)
+    out_points = pts[kept].astype(dtype)
+    out_points[at] = part.points
+    nan = np.full((kept.shape[0], 3), np.nan, dtype)
+    out_normals = nan.copy() if given is None else given[kept].astype(dtype)
+    out_normals[at] = part.normals
+
+    def spread(values, fill=np.nan):
+        if values is None:
+            return None
+        out = np.full(kept.shape[0], fill, values.dtype)
+        out[at] = values
+        return out
+
+    stats = {**part.stats, "classes": {
+        "classes": wanted, "denoised": int(chosen.sum()), "untouched": int(n - chosen.sum())}}
+    return DenoiseResult(
+        points=out_points, normals=out_normals, likelihood=spread(part.likelihood),
+        feature_intensity=spread(part.feature_intensity),
+        displacement=spread(part.displacement, 0), held=spread(part.held, False), kept=kept,
+        stats=stats, _outliers=lambda: spread(part.outlier_score))
+
+
+def check_classes(classification, classes, n):
+    """The mask of the points whose ``classification`` is in ``classes``, and the sorted
+    classes; ValueError or TypeError naming what is wrong."""
+    if classes is None or classification is None:
+        raise ValueError("classes and classification go together: classification=... gives "
+                         "each point's class, classes=... those to denoise")
+    labels = np.asarray(classification)
+    if labels.shape != (n,):
+        raise ValueError(f"classification must have one value per point, shape ({n},); got "
+                         f"shape {labels.shape}")
+    if labels.dtype.kind not in "iu":
+        raise TypeError(f"classification must hold integers; got dtype {labels.dtype}")
+    if isinstance(classes, numbers.Integral):
+        classes = [classes]
+    try:
+        wanted = sorted({check_int(c, "a class") for c in classes})
+    except TypeError as exc:
+        raise TypeError(f"classes must be integers; got {classes!r}") from exc
+    if not wanted:
+        raise ValueError("classes is empty: name at least one class to denoise")
+    chosen = np.isin(labels, wanted)
+    if not chosen.any():
+        present = ", ".join(str(c) for c in np.unique(labels)[:20])
+        raise ValueError(f"no point is of class {', '.join(map(str, wanted))}; the classes "
+                         f"present are {present}")
+    return chosen, wanted
+
+
+def check_distinct(distinct, n, k):
+    """``distinct``, the positions among ``n`` points, checked against ``k`` (None: the
+    preset chooses it)."""
+    if distinct < n and distinct < (MIN_K if k is None else k) + 1:
+        raise ValueError(f"the cloud has {n} points but only {distinct} distinct positions; "
+                         f"denoising needs at least {(MIN_K if k is None else k) + 1}"
+                         + ("" if k is None else f" for k = {k} (lower k)"))
+    return distinct
+
+
+def _to_caller_order(values, order, groups=None):
+    """``values`` (rows in Morton order ``order``; with ``groups``, those of the distinct
+    positions, :func:`pssd_fast.duplicates.ordered`) back in the caller's order."""
+    if groups is not None:
+        return values[groups]
     out = np.empty_like(values)
     if values.ndim == 1:
         out[order] = values

@@ -69,12 +69,18 @@ def morton_order(points):
         ``points[order]`` visits the cloud along the curve, so that neighbours in space are
         mostly neighbours in memory. Ties keep the input order (stable sort): deterministic.
     """
+    return np.argsort(morton_cells(points), kind="stable")
+
+
+def morton_cells(points):
+    """The Morton code of each point's cell in the grid of :func:`morton_order`: ``2**21 - 1``
+    cells along the bounding box's longest side, on every axis."""
     low, high = bounds(points)
     extent = float((high - low).max())
     scale = (2**_MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
     code = np.empty(points.shape[0], np.uint64)
     morton_codes(np.ascontiguousarray(points, dtype=np.float64), low, scale, code)
-    return np.argsort(code, kind="stable")
+    return code
 
 
 class ListScales(NamedTuple):

@@ -152,8 +152,9 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
     -------
     dict or None
         None when the halo is too thin. Else, for the own points: ``moved``, ``normals`` (the
-        filtered ones), ``rms``, ``feature`` (None but on the last iteration); and the counts
-        of the iteration's record: ``held``, ``rms_sum``, ``degree`` counts, ``degenerate``,
+        filtered ones), ``rms``, ``feature`` (None but on the last iteration), ``held`` (the
+        mask of those held in place); and the counts of the iteration's record: ``rms_sum``,
+        ``degree`` counts, ``degenerate``,
         ``step_sum``, and ``scales``: with a ``walk``, how many own points kept each length
         and took the plane (:func:`pssd_fast.pipelines.scales.kept_counts`), else None.
     """
@@ -202,7 +203,7 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
         own_rms = rms[:n_own].copy()
         return {
             "moved": moved[:n_own].copy(), "normals": filtered[:n_own].copy(), "rms": own_rms,
-            "feature": feature, "held": int(held[:n_own].sum()), "rms_sum": float(own_rms.sum()),
+            "feature": feature, "held": held[:n_own].copy(), "rms_sum": float(own_rms.sum()),
             "degree": np.bincount(degree[:n_own], minlength=7),
             "degenerate": int(degenerate[:n_own].sum()),
             "step_sum": float(np.linalg.norm(moved[:n_own] - points[:n_own], axis=1).sum()),
@@ -248,11 +249,12 @@ def iterate(current, given, k, iterations, sigma_n, spans, width, runner, scale_
     :class:`pssd_fast.tiled._Runner`); ``given``: the caller's normals or None, ``width``: the
     first halo width, ``scale_plan``: the plan of ``select_scales`` or None. As
     :func:`pssd_fast.denoise.iterate` returns them: the moved points, the last normals,
-    ``(likelihood, feature intensity)`` and one record per iteration."""
+    ``(likelihood, feature intensity)``, one record per iteration and the points held."""
     n = current.shape[0]
     widths = [width] * len(spans)
     normals = given
     records = []
+    held = np.zeros(n, np.bool_)
     for t in range(iterations):
         started = time.perf_counter()
         centroid = current.mean(axis=0) if normals is None else None
@@ -276,16 +278,19 @@ def iterate(current, given, k, iterations, sigma_n, spans, width, runner, scale_
         out = each_tile(runner, "tile_step", t, iterations, step, widths, step_args)
         current = np.concatenate([o["moved"] for o in out])
         normals = np.concatenate([o["normals"] for o in out])
+        held |= np.concatenate([o["held"] for o in out])
         records.append(record(out, n, widths, started))
     rms = np.concatenate([o["rms"] for o in out])
     likelihood, _ = core.sampling_likelihood(rms, "exp")
-    return current, normals, (likelihood, np.concatenate([o["feature"] for o in out])), records
+    return (current, normals, (likelihood, np.concatenate([o["feature"] for o in out])), records,
+            held)
 
 
 def record(out, n, widths, started):
     """An iteration's record for ``stats`` from its tiles' results (:func:`step`)."""
     found = aware.step_record({"tiles": time.perf_counter() - started},
-                              sum(o["held"] for o in out), sum(o["rms_sum"] for o in out), n,
+                              sum(int(o["held"].sum()) for o in out),
+                              sum(o["rms_sum"] for o in out), n,
                               np.sum([o["degree"] for o in out], axis=0))
     found["degenerate_normals"] = sum(o["degenerate"] for o in out)
     found["mean_step"] = sum(o["step_sum"] for o in out) / n

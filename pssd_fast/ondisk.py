@@ -275,11 +275,16 @@ class Buckets:
             for writer in writers:
                 writer.close()
         counts = []
+        #: Rows in the Morton cell of an earlier row (pssd_fast.duplicates): a bucket holds
+        #: whole cells, so they are counted bucket by bucket.
+        self.duplicates = 0
         for path in self.paths:
             records = np.fromfile(path, self.dtype)
             # Rows were appended in input order: a stable sort by code is denoise's order.
-            records[np.argsort(records["code"], kind="stable")].tofile(path)
+            records = records[np.argsort(records["code"], kind="stable")]
+            records.tofile(path)
             counts.append(records.shape[0])
+            self.duplicates += int(np.count_nonzero(records["code"][1:] == records["code"][:-1]))
         self.starts = np.concatenate(([0], np.cumsum(counts)))
 
     def each(self):

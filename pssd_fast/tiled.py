@@ -21,13 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from . import core, halo, ondisk
+from . import core, duplicates, halo, ondisk
 from ._threads import threads
 from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_orient, check_size,
 )
-from .denoise import PRESETS, iterate, result
-from .graph import bounds, morton_order
+from .denoise import PRESETS, check_distinct, iterate, result
+from .graph import bounds
 from .kernels.order import gather_rows
 from .pipelines import STEPS, aware, coarse, scales
 from .progress import Clock, reporter
@@ -95,9 +95,11 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
             raise ValueError("orient applies to estimated normals; the given normals keep their "
                              "signs (pass normals=None or drop orient)")
     started = time.perf_counter()
-    order = morton_order(pts)
+    n_input = n
+    order, groups = duplicates.ordered(pts)
+    n = check_distinct(order.shape[0], n_input, None)
     centre = 0.5 * np.add(*bounds(pts))
-    current = np.empty_like(pts)
+    current = np.empty((n, 3))
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
     select_scales = scales.check(select_scales)
@@ -117,7 +119,7 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
             centroid = current.mean(axis=0)
             plan, planned = _plan(params["select_scales"], current, given, k, sigma_n, scale)
             reach = k if plan is None else int(plan.lengths[-1])
-            current, out_normals, extra, records = halo.iterate(
+            current, out_normals, extra, records, held = halo.iterate(
                 current, given, k, iterations, sigma_n, spans,
                 halo.first_width(scale["probe_radius"], scale["probe_k"], reach), runner, plan)
             if orient is not None:
@@ -125,9 +127,9 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
                 halo.orient_pointwise(current, out_normals, _relative(orient, centre), centroid)
             tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
                      "scheduler": runner.name, "route": "halo"}
-            return result(pts, dtype, order, centre, current, out_normals, extra, np.arange(n),
-                          (pts.astype(dtype), n_jobs),
-                          _stats(n, k, preset, scale, True, orient, iterations, params,
+            return result(pts, dtype, (order, groups), centre, current, out_normals, extra,
+                          held, np.arange(n_input), (pts.astype(dtype), n_jobs),
+                          _stats(n_input, n, k, preset, scale, True, orient, iterations, params,
                                  n_threads, records, tiled, started, plan, planned))
         rows, starts, edge, k, rebuild_graph = found
         tiles = _tiles(starts, tile_points)
@@ -139,7 +141,7 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
                              None if given is None else np.concatenate([s[1] for s in sums]),
                              np.diff(starts), edge, k, coarse.COARSE[preset]["surface_k"],
                              rebuild_graph)
-        means, out_normals, extra, records = iterate(
+        means, out_normals, extra, records, _ = iterate(
             cells.points, cells.normals, STEPS["aware"], k, iterations, rebuild_graph, None,
             None, params, orient, centre, report, cells.counts)
         surface, surface_normals, extra = coarse.collapse(cells, means, out_normals, extra)
@@ -159,18 +161,20 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
                                       coarse.fit_record(held, nearest, rms, degree))
     tiled = {"count": len(tiles), "most_points": int(max(len(p) for p in parts)),
              "scheduler": runner.name, "route": "cells"}
-    return result(pts, dtype, order, centre, current, surface_normals[nearest],
-                  tuple(x[nearest] for x in extra), np.arange(n), (pts.astype(dtype), n_jobs),
-                  _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params,
+    return result(pts, dtype, (order, groups), centre, current, surface_normals[nearest],
+                  tuple(x[nearest] for x in extra), held, np.arange(n_input),
+                  (pts.astype(dtype), n_jobs),
+                  _stats(n_input, n, k, preset, scale, rebuild_graph, orient, iterations, params,
                          n_threads, records, tiled, started))
 
 
-def _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads, records,
-           tiled, started, plan=None, planned=None):
-    """A tiled run's ``stats``, as :func:`pssd_fast.denoise` gives them, with ``"tiles"``;
-    ``plan``: that of ``select_scales`` (made in ``planned`` seconds) or None."""
+def _stats(n, distinct, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads,
+           records, tiled, started, plan=None, planned=None):
+    """A tiled run's ``stats`` for ``n`` points at ``distinct`` positions, as
+    :func:`pssd_fast.denoise` gives them, with ``"tiles"``; ``plan``: that of ``select_scales``
+    (made in ``planned`` seconds) or None."""
     return {
-        "method": "robust", "n_points": n, "k": k, "lam": None, "preset": preset,
+        "method": "robust", "n_points": n, "duplicates": n - distinct, "k": k, "lam": None, "preset": preset,
         "pipeline": "aware", "auto_k": scale, "noise": scale["noise"],
         "scales": None if plan is None else {
             "lengths": plan.lengths.tolist(), "first": plan.first,
@@ -231,8 +235,10 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     Raises
     ------
     ValueError
-        Bad input, unknown fields, other formats, or ``fast`` on a cloud it would iterate on
-        its points (see :func:`denoise`).
+        Bad input, unknown fields, other formats, ``fast`` on a cloud it would iterate on its
+        points (see :func:`denoise`), or a file with duplicate positions (rows in the cell of
+        the Morton grid of another, :mod:`pssd_fast.duplicates`), which are merged in memory
+        but not yet out of core.
     FileExistsError
         ``destination`` exists and ``overwrite`` is False.
     """
@@ -269,6 +275,12 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
             first = Clock(report, 0, iterations)
             cloud = first.run("buckets", ondisk.Buckets, array, folder, tile_points)
+            if cloud.duplicates:
+                # In core they are merged first (pssd_fast.duplicates); out of core not yet.
+                raise ValueError(
+                    f"{source} has {cloud.duplicates:,} rows at the position of another, "
+                    "which denoise merges and denoise_file does not: read it with "
+                    "pssd_fast.io.read and call denoise or tiled.denoise")
             n = cloud.shape[0]
             given = cloud.normals
             if given is not None and orient is not None:
@@ -309,7 +321,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         if output.is_dir():
             shutil.rmtree(output, ignore_errors=True)
         output.unlink(missing_ok=True)
-    return _stats(n, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads,
+    return _stats(n, n, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads,
                   records, tiled, started, plan, planned)
 
 
@@ -338,7 +350,7 @@ def _file_cells(cloud, found, folder, runner, first, report, k, iterations, sigm
     cells = coarse.Cells(np.concatenate([s[0] for s in sums]),
                          np.concatenate([s[1] for s in sums]) if given else None, counts, edge,
                          k, coarse.COARSE[preset]["surface_k"], rebuild_graph)
-    means, out_normals, extra, records = iterate(
+    means, out_normals, extra, records, _ = iterate(
         cells.points, cells.normals, STEPS["aware"], k, iterations, rebuild_graph, None, None,
         params, orient, cloud.centre, report, cells.counts)
     surface, surface_normals, extra = coarse.collapse(cells, means, out_normals, extra)

@@ -603,16 +603,21 @@ def refine(points, surface, normals, surface_k, blend, sigma_n=0.05):
         distance = np.linalg.norm(surface - p, axis=1)
         near = np.argsort(distance, kind="stable")[:blend]
         moved[i] = blended(p, [on_fit(p, surface[j], normals[j], *fits[j]) for j in near],
-                           distance[near])
+                           distance[near], np.array([fits[j][1] for j in near]))
         out_normals[i] = normals[near[0]]
     return moved, out_normals
 
 
-def blended(point, targets, distance):
-    """``point`` plus the mean of its steps to ``targets``, weighted by ``1 / distance``."""
-    weights = 1.0 / np.maximum(distance, 1e-300)
+def blended(point, targets, distance, radius):
+    """``point`` plus the mean of its steps to ``targets``, weighted by ``1 / distance``, of
+    those steps within their fit's support: no longer than its list ``radius``, from no farther
+    than it. Without any, the point stays."""
     steps = np.array(targets) - point
-    return point + (weights[:, None] * steps).sum(axis=0) / weights.sum()
+    keep = (np.linalg.norm(steps, axis=1) <= radius) & (distance <= radius)
+    if not keep.any():
+        return point.copy()
+    weights = 1.0 / np.maximum(distance[keep], 1e-300)
+    return point + (weights[:, None] * steps[keep]).sum(axis=0) / weights.sum()
 
 
 # A scale per point (docs/ALGORITHM.md, "A scale per point").

@@ -484,12 +484,17 @@ def test_scaling_the_cloud_scales_the_result(noisy):
         np.testing.assert_allclose(scaled.feature_intensity, base.feature_intensity, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", ["identical", "planar", "collinear", "outlier"])
+def test_one_position_repeated_is_refused():
+    """60 copies of one point are one point (docs/DECISIONS.md, "Duplicates"): too few."""
+    for method in pssd_fast.METHODS:
+        with pytest.raises(ValueError, match="60 points but only 1 distinct positions"):
+            pssd_fast.denoise(np.tile([1.0, 2.0, 3.0], (60, 1)), method=method, k=15)
+
+
+@pytest.mark.parametrize("name", ["planar", "collinear", "outlier"])
 def test_degenerate_geometry_gives_finite_output(name):
     rng = np.random.default_rng(15)
-    if name == "identical":
-        points = np.tile([1.0, 2.0, 3.0], (60, 1))
-    elif name == "planar":
+    if name == "planar":
         points = np.column_stack([rng.uniform(size=(200, 2)), np.zeros(200)])
     elif name == "collinear":
         points = np.outer(np.linspace(0, 1, 100), [1.0, 2.0, 3.0])
@@ -498,7 +503,7 @@ def test_degenerate_geometry_gives_finite_output(name):
     for method in pssd_fast.METHODS:
         result = pssd_fast.denoise(points, method=method, k=15)
         assert np.isfinite(result.points).all() and np.isfinite(result.normals).all()
-        if name in ("identical", "planar"):
+        if name == "planar":
             np.testing.assert_allclose(result.points, points, atol=1e-12)
 
 

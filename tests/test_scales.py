@@ -168,8 +168,8 @@ def test_the_iteration_fit_matches_the_reference(cloud):
     lengths = scales.lengths(k, points.shape[0])
     lists = knn_graph(points, int(lengths[-1]), False)
     walk = scales.ScalePlan(lengths, 1, 2e-5)
-    height, rms, degree, pick_got, flat_got = scales.fit(points, filtered, graph, lists, 0.05,
-                                                          walk)
+    height, rms, degree, support, pick_got, flat_got = scales.fit(points, filtered, graph,
+                                                                   lists, 0.05, walk)
     kept = scales.kept_counts(lengths, pick_got, flat_got)
     want_height, want_rms, pick, flat, walked = reference.scale_iteration_fit(
         points, filtered, _lists(graph), _lists(lists), lengths, 1, 2e-5)
@@ -179,6 +179,15 @@ def test_the_iteration_fit_matches_the_reference(cloud):
     assert kept["kept"] == np.bincount(pick[walked], minlength=len(lengths)).tolist()
     assert kept["flat"] == int(flat[walked].sum())
     np.testing.assert_array_equal(degree[walked], np.where(flat, 3, 6)[walked])
+    # Each height's support: the radius of the prefix it was fitted over, else the list's.
+    radius = np.array([np.linalg.norm(points[m] - p, axis=1).max()
+                       for p, m in zip(points, _lists(lists))])
+    at_k = np.array([np.linalg.norm(points[m] - p, axis=1).max()
+                     for p, m in zip(points, _lists(graph))])
+    prefix = np.array([np.linalg.norm(points[m[:lengths[c]]] - p, axis=1).max()
+                       for p, m, c in zip(points, _lists(lists), pick)])
+    np.testing.assert_allclose(support, np.where(walked, prefix, at_k), rtol=1e-12)
+    assert (support <= radius * (1 + 1e-12)).all()
     assert walked.mean() > 0.3 and len(set(pick[walked])) > 2  # the walks went places
     if cloud == "two sheets":
         _, _, _, _, taken = core.robust_fits(points, filtered, graph, 0.05)

@@ -574,19 +574,26 @@ def test_surface_fits(cloud, sigma_n):
     np.testing.assert_allclose(rms, ref_rms, atol=1e-9 * scale, rtol=0)
     rng = np.random.default_rng(7)
     points = surface[rng.integers(0, len(surface), 50)] + rng.normal(0, 0.01 * scale, (50, 3))
-    # Any rows and distances will do: each point's three fits, then the first alone.
+    # Any rows and distances will do: each point's three fits, then the first alone; the
+    # distances reach past the fits' radii, which leaves those fits out.
     nearest = rng.integers(0, len(surface), (50, 3))
-    distance = rng.uniform(0.0, scale, (50, 3))
+    distance = rng.uniform(0.0, 0.3 * scale, (50, 3))
     distance[0, 1] = 0.0  # a point on an origin: that fit alone
+    outcomes = set()
     for rows, dist in ((nearest, distance), (nearest[:, :1].copy(), distance[:, :1].copy())):
         moved, held = core.evaluate_fits(points, surface, nrm, coef, rows, dist)
-        assert not held.any()
-        for p, near, d, got in zip(points, rows, dist, moved):
-            targets = [reference.on_fit(p, surface[j], nrm[j], *reference.frame_coefficients(
-                surface[j], nrm[j], surface[lists[j]], nrm[lists[j]], sigma_n)[:2])
-                for j in near]
-            np.testing.assert_allclose(got, reference.blended(p, targets, d),
-                                       atol=1e-9 * scale, rtol=0)
+        outcomes.update(held.tolist())
+        for p, near, d, got, was_held in zip(points, rows, dist, moved, held):
+            fits = [reference.frame_coefficients(surface[j], nrm[j], surface[lists[j]],
+                                                 nrm[lists[j]], sigma_n)[:2] for j in near]
+            targets = [reference.on_fit(p, surface[j], nrm[j], *fit)
+                       for j, fit in zip(near, fits)]
+            radius = np.array([fit[1] for fit in fits])
+            want = reference.blended(p, targets, d, radius)
+            np.testing.assert_allclose(got, want, atol=1e-9 * scale, rtol=0)
+            assert was_held == ((np.linalg.norm(np.array(targets) - p, axis=1) > radius)
+                                | (d > radius)).all()
+    assert outcomes == {False, True}  # points moved and points held
     if name == "plane":
         np.testing.assert_allclose(moved[:, 2], 0, atol=1e-12)
 
@@ -612,6 +619,29 @@ def test_evaluate_fits_holds_a_point_whose_step_is_not_finite():
                                      np.ones((1, 2)))
     assert not held[0]
     np.testing.assert_allclose(moved[0], [0.1, 0.2, 0.5])
+
+
+def test_evaluate_fits_uses_a_fit_only_within_its_support():
+    """A fit broken on purpose (its surface 10 list radii above its origin) or read from
+    farther than its list radius is left out; with no fit left, the point stays, held."""
+    points = np.array([[0.1, 0.2, 0.3]])
+    origins = np.zeros((2, 3))
+    nrm = np.tile([0.0, 0.0, 1.0], (2, 1))
+    coef = np.zeros((2, 7))
+    coef[:, 6] = 2.0  # list radius 0.5
+    coef[0, 0] = 5.0  # the broken fit: the plane z = 5, 10 radii up
+    coef[1, 0] = 0.1  # a sound one: z = 0.1
+    moved, held = core.evaluate_fits(points, origins, nrm, coef, np.array([[0, 1]]),
+                                     np.array([[0.3, 0.4]]))
+    assert not held[0]
+    np.testing.assert_allclose(moved[0], [0.1, 0.2, 0.1])  # the sound fit alone
+    moved, held = core.evaluate_fits(points, origins, nrm, coef, np.array([[0]]),
+                                     np.array([[0.3]]))
+    assert held[0] and (moved == points).all()
+    # The sound fit read from beyond its radius: no support either.
+    moved, held = core.evaluate_fits(points, origins, nrm, coef, np.array([[1]]),
+                                     np.array([[0.6]]))
+    assert held[0] and (moved == points).all()
 
 
 def test_a_point_on_the_fitted_patch_stays():
@@ -715,10 +745,11 @@ def test_refine(name):
     nrm = _pca_reference(surface, lists)
     rng = np.random.default_rng(8)
     points = surface[rng.integers(0, len(surface), 80)] + rng.normal(0, 0.02, (80, 3))
-    moved, normals, nearest, record = coarse.refine(points, surface, nrm, 16, 0.05,
-                                                    Clock(None, 0, 1))
+    moved, normals, nearest, record, held = coarse.refine(points, surface, nrm, 16, 0.05,
+                                                          Clock(None, 0, 1))
     ref_moved, ref_normals = reference.refine(points, surface, nrm, 16, coarse.BLEND)
     np.testing.assert_allclose(moved, ref_moved, atol=1e-10)
     np.testing.assert_array_equal(normals, ref_normals)
     np.testing.assert_array_equal(normals, nrm[nearest])
-    assert record["held_points"] == 0 and sum(record["fit_degree"].values()) == len(points)
+    assert record["held_points"] == held.sum() == 0
+    assert sum(record["fit_degree"].values()) == len(points)

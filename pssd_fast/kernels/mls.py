@@ -478,10 +478,11 @@ def evaluate_fits(points, origins, normals, coef, nearest, distance, moved, held
         Distance from the point to each of those origins; the weight of a fit is its inverse.
     moved : (n, 3) float64
         Output: ``p_i`` plus the weighted mean of the steps ``(g_j(x, y) - z) n_j``, with
-        ``(x, y, z)`` the point in the frame of origin ``j``; steps that are not finite are
-        left out.
+        ``(x, y, z)`` the point in the frame of origin ``j``. A fit is used only within its
+        support: steps that are not finite, longer than the fit's list radius ``r_j``, or of
+        a point farther than ``r_j`` from the origin are left out.
     held : (n,) bool
-        Output: whether no step was finite, so that the point stayed where it was.
+        Output: whether no step was left, so that the point stayed where it was.
     """
     n = points.shape[0]
     for c in prange((n + CHUNK - 1) // CHUNK):
@@ -502,6 +503,10 @@ def evaluate_fits(points, origins, normals, coef, nearest, distance, moved, held
                 z = dx * nx + dy * ny + dz * nz
                 step = (coef[j, 0] + coef[j, 1] * y + coef[j, 2] * x + coef[j, 3] * x * y
                         + coef[j, 4] * y * y + coef[j, 5] * x * x - z)
+                # A fit extrapolated past its own list, or swinging out of it, has no support.
+                radius = 1.0 / coef[j, 6] if coef[j, 6] > 0.0 else math.inf
+                if not (abs(step) <= radius and distance[i, t] <= radius):
+                    continue
                 if not (math.isfinite(step * nx) and math.isfinite(step * ny)
                         and math.isfinite(step * nz)):
                     continue

@@ -3,8 +3,9 @@
 A step takes the current points (Morton order, float64), their normals for this iteration, the
 neighbour graph, ``lam``, the method's parameters, a :class:`~pssd_fast.progress.Clock` that
 times each stage, and whether this is the last iteration. It returns the moved points, the
-normals to report, ``(likelihood, feature_intensity)`` or None, and the iteration's record for
-``stats``.
+normals to report, ``(likelihood, feature_intensity)`` or None, the iteration's record for
+``stats`` and the mask of the points it held in place (their move was not finite, or longer
+than the radius of the list behind it: docs/DECISIONS.md, "No point flung").
 """
 from . import aware, bilateral, mls, paper
 

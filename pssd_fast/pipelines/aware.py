@@ -52,12 +52,13 @@ def step(points, nrm, graph, lam, params, clock, last=True, mass=None):
                          np.bincount(degree, minlength=7))
     if kept is not None:
         record["scales"] = scales.kept_counts(walk.lengths, *kept)
-    return moved, filtered, extra, record
+    return moved, filtered, extra, record, held
 
 
 def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None, walk=None, lists=None):
     """The move of :func:`step`: the moved points, the filtered normals, the fit's RMS
-    residual and degree, the points held in place (their step was not finite) and, with a
+    residual and degree, the points held in place (their step was not finite, or longer than
+    the radius of the list it was fitted over) and, with a
     ``walk`` (the iteration's :class:`~pssd_fast.pipelines.scales.ScalePlan`, and ``lists``
     of its longest length), what the walks kept: each point's column and whether it took the
     plane (:func:`~pssd_fast.pipelines.scales.fit`; else None)."""
@@ -68,10 +69,11 @@ def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None, walk=None, lists
         # them already, and on them it only costs accuracy (docs/DECISIONS.md, "Thin walls").
         height, rms, degree = clock.run("mls", core.aware_fit, points, filtered, graph, sigma_n,
                                         mass, mass is None)
+        support = graph.list_radius()
     else:
-        height, rms, degree, *kept = clock.run("mls", scales.fit, points, filtered, graph,
-                                               lists, sigma_n, walk)
-    moved, held = clock.run("update", core.project, points, filtered, height)
+        height, rms, degree, support, *kept = clock.run("mls", scales.fit, points, filtered,
+                                                        graph, lists, sigma_n, walk)
+    moved, held = clock.run("update", core.project, points, filtered, height, support)
     return moved, filtered, rms, degree, held, kept
 
 

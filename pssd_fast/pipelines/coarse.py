@@ -206,11 +206,14 @@ def refine(points, surface, normals, surface_k, sigma_n, clock):
     record : dict
         ``held_points``, ``mean_residual`` and ``fit_degree`` of the nearest means' fits, as an
         iteration's.
+    held : (n,) bool
+        The points that stayed where they were: no fit of theirs gave a step within its
+        support (:func:`pssd_fast.core.evaluate_fits`).
     """
     coef, rms, degree = fit_surface(surface, normals, surface_k, sigma_n, clock)
     moved, held, nearest = clock.run("surface_update", onto_fits, points, surface, normals,
                                      coef)
-    return moved, normals[nearest], nearest, fit_record(held, nearest, rms, degree)
+    return moved, normals[nearest], nearest, fit_record(held, nearest, rms, degree), held
 
 
 def fit_surface(surface, normals, surface_k, sigma_n, clock):

@@ -20,6 +20,7 @@ def step(points, nrm, graph, lam, params, clock, last=True):
                              params["delta"], params["alpha"], params["beta"])
     filtered = clock.run("filter", core.filter_normals, points, nrm, graph)
     moved, held = clock.run("update", core.move, points, proj, filtered, lik, feat, lam)
+    moved, held = core.hold_unsupported(points, moved, graph.list_radius(), held)
     record = fit_record(clock.times, h, degree)
     record.update({
         "held_points": int(held.sum()),
@@ -29,4 +30,4 @@ def step(points, nrm, graph, lam, params, clock, last=True):
         "region_size_mean": float(region.mean()),
         "region_size_max": int(region.max()),
     })
-    return moved, filtered, (lik, feat), record
+    return moved, filtered, (lik, feat), record, held

@@ -120,8 +120,9 @@ def fit(points, filtered, graph, lists, sigma_n, walk):
     ``graph``: the pipeline's lists of ``k``; ``lists``: the longest prefix's; ``walk``: the
     :class:`ScalePlan` of the iteration (:meth:`ScalePlan.at`). Where a walked fit is not
     finite, the default fit at ``k`` (with its robust alternative) stands. Returns the height,
-    the RMS residual, the degree (6, or 3 where the plane was taken) and what the walks kept:
-    each point's column (-1 where the fit at ``k`` stood) and whether it took the plane.
+    the RMS residual, the degree (6, or 3 where the plane was taken), the radius of the list
+    each height was fitted over and what the walks kept: each point's column (-1 where the fit
+    at ``k`` stood) and whether it took the plane.
     """
     k = graph.indices.shape[0] // points.shape[0]
     default, default_rms, degree, coef, across = core.robust_fits(points, filtered, graph,
@@ -129,9 +130,11 @@ def fit(points, filtered, graph, lists, sigma_n, walk):
     fits = core.scale_fits(points, filtered, lists, walk.lengths, sigma_n, k, coef, across)
     height, rms, pick, flat = core.walk_scales(fits, walk.first, walk.noise2, SCALES, default,
                                                default_rms)
-    walked = np.isfinite(fits.quad[np.arange(points.shape[0]), pick])
+    rows = np.arange(points.shape[0])
+    walked = np.isfinite(fits.quad[rows, pick])
     degree = np.where(walked, np.where(flat, 3, 6), degree).astype(np.int8)
-    return height, rms, degree, np.where(walked, pick, -1), flat & walked
+    support = np.where(walked, fits.radius[rows, pick], graph.list_radius())
+    return height, rms, degree, support, np.where(walked, pick, -1), flat & walked
 
 
 def kept_counts(lengths, pick, flat):

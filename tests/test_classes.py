@@ -1,0 +1,112 @@
+"""Denoising only some LAS classes: ``classes=`` and ``pssd denoise --classes``."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import pssd_fast
+from pssd_fast import datasets
+
+from .test_support import DEFAULT_LIDAR_DIR
+
+
+@pytest.fixture(scope="module")
+def labelled():
+    """The CAD part with a ground class (2) and a second class (1) of stray points."""
+    points = np.array(datasets.make("cad_part", n_points=4000, noise=0.004, seed=5).points)
+    rng = np.random.default_rng(5)
+    labels = np.where(rng.random(len(points)) < 0.3, 1, 2).astype(np.uint8)
+    return points, labels
+
+
+def test_only_the_named_classes_move(labelled):
+    points, labels = labelled
+    result = pssd_fast.denoise(points, classification=labels, classes=[2])
+    ground = labels == 2
+    alone = pssd_fast.denoise(points[ground])
+    # The other points are nobody's neighbours: the ground's result is that of the ground alone.
+    for name in ("points", "normals", "likelihood", "feature_intensity", "displacement",
+                 "held"):
+        np.testing.assert_array_equal(getattr(result, name)[ground], getattr(alone, name),
+                                      err_msg=name)
+    np.testing.assert_array_equal(result.points[~ground], points[~ground])
+    assert np.isnan(result.normals[~ground]).all() and np.isnan(result.likelihood[~ground]).all()
+    assert (result.displacement[~ground] == 0).all() and not result.held[~ground].any()
+    assert np.isnan(result.outlier_score[~ground]).all()
+    np.testing.assert_array_equal(result.outlier_score[ground], alone.outlier_score)
+    assert result.stats["classes"] == {"classes": [2], "denoised": int(ground.sum()),
+                                       "untouched": int((~ground).sum())}
+    np.testing.assert_array_equal(result.kept, np.arange(len(points)))
+
+
+def test_classes_keep_given_normals_and_work_with_outlier_removal(labelled):
+    points, labels = labelled
+    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    result = pssd_fast.denoise(points, normals, classification=labels, classes=(1, 2, 9))
+    whole = pssd_fast.denoise(points, normals)
+    np.testing.assert_array_equal(result.points, whole.points)  # every point chosen
+    one = labels == 1
+    result = pssd_fast.denoise(points, normals, classification=labels, classes=2)
+    np.testing.assert_array_equal(result.normals[one], normals[one])
+    removed = pssd_fast.denoise(points, classification=labels, classes=[2],
+                                remove_outliers=True)
+    ground = np.flatnonzero(labels == 2)
+    alone = pssd_fast.denoise(points[ground], remove_outliers=True)
+    np.testing.assert_array_equal(removed.kept,
+                                  np.sort(np.concatenate([np.flatnonzero(one),
+                                                          ground[alone.kept]])))
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    ({"classes": [2]}, ValueError, "classes and classification go together"),
+    ({"classification": np.zeros(4000, np.uint8)}, ValueError, "go together"),
+    ({"classification": np.zeros(10, np.uint8), "classes": [2]}, ValueError, r"shape \(4000,\)"),
+    ({"classification": np.zeros(4000), "classes": [2]}, TypeError, "integers"),
+    ({"classification": np.zeros(4000, np.uint8), "classes": ["2"]}, TypeError, "integers"),
+    ({"classification": np.zeros(4000, np.uint8), "classes": []}, ValueError, "empty"),
+    ({"classification": np.zeros(4000, np.uint8), "classes": [2]}, ValueError,
+     "no point is of class 2; the classes present are 0"),
+])
+def test_bad_classes_are_named(labelled, kwargs, error, match):
+    with pytest.raises(error, match=match):
+        pssd_fast.denoise(labelled[0], **kwargs)
+
+
+def test_pssd_denoise_classes_leaves_other_records_byte_for_byte(tmp_path):
+    """The issue's check, on the shared airborne survey: ``--classes 2`` leaves every class-1
+    record as it was, byte for byte (the records' own bytes; the added fields follow them)."""
+    laspy = pytest.importorskip("laspy")
+    source = DEFAULT_LIDAR_DIR / "autzen_trim.laz"
+    if not source.is_file():
+        pytest.skip(f"LiDAR file {source} not found")
+    out = tmp_path / "out.laz"
+    done = subprocess.run([sys.executable, "-m", "pssd_fast.cli", "denoise", str(source),
+                           str(out), "--classes", "2", "--fields", "displacement,held",
+                           "--quiet"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    before, after = laspy.read(str(source)), laspy.read(str(out))
+    size = before.points.array.dtype.itemsize
+    old = before.points.array.view(np.uint8).reshape(len(before.points), size)
+    new = after.points.array.view(np.uint8).reshape(len(after.points), -1)[:, :size]
+    other = np.asarray(before.classification) != 2
+    assert other.sum() > 10_000
+    np.testing.assert_array_equal(new[other], old[other])
+    assert (np.asarray(after["displacement"])[other] == 0).all()
+    ground = ~other
+    assert (new[ground] != old[ground]).any(axis=1).mean() > 0.5  # the ground moved
+    assert set(np.unique(after["held"])) <= {0, 1}
+
+
+def test_pssd_denoise_classes_needs_a_classification(tmp_path):
+    points = np.array(datasets.make("cad_part", n_points=500, noise=0.004, seed=5).points)
+    np.savetxt(tmp_path / "in.xyz", points)
+    done = subprocess.run([sys.executable, "-m", "pssd_fast.cli", "denoise",
+                           str(tmp_path / "in.xyz"), str(tmp_path / "out.xyz"), "--classes",
+                           "2"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 1 and "Traceback" not in done.stderr
+    assert "has no classification field" in done.stderr
+    done = subprocess.run([sys.executable, "-m", "pssd_fast.cli", "denoise",
+                           str(tmp_path / "in.xyz"), str(tmp_path / "out.xyz"), "--classes",
+                           "ground"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 2 and "comma-separated class numbers" in done.stderr
