@@ -438,14 +438,21 @@ def result(pts, dtype, order, centre, current, out_normals, extra, held, kept, o
     of ``(order, groups)`` (:func:`pssd_fast.duplicates.ordered`), relative to ``centre``;
     ``outliers``: the scores or what computes them."""
     shift = _to_caller_order(current, *order)
+    points = shift + centre
+    displacement = np.linalg.norm(shift - (pts - centre), axis=1)
+    if order[1] is not None:
+        # A copy's move, from its own input position, as tiled.denoise_file computes it.
+        copy = np.ones(pts.shape[0], np.bool_)
+        copy[order[0]] = False
+        displacement[copy] = np.linalg.norm(points[copy] - pts[copy], axis=1)
     lik, feat = (None, None) if extra is None else (
         _to_caller_order(x, *order).astype(dtype, copy=False) for x in extra)
     return DenoiseResult(
-        points=(shift + centre).astype(dtype, copy=False),
+        points=points.astype(dtype, copy=False),
         normals=_to_caller_order(out_normals, *order).astype(dtype, copy=False),
         likelihood=lik,
         feature_intensity=feat,
-        displacement=np.linalg.norm(shift - (pts - centre), axis=1).astype(dtype, copy=False),
+        displacement=displacement.astype(dtype, copy=False),
         held=_to_caller_order(held, *order),
         _outliers=outliers,
         kept=kept,

@@ -8,7 +8,9 @@ the chunk and the tile sizes, not the cloud's. The passes:
 2. a histogram of the top bits of each point's Morton code, then the points binned into
    *buckets*, consecutive ranges of codes holding at most ``tile_points`` points each, and
    each bucket sorted: their concatenation is ``denoise``'s Morton order, so the noise probe
-   reads its evenly spread sample (every ``s``-th point of that order) by rank;
+   reads its evenly spread sample (every ``s``-th point of that order) by rank; the rows at
+   the position of an earlier row are set aside there, to take its result when the output is
+   written (:mod:`pssd_fast.duplicates`);
 3. per grid edge tried, the cells the points fall in, counted bucket by bucket;
 4. the points binned again, into *tiles* of whole cells, in Morton order.
 """
@@ -35,6 +37,9 @@ _PREFIX_BITS = 21
 RECORD = np.dtype([("row", np.int64), ("code", np.uint64), ("xyz", np.float64, 3)])
 #: The same with the point's unit normal, for a file that has normals.
 RECORD_NORMALS = np.dtype([*RECORD.descr, ("nrm", np.float64, 3)])
+#: A row at the position of an earlier one: its row, the row it was merged into (its first),
+#: its coordinates.
+COPY = np.dtype([("row", np.int64), ("first", np.int64), ("xyz", np.float64, 3)])
 
 
 class NpyFile:
@@ -226,14 +231,16 @@ def _finite(values, start, name):
 
 
 class Buckets:
-    """The cloud in ``denoise``'s Morton order, relative to its centre, as files of consecutive
-    ranks: ``shape`` and ``[::step]`` as a ``(n, 3)`` array offers them (what the noise probe
-    reads), and :meth:`each` for the rest."""
+    """The cloud's distinct positions in ``denoise``'s Morton order, relative to its centre, as
+    files of consecutive ranks: ``shape`` and ``[::step]`` as a ``(n, 3)`` array offers them
+    (what the noise probe reads), and :meth:`each` for the rest. The rows at the position of
+    an earlier row (:mod:`pssd_fast.duplicates`) are set aside in the :data:`COPY` file
+    ``copies``, ``duplicates`` of them, out of ``rows`` rows in all."""
 
     def __init__(self, array, folder, tile_points):
         n = array.shape[0]
         check_size(n)
-        self.shape = (n, 3)
+        self.rows = n
         low = np.full(3, np.inf)
         high = np.full(3, -np.inf)
         self.dtype = RECORD_NORMALS if getattr(array, "has_normals", False) else RECORD
@@ -241,8 +248,6 @@ class Buckets:
             lo, hi = bounds(points)
             low, high = np.minimum(low, lo), np.maximum(high, hi)
         self.centre = 0.5 * (low + high)
-        # Bounds of the points relative to the centre: the same rounding, so the same bits.
-        self.low, self.high = low - self.centre, high - self.centre
         extent = float((high - low).max())
         scale = (2**_MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
         shift = np.uint64(3 * _MORTON_BITS - _PREFIX_BITS)
@@ -275,17 +280,33 @@ class Buckets:
             for writer in writers:
                 writer.close()
         counts = []
-        #: Rows in the Morton cell of an earlier row (pssd_fast.duplicates): a bucket holds
-        #: whole cells, so they are counted bucket by bucket.
-        self.duplicates = 0
-        for path in self.paths:
-            records = np.fromfile(path, self.dtype)
-            # Rows were appended in input order: a stable sort by code is denoise's order.
-            records = records[np.argsort(records["code"], kind="stable")]
-            records.tofile(path)
-            counts.append(records.shape[0])
-            self.duplicates += int(np.count_nonzero(records["code"][1:] == records["code"][:-1]))
+        # A bucket holds whole cells of the grid of pssd_fast.duplicates, so each merges its
+        # own; the bounds are then those of the distinct positions, as in core.
+        self.copies = folder / "copies.bin"
+        low = np.full(3, np.inf)
+        high = np.full(3, -np.inf)
+        with open(self.copies, "wb") as out:
+            for path in self.paths:
+                records = np.fromfile(path, self.dtype)
+                # Rows were appended in input order: a stable sort by code is denoise's order.
+                records = records[np.argsort(records["code"], kind="stable")]
+                first = np.concatenate(([True], records["code"][1:] != records["code"][:-1]))
+                if not first.all():
+                    aside = np.empty(np.count_nonzero(~first), COPY)
+                    aside["row"] = records["row"][~first]
+                    aside["first"] = records["row"][first][np.cumsum(first)[~first] - 1]
+                    aside["xyz"] = records["xyz"][~first]
+                    aside.tofile(out)
+                    records = records[first]
+                records.tofile(path)
+                counts.append(records.shape[0])
+                lo, hi = bounds(records["xyz"])
+                low, high = np.minimum(low, lo), np.maximum(high, hi)
         self.starts = np.concatenate(([0], np.cumsum(counts)))
+        self.shape = (int(self.starts[-1]), 3)
+        self.duplicates = n - self.shape[0]
+        # Bounds of the points relative to the centre: the same rounding, so the same bits.
+        self.low, self.high = low - self.centre, high - self.centre
 
     def each(self):
         """The records of each bucket in turn (input row, Morton code, coordinates), in
@@ -458,11 +479,12 @@ def read_tile(path, centre, dtype):
     return records["row"], records["code"], records["xyz"] - centre, normals
 
 
-def write_rows(path, parts, n, dtype, columns=("xyz",)):
+def write_rows(path, parts, n, dtype, columns=("xyz",), copies=None):
     """The records of the ``parts`` files (:data:`PART`, any order) into a new ``.npy`` file
-    of ``(n, c)`` ``dtype``, in row order: the fields ``columns`` side by side. Memory stays
-    bounded: the records are first binned by blocks of :data:`CHUNK_POINTS` rows, then each
-    block is written whole."""
+    of ``(n, c)`` ``dtype``, in row order: the fields ``columns`` side by side; each row of
+    the ``copies`` file (:data:`COPY`) takes the record of its first row, with the
+    displacement from its own input position. Memory stays bounded: the records are first
+    binned by blocks of :data:`CHUNK_POINTS` rows, then each block is written whole."""
     folder = Path(parts[0]).parent
     blocks = [folder / f"rows_{i}.bin" for i in range(-(-n // CHUNK_POINTS))]
     writers = [open(block, "wb") for block in blocks]
@@ -473,6 +495,8 @@ def write_rows(path, parts, n, dtype, columns=("xyz",)):
     finally:
         for writer in writers:
             writer.close()
+    if copies is not None:
+        _copy_records(blocks, copies)
     width = columns_width(columns)
     header = np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=(n, width))
     offset = header.offset
@@ -485,6 +509,37 @@ def write_rows(path, parts, n, dtype, columns=("xyz",)):
             out[records["row"] - start] = np.column_stack([records[c] for c in columns])
             fh.seek(offset + start * width * dtype.itemsize)
             out.tofile(fh)
+
+
+def _copy_records(blocks, copies):
+    """The record of each row of the ``copies`` file appended to the block of its row: its
+    first row's record (found in that row's block), the displacement its own."""
+    by_first = [block.with_name(f"{block.stem}_copies.bin") for block in blocks]
+    writers = [open(path, "wb") for path in by_first]
+    try:
+        for start in range(0, os.path.getsize(copies) // COPY.itemsize, CHUNK_POINTS):
+            aside = np.fromfile(copies, COPY, count=CHUNK_POINTS, offset=start * COPY.itemsize)
+            _append(writers, aside["first"] // CHUNK_POINTS, aside)
+    finally:
+        for writer in writers:
+            writer.close()
+    writers = [open(block, "ab") for block in blocks]
+    try:
+        for i, (block, path) in enumerate(zip(blocks, by_first)):
+            aside = np.fromfile(path, COPY)
+            if not aside.shape[0]:
+                continue
+            writers[i].flush()  # copies appended here so far: whole records
+            records = np.fromfile(block, PART)
+            at = np.empty(CHUNK_POINTS, np.int64)
+            at[records["row"] - i * CHUNK_POINTS] = np.arange(records.shape[0])
+            found = records[at[aside["first"] - i * CHUNK_POINTS]]
+            found["row"] = aside["row"]
+            found["displacement"] = np.linalg.norm(found["xyz"] - aside["xyz"], axis=1)
+            _append(writers, aside["row"] // CHUNK_POINTS, found)
+    finally:
+        for writer in writers:
+            writer.close()
 
 
 def columns_width(columns):
@@ -513,9 +568,10 @@ def save(records, path):
 
 
 #: A point between the iterations of a tiled run on its points: its input row, its
-#: coordinates now and at the start (relative to the centre), its normal.
+#: coordinates now and at the start (relative to the centre), its normal, and whether a move
+#: of it was refused so far (``held``).
 STATE = np.dtype([("row", np.int64), ("xyz", np.float64, 3), ("start", np.float64, 3),
-                  ("nrm", np.float64, 3)])
+                  ("nrm", np.float64, 3), ("held", np.bool_)])
 #: A denoised point: its input row, coordinates, normal, likelihood, feature intensity and
 #: displacement (the columns of the result of ``denoise``, before its dtype).
 PART = np.dtype([("row", np.int64), ("xyz", np.float64, 3), ("nrm", np.float64, 3),

@@ -94,6 +94,7 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
         if given is not None:
             raise ValueError("orient applies to estimated normals; the given normals keep their "
                              "signs (pass normals=None or drop orient)")
+    select_scales = scales.check(select_scales)
     started = time.perf_counter()
     n_input = n
     order, groups = duplicates.ordered(pts)
@@ -102,7 +103,6 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     current = np.empty((n, 3))
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
-    select_scales = scales.check(select_scales)
     params = {**PARAMS, "sigma_n": sigma_n}
     with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
         k, scale, _ = aware.choose_k(current, given, *setting["probe"])
@@ -130,7 +130,8 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
             return result(pts, dtype, (order, groups), centre, current, out_normals, extra,
                           held, np.arange(n_input), (pts.astype(dtype), n_jobs),
                           _stats(n_input, n, k, preset, scale, True, orient, iterations, params,
-                                 n_threads, records, tiled, started, plan, planned))
+                                 n_threads, records, tiled, int(held.sum()), started, plan,
+                                 planned))
         rows, starts, edge, k, rebuild_graph = found
         tiles = _tiles(starts, tile_points)
         parts = [rows[starts[c0]:starts[c1]] for c0, c1 in tiles]
@@ -165,16 +166,17 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
                   tuple(x[nearest] for x in extra), held, np.arange(n_input),
                   (pts.astype(dtype), n_jobs),
                   _stats(n_input, n, k, preset, scale, rebuild_graph, orient, iterations, params,
-                         n_threads, records, tiled, started))
+                         n_threads, records, tiled, int(held.sum()), started))
 
 
 def _stats(n, distinct, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads,
-           records, tiled, started, plan=None, planned=None):
-    """A tiled run's ``stats`` for ``n`` points at ``distinct`` positions, as
-    :func:`pssd_fast.denoise` gives them, with ``"tiles"``; ``plan``: that of ``select_scales``
-    (made in ``planned`` seconds) or None."""
+           records, tiled, held, started, plan=None, planned=None):
+    """A tiled run's ``stats`` for ``n`` points at ``distinct`` positions, ``held`` of them
+    held in place, as :func:`pssd_fast.denoise` gives them, with ``"tiles"``; ``plan``: that
+    of ``select_scales`` (made in ``planned`` seconds) or None."""
     return {
-        "method": "robust", "n_points": n, "duplicates": n - distinct, "k": k, "lam": None, "preset": preset,
+        "method": "robust", "n_points": n, "duplicates": n - distinct, "k": k, "lam": None,
+        "preset": preset, "held_points": held,
         "pipeline": "aware", "auto_k": scale, "noise": scale["noise"],
         "scales": None if plan is None else {
             "lengths": plan.lengths.tolist(), "first": plan.first,
@@ -236,9 +238,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     ------
     ValueError
         Bad input, unknown fields, other formats, ``fast`` on a cloud it would iterate on its
-        points (see :func:`denoise`), or a file with duplicate positions (rows in the cell of
-        the Morton grid of another, :mod:`pssd_fast.duplicates`), which are merged in memory
-        but not yet out of core.
+        points (see :func:`denoise`), or too few distinct positions.
     FileExistsError
         ``destination`` exists and ``overwrite`` is False.
     """
@@ -275,13 +275,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
             first = Clock(report, 0, iterations)
             cloud = first.run("buckets", ondisk.Buckets, array, folder, tile_points)
-            if cloud.duplicates:
-                # In core they are merged first (pssd_fast.duplicates); out of core not yet.
-                raise ValueError(
-                    f"{source} has {cloud.duplicates:,} rows at the position of another, "
-                    "which denoise merges and denoise_file does not: read it with "
-                    "pssd_fast.io.read and call denoise or tiled.denoise")
-            n = cloud.shape[0]
+            n = check_distinct(cloud.shape[0], cloud.rows, None)
             given = cloud.normals
             if given is not None and orient is not None:
                 raise ValueError(f"orient applies to estimated normals; {source} has normals, "
@@ -300,19 +294,20 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
                 spans = halo.tiles(n, tile_points)
                 plan, planned = _plan(params["select_scales"], cloud, given, k, sigma_n, scale)
                 reach = k if plan is None else int(plan.lengths[-1])
-                parts, records = _file_points(cloud, spans, folder, runner, first, k,
+                parts, records, held = _file_points(cloud, spans, folder, runner, first, k,
                                               iterations, sigma_n, halo.first_width(
                                                   scale["probe_radius"], scale["probe_k"],
                                                   reach), orient, plan)
                 tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
                          "route": "halo"}
             else:
-                parts, records, k, rebuild_graph, tiled = _file_cells(
+                parts, records, k, rebuild_graph, tiled, held = _file_cells(
                     cloud, found, folder, runner, first, report, k, iterations, sigma_n,
                     tile_points, preset, params, sigma, scale, orient)
             tiled["scheduler"] = runner.name
             clock = Clock(report, iterations - 1, iterations)
-            clock.run("write", _write, array, output, parts, n, dtype, folder, fields)
+            clock.run("write", _write, array, output, parts, cloud.rows, dtype, folder, fields,
+                      cloud.copies if cloud.duplicates else None)
             _replace(output, destination)
         records[0]["times"].update(first.times)
         records[-1]["times"].update(clock.times)
@@ -321,8 +316,8 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         if output.is_dir():
             shutil.rmtree(output, ignore_errors=True)
         output.unlink(missing_ok=True)
-    return _stats(n, n, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads,
-                  records, tiled, started, plan, planned)
+    return _stats(cloud.rows, n, k, preset, scale, rebuild_graph, orient, iterations, params,
+                  n_threads, records, tiled, held, started, plan, planned)
 
 
 def _plan(select_scales, points, given, k, sigma_n, scale):
@@ -339,7 +334,8 @@ def _plan(select_scales, points, given, k, sigma_n, scale):
 def _file_cells(cloud, found, folder, runner, first, report, k, iterations, sigma_n,
                 tile_points, preset, params, sigma, scale, orient):
     """The coarse-to-fine route of :func:`denoise_file`: the part files, the iterations'
-    records, ``k`` and ``rebuild_graph`` on the cells, and the tiles' description."""
+    records, ``k`` and ``rebuild_graph`` on the cells, the tiles' description and the number
+    of points held."""
     codes, counts, edge, k, rebuild_graph = found
     starts = np.concatenate(([0], np.cumsum(counts)))
     tiles = _tiles(starts, tile_points)
@@ -368,14 +364,15 @@ def _file_cells(cloud, found, folder, runner, first, report, k, iterations, sigm
     tiled = {"count": len(tiles), "most_points": int(max(starts[c1] - starts[c0]
                                                          for c0, c1 in tiles)),
              "route": "cells"}
-    return parts, records, k, rebuild_graph, tiled
+    return parts, records, k, rebuild_graph, tiled, sum(f[0] for f in fits)
 
 
 def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, width, orient,
                  plan):
     """The iterations of :func:`denoise_file` on the points, tiles with halos
     (:mod:`pssd_fast.halo`), each tile's points in a state file between iterations (``plan``:
-    that of ``select_scales`` or None): the part files and the iterations' records."""
+    that of ``select_scales`` or None): the part files, the iterations' records and the
+    number of points held in any iteration."""
     n = cloud.shape[0]
     paths = [folder / f"state_0_{i}.bin" for i in range(len(spans))]
     pieces, total = first.run("tiles", cloud.states, paths, spans)
@@ -412,7 +409,7 @@ def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, wi
     dbar = halo.pairwise_mean(ondisk.ranked(paths, spans, ondisk.PART, "likelihood"), n)
     runner.map("finish", iterations, iterations, _file_finish, [
         (path, dbar, cloud.centre, _relative(orient, cloud.centre), centroid) for path in paths])
-    return paths, records
+    return paths, records, sum(o["held_points"] for o in out)
 
 
 def _union(pieces):
@@ -460,7 +457,8 @@ def _file_step(own_path, sources, region, first, given, centroid, n, k, sigma_n,
     """:func:`pssd_fast.halo.step` of a tile in its state file; the moved points saved to
     ``output``, a state file, or on the last iteration (``radius`` given) a part file whose
     likelihood column holds the residual for now. Returns the step's counts and the
-    :func:`~pssd_fast.halo.boxes` of the moved points, or None when the halo is too thin."""
+    :func:`~pssd_fast.halo.boxes` of the moved points (on the last iteration also the count
+    of its points held in any iteration), or None when the halo is too thin."""
     own = np.fromfile(own_path, ondisk.STATE)
     points = ondisk.gather(own, sources, region)
     # The first iteration's normals: the file's (given), else PCA's hinted by the centroid.
@@ -472,11 +470,13 @@ def _file_step(own_path, sources, region, first, given, centroid, n, k, sigma_n,
         return None
     moved, normals = found.pop("moved"), found.pop("normals")
     rms, feature = found.pop("rms"), found.pop("feature")
+    held = own["held"] | found["held"]
     if radius is None:
         state = own.copy()
-        state["xyz"], state["nrm"] = moved, normals
+        state["xyz"], state["nrm"], state["held"] = moved, normals, held
         ondisk.save(state, output)
     else:
+        found["held_points"] = int(held.sum())
         ondisk.save(ondisk.part_records(own["row"], moved + centre, normals, rms, feature,
                                         np.linalg.norm(moved - own["start"], axis=1)), output)
     found["boxes"] = halo.boxes(moved)
@@ -511,18 +511,19 @@ def _relative(orient, centre):
     return orient if orient is None or isinstance(orient, str) else orient - centre
 
 
-def _write(array, output, parts, n, dtype, folder, fields):
-    """The parts' points in the input's rows: an ``.npy`` or Zarr array, or a copy of the
+def _write(array, output, parts, n, dtype, folder, fields, copies):
+    """The parts' points in the input's rows (``copies``: the rows that take their first
+    row's, :func:`pssd_fast.ondisk.write_rows`): an ``.npy`` or Zarr array, or a copy of the
     LAS/LAZ input with those coordinates and the ``fields`` asked for."""
     if isinstance(array, ondisk.NpyFile):
-        ondisk.write_rows(output, parts, n, dtype)
+        ondisk.write_rows(output, parts, n, dtype, copies=copies)
         return
     table = folder / "rows.npy"
     if isinstance(array, ondisk.ZarrFile):
-        ondisk.write_rows(table, parts, n, dtype)
+        ondisk.write_rows(table, parts, n, dtype, copies=copies)
         array.write(output, ondisk.NpyFile(table))
         return
-    ondisk.write_rows(table, parts, n, dtype, ondisk.TABLE)
+    ondisk.write_rows(table, parts, n, dtype, ondisk.TABLE, copies)
     array.write(output, ondisk.NpyFile(table, columns=ondisk.columns_width(ondisk.TABLE)),
                 fields)
 

@@ -1,9 +1,11 @@
 """Property tests over small random clouds: finite output, shapes, dtypes, no side effects."""
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import pssd_fast
+from pssd_fast import duplicates
 
 
 @st.composite
@@ -34,6 +36,11 @@ def clouds(draw):
 def test_denoise_is_total_and_pure(case):
     points, k, method = case
     copy = points.copy()
+    distinct = duplicates.ordered(points.astype(np.float64))[0].shape[0]
+    if distinct < k + 1:  # duplicates are one point: too few are left
+        with pytest.raises(ValueError, match="distinct positions"):
+            pssd_fast.denoise(points, method=method, k=k)
+        return
     result = pssd_fast.denoise(points, method=method, k=k)
     np.testing.assert_array_equal(points, copy)
     assert result.points.shape == points.shape and result.points.dtype == points.dtype

@@ -593,9 +593,10 @@ def test_surface_fits(cloud, sigma_n):
             np.testing.assert_allclose(got, want, atol=1e-9 * scale, rtol=0)
             assert was_held == ((np.linalg.norm(np.array(targets) - p, axis=1) > radius)
                                 | (d > radius)).all()
-    assert outcomes == {False, True}  # points moved and points held
+    if name != "tiny":  # eleven points: every list spans the cloud, and every fit reaches
+        assert outcomes == {False, True}  # points moved and points held
     if name == "plane":
-        np.testing.assert_allclose(moved[:, 2], 0, atol=1e-12)
+        np.testing.assert_allclose(moved[~held, 2], 0, atol=1e-12)
 
 
 def test_evaluate_fits_holds_a_point_whose_step_is_not_finite():
