@@ -8,6 +8,7 @@ from typing import Optional
 import numpy as np
 
 from . import core, duplicates, inputs, stages
+from . import plan as planning
 from ._threads import threads
 from ._validation import (
     MIN_K, as_normals, as_points, check_choice, check_float, check_int, check_k, check_orient,
@@ -15,7 +16,8 @@ from ._validation import (
 )
 from .graph import bounds, knn_graph, refresh_graph, truncate_graph
 from .kernels.order import gather_rows, scatter_rows
-from .pipelines import STEPS, aware, coarse, scales
+from .pipelines import STEPS, coarse, scales
+from .plan import PRESETS
 from .progress import Clock, reporter
 
 #: Parameters of each method beyond the common ones, with their defaults.
@@ -31,25 +33,6 @@ METHODS = tuple(METHOD_DEFAULTS)
 #: feature-aware pipeline uses.
 PAPER_ONLY = ("h", "radius_factor", "delta", "alpha", "beta", "likelihood")
 AWARE_ONLY = ("sigma_n", "shift_normals", "select_scales")
-#: Presets: the pipeline of the robust method and where ``k``, ``lam``, ``iterations`` and
-#: ``rebuild_graph`` (on the input; on cell means see ``pssd_fast.pipelines.coarse.COARSE``)
-#: come from when not given, and the most points and the neighbours of the noise probe
-#: (``k=None``: chosen from the estimated noise, see ``pssd_fast.pipelines.aware.AUTO_K``, or
-#: the coarse-to-fine route of ``pssd_fast.pipelines.coarse``; ``without_cells_k``: the ``k``
-#: where that route finds no cells). "default" and "fast" run the feature-aware pipeline
-#: (docs/DECISIONS.md, "Beyond the paper" and "Scan sizes"); "paper" is the paper's
-#: formulation.
-PRESETS = {
-    "default": {"pipeline": "aware", "k": None, "lam": None, "iterations": 4,
-                "rebuild_graph": True, "probe": (100_000, 96), "scales_up_to": 50_000},
-    "fast": {"pipeline": "aware", "k": None, "lam": None, "iterations": 2,
-             "rebuild_graph": False, "probe": (5_000, 32), "without_cells_k": 48,
-             "scales_up_to": 0},
-    "paper": {"pipeline": "paper", "k": 25, "lam": 0.5, "iterations": 2, "rebuild_graph": True,
-              "probe": (100_000, 96), "scales_up_to": 0},
-}
-
-
 @dataclass(frozen=True)
 class DenoiseResult:
     """Output of :func:`denoise`; arrays are in the caller's point order and float dtype.
@@ -89,7 +72,9 @@ class DenoiseResult:
         ``mean_residual``), fallback counts (``fit_degree`` counts of cubic, quadratic and
         plane fits; ``degenerate_normals``; ``held_points``, points left in place because their
         step was not finite or longer than its list's radius), region sizes and the mean step;
-        plus the run's settings (``"k"``; ``"pipeline"``: "paper" or "aware"; ``"auto_k"``:
+        plus the run's settings (``"k"``; ``"pipeline"``: "paper" or "aware"; ``"plan"``: the
+        route ("cells", "points" or "walks"), ``k``, ``rebuild_graph`` and ``select_scales``
+        the run took, docs/ALGORITHM.md, "Routes"; ``"auto_k"``:
         the noise probe behind a ``k`` chosen from the data, else None, with ``"coarse"``: the
         cells of the coarse-to-fine route and its final fit, else None; ``"noise"``: the noise
         it estimated, else None), ``"duplicates"`` (rows merged into another at their position,
@@ -356,41 +341,24 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
     step = STEPS[pipeline if method == "robust" else method]
-    scale = probe = cells = None
+    cells = None
     with threads(n_jobs) as n_threads:
-        if auto:
-            k, scale, probe = aware.choose_k(current, given, *setting["probe"])
-            scale["coarse"] = None
-            if (pipeline == "aware" and method == "robust"
-                    and scale["ratio"] >= coarse.COARSE[preset]["min_ratio"]):
-                sigma = aware.noise_sigma(current, given, scale)
-                cells = coarse.coarsen(current, given, sigma, preset)
-            if cells is not None:
-                # Iterate on the cell means; the input points are projected onto them last.
-                fine, current, given = current, cells.points, cells.normals
-                k = cells.k
-                probe = None
-            else:
-                k = min(setting.get("without_cells_k") or k, distinct - 1)
-                if probe is not None and k > scale["probe_k"]:
-                    probe = None  # too short to serve: freed before the longer lists are built
-        if rebuild_graph is None:
-            rebuild_graph = setting["rebuild_graph"] if cells is None else cells.rebuild_graph
-        scale_plan = None
+        plan = planning.make(
+            current, given, preset, distinct=distinct, k=None if auto else k,
+            layout=lambda noise: coarse.layout(current, noise, preset),
+            aware_pipeline="select_scales" in params, rebuild_graph=rebuild_graph,
+            select_scales=params.get("select_scales"), sigma_n=params.get("sigma_n"),
+            shift_normals=params.get("shift_normals"))
         if "select_scales" in params:
-            params["select_scales"] = scales.resolve(params["select_scales"],
-                                                     setting["scales_up_to"], distinct,
-                                                     cells is None)
-        if params.get("select_scales") and cells is None:
-            stride = scale["probe_stride"] if auto else -(-distinct // setting["probe"][0])
-            # Its lists (at stride 1, the first iteration's) replace the probe of k's.
-            planned = time.perf_counter()
-            scale_plan, probe = scales.plan(current, given, k, params["sigma_n"], stride,
-                                            params["shift_normals"])
-            planned = time.perf_counter() - planned
+            params["select_scales"] = plan.select_scales
+        if plan.route == "cells":
+            # Iterate on the cell means; the input points are projected onto them last.
+            cells = coarse.cells_of(current, given, plan.layout, preset)
+            fine, current, given = current, cells.points, cells.normals
         current, out_normals, extra, records, held = iterate(
-            current, given, step, k, iterations, rebuild_graph, probe, lam, params, orient,
-            centre, report, None if cells is None else cells.counts, scale_plan)
+            current, given, step, plan.k, iterations, plan.rebuild_graph, plan.lists, lam,
+            params, orient, centre, report, None if cells is None else cells.counts,
+            plan.walks)
         if cells is not None:
             clock = Clock(report, iterations - 1, iterations)
             surface, surface_normals, extra = coarse.collapse(cells, current, out_normals, extra)
@@ -398,23 +366,22 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
                 fine, surface, surface_normals, cells.surface_k, params["sigma_n"], clock)
             records[-1]["times"].update(clock.times)
             extra = tuple(x[nearest] for x in extra)
-            scale["coarse"] = coarse.describe(sigma, cells.edge, cells.counts, surface,
-                                              cells.surface_k, fit)
+            plan.probe["coarse"] = coarse.describe(plan.noise, cells.edge, cells.counts,
+                                                   surface, cells.surface_k, fit)
 
     stats = {
         "method": method,
         "n_points": n,
         "duplicates": n - distinct,
-        "k": k,
+        "k": plan.k,
         "lam": lam,
         "preset": preset,
         "pipeline": pipeline,
-        "auto_k": scale,
-        "noise": None if scale is None else scale["noise"],
-        "scales": None if scale_plan is None else {
-            "lengths": scale_plan.lengths.tolist(), "first": scale_plan.first,
-            "noise": float(np.sqrt(scale_plan.noise2)), "seconds": planned},
-        "rebuild_graph": bool(rebuild_graph),
+        "plan": plan.describe(),
+        "auto_k": plan.probe,
+        "noise": None if plan.probe is None else plan.probe["noise"],
+        "scales": plan.walks_record(),
+        "rebuild_graph": plan.rebuild_graph,
         "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
         "outliers": None if score is None else {
             "flagged": int((score_all > 1.0).sum()), "removed": n_input - n,

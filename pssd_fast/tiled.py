@@ -22,14 +22,16 @@ from pathlib import Path
 import numpy as np
 
 from . import core, duplicates, halo, ondisk
+from . import plan as planning
 from ._threads import threads
 from ._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_orient, check_size,
 )
-from .denoise import PRESETS, check_distinct, iterate, result
+from .denoise import check_distinct, iterate, result
 from .graph import bounds
 from .kernels.order import gather_rows
 from .pipelines import STEPS, aware, coarse, scales
+from .plan import PRESETS
 from .progress import Clock, reporter
 
 #: Dask's local schedulers, by the names ``client`` takes for them.
@@ -82,8 +84,8 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     ImportError
         Without Dask.
     """
-    setting, tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
-                                                          iterations, client)
+    tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
+                                                 iterations, client)
     report = reporter(progress)
     pts, dtype = as_points(points)
     n = pts.shape[0]
@@ -105,23 +107,21 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     given = None if given is None else given[order]
     params = {**PARAMS, "sigma_n": sigma_n}
     with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
-        k, scale, _ = aware.choose_k(current, given, *setting["probe"])
-        found = sigma = None
-        if scale["ratio"] >= coarse.COARSE[preset]["min_ratio"]:
-            sigma = aware.noise_sigma(current, given, scale)
-            found = coarse.layout(current, sigma, preset)
-        scale["coarse"] = None
-        params["select_scales"] = scales.resolve(select_scales, setting["scales_up_to"], n,
-                                                 found is None)
-        if found is None:
+        plan = planning.make(current, given, preset, distinct=n,
+                             layout=lambda noise: coarse.layout(current, noise, preset),
+                             select_scales=select_scales, sigma_n=sigma_n,
+                             shift_normals=PARAMS["shift_normals"])
+        params["select_scales"] = plan.select_scales
+        k, scale = plan.k, plan.probe
+        if plan.route != "cells":
             _check_points_route(preset)
             spans = halo.tiles(n, tile_points)
             centroid = current.mean(axis=0)
-            plan, planned = _plan(params["select_scales"], current, given, k, sigma_n, scale)
-            reach = k if plan is None else int(plan.lengths[-1])
+            reach = k if plan.walks is None else int(plan.walks.lengths[-1])
             current, out_normals, extra, records, held = halo.iterate(
                 current, given, k, iterations, sigma_n, spans,
-                halo.first_width(scale["probe_radius"], scale["probe_k"], reach), runner, plan)
+                halo.first_width(scale["probe_radius"], scale["probe_k"], reach), runner,
+                plan.walks)
             if orient is not None:
                 # Propagation over the whole cloud's lists does not tile: one by one.
                 halo.orient_pointwise(current, out_normals, _relative(orient, centre), centroid)
@@ -129,10 +129,9 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
                      "scheduler": runner.name, "route": "halo"}
             return result(pts, dtype, (order, groups), centre, current, out_normals, extra,
                           held, np.arange(n_input), (pts.astype(dtype), n_jobs),
-                          _stats(n_input, n, k, preset, scale, True, orient, iterations, params,
-                                 n_threads, records, tiled, int(held.sum()), started, plan,
-                                 planned))
-        rows, starts, edge, k, rebuild_graph = found
+                          _stats(n_input, n, plan, preset, orient, iterations, params,
+                                 n_threads, records, tiled, int(held.sum()), started))
+        (rows, starts), edge, rebuild_graph = plan.layout[:2], plan.layout[2], plan.rebuild_graph
         tiles = _tiles(starts, tile_points)
         parts = [rows[starts[c0]:starts[c1]] for c0, c1 in tiles]
         sums = runner.map("tile_cells", 1, iterations, _tile_cells, [
@@ -158,30 +157,28 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     nearest = np.empty(n, np.int64)
     nearest[every] = np.concatenate([m[2] for m in moved])
     records[-1]["times"].update(clock.times)
-    scale["coarse"] = coarse.describe(sigma, edge, cells.counts, surface, cells.surface_k,
-                                      coarse.fit_record(held, nearest, rms, degree))
+    scale["coarse"] = coarse.describe(plan.noise, edge, cells.counts, surface,
+                                      cells.surface_k, coarse.fit_record(held, nearest, rms,
+                                                                         degree))
     tiled = {"count": len(tiles), "most_points": int(max(len(p) for p in parts)),
              "scheduler": runner.name, "route": "cells"}
     return result(pts, dtype, (order, groups), centre, current, surface_normals[nearest],
                   tuple(x[nearest] for x in extra), held, np.arange(n_input),
                   (pts.astype(dtype), n_jobs),
-                  _stats(n_input, n, k, preset, scale, rebuild_graph, orient, iterations, params,
-                         n_threads, records, tiled, int(held.sum()), started))
+                  _stats(n_input, n, plan, preset, orient, iterations, params, n_threads,
+                         records, tiled, int(held.sum()), started))
 
 
-def _stats(n, distinct, k, preset, scale, rebuild_graph, orient, iterations, params, n_threads,
-           records, tiled, held, started, plan=None, planned=None):
+def _stats(n, distinct, plan, preset, orient, iterations, params, n_threads, records, tiled,
+           held, started):
     """A tiled run's ``stats`` for ``n`` points at ``distinct`` positions, ``held`` of them
-    held in place, as :func:`pssd_fast.denoise` gives them, with ``"tiles"``; ``plan``: that
-    of ``select_scales`` (made in ``planned`` seconds) or None."""
+    held in place, as :func:`pssd_fast.denoise` gives them for its ``plan``, with
+    ``"tiles"``."""
     return {
-        "method": "robust", "n_points": n, "duplicates": n - distinct, "k": k, "lam": None,
-        "preset": preset, "held_points": held,
-        "pipeline": "aware", "auto_k": scale, "noise": scale["noise"],
-        "scales": None if plan is None else {
-            "lengths": plan.lengths.tolist(), "first": plan.first,
-            "noise": float(np.sqrt(plan.noise2)), "seconds": planned},
-        "rebuild_graph": bool(rebuild_graph),
+        "method": "robust", "n_points": n, "duplicates": n - distinct, "k": plan.k, "lam": None,
+        "preset": preset, "held_points": held, "pipeline": "aware", "plan": plan.describe(),
+        "auto_k": plan.probe, "noise": plan.probe["noise"], "scales": plan.walks_record(),
+        "rebuild_graph": plan.rebuild_graph,
         "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
         "outliers": None, "n_iterations": iterations, "params": params, "n_jobs": n_threads,
         "iterations": records, "tiles": tiled, "total_seconds": time.perf_counter() - started,
@@ -248,8 +245,8 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         raise ValueError(f"denoise_file reads .npy into .npy, Zarr into Zarr, or .las/.laz "
                          f"into .las/.laz; got {source.name} and {destination.name} (other "
                          f"formats: pssd_fast.io.read, then denoise)")
-    setting, tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
-                                                          iterations, client)
+    tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
+                                                 iterations, client)
     select_scales = scales.check(select_scales)
     orient = None if orient is None else check_orient(orient)
     unknown = sorted(set(fields) - set(ondisk.RESULT_FIELDS))
@@ -270,7 +267,6 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     output = destination.with_name(f".{destination.stem}.{os.getpid()}.partial"
                                    f"{destination.suffix}")
     params = {**PARAMS, "sigma_n": sigma_n}
-    plan = planned = None
     try:
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
             first = Clock(report, 0, iterations)
@@ -280,30 +276,25 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
             if given is not None and orient is not None:
                 raise ValueError(f"orient applies to estimated normals; {source} has normals, "
                                  f"whose signs are kept (drop orient)")
-            k, scale, _ = aware.choose_k(cloud, given, *setting["probe"])
-            found = sigma = None
-            if scale["ratio"] >= coarse.COARSE[preset]["min_ratio"]:
-                sigma = aware.noise_sigma(cloud, given, scale)
-                found = cloud.layout(sigma, preset)
-            scale["coarse"] = None
-            params["select_scales"] = scales.resolve(select_scales, setting["scales_up_to"],
-                                                     n, found is None)
-            if found is None:
+            plan = planning.make(cloud, given, preset, distinct=n,
+                                 layout=lambda noise: cloud.layout(noise, preset),
+                                 select_scales=select_scales, sigma_n=sigma_n,
+                                 shift_normals=PARAMS["shift_normals"])
+            params["select_scales"] = plan.select_scales
+            if plan.route != "cells":
                 _check_points_route(preset)
-                rebuild_graph = True
                 spans = halo.tiles(n, tile_points)
-                plan, planned = _plan(params["select_scales"], cloud, given, k, sigma_n, scale)
-                reach = k if plan is None else int(plan.lengths[-1])
-                parts, records, held = _file_points(cloud, spans, folder, runner, first, k,
-                                              iterations, sigma_n, halo.first_width(
-                                                  scale["probe_radius"], scale["probe_k"],
-                                                  reach), orient, plan)
+                reach = plan.k if plan.walks is None else int(plan.walks.lengths[-1])
+                parts, records, held = _file_points(
+                    cloud, spans, folder, runner, first, plan.k, iterations, sigma_n,
+                    halo.first_width(plan.probe["probe_radius"], plan.probe["probe_k"], reach),
+                    orient, plan.walks)
                 tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
                          "route": "halo"}
             else:
-                parts, records, k, rebuild_graph, tiled, held = _file_cells(
-                    cloud, found, folder, runner, first, report, k, iterations, sigma_n,
-                    tile_points, preset, params, sigma, scale, orient)
+                parts, records, tiled, held = _file_cells(
+                    cloud, plan, folder, runner, first, report, iterations, sigma_n,
+                    tile_points, preset, params, orient)
             tiled["scheduler"] = runner.name
             clock = Clock(report, iterations - 1, iterations)
             clock.run("write", _write, array, output, parts, cloud.rows, dtype, folder, fields,
@@ -316,27 +307,16 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         if output.is_dir():
             shutil.rmtree(output, ignore_errors=True)
         output.unlink(missing_ok=True)
-    return _stats(cloud.rows, n, k, preset, scale, rebuild_graph, orient, iterations, params,
-                  n_threads, records, tiled, held, started, plan, planned)
+    return _stats(cloud.rows, n, plan, preset, orient, iterations, params, n_threads, records,
+                  tiled, held, started)
 
 
-def _plan(select_scales, points, given, k, sigma_n, scale):
-    """The plan of ``select_scales`` (made from every ``probe_stride``-th point, as in core)
-    and the seconds it took; None and None without it."""
-    if not select_scales:
-        return None, None
-    started = time.perf_counter()
-    plan = scales.plan(points, given, k, sigma_n, scale["probe_stride"],
-                       PARAMS["shift_normals"])[0]
-    return plan, time.perf_counter() - started
-
-
-def _file_cells(cloud, found, folder, runner, first, report, k, iterations, sigma_n,
-                tile_points, preset, params, sigma, scale, orient):
-    """The coarse-to-fine route of :func:`denoise_file`: the part files, the iterations'
-    records, ``k`` and ``rebuild_graph`` on the cells, the tiles' description and the number
-    of points held."""
-    codes, counts, edge, k, rebuild_graph = found
+def _file_cells(cloud, plan, folder, runner, first, report, iterations, sigma_n, tile_points,
+                preset, params, orient):
+    """The coarse-to-fine route of :func:`denoise_file` (``plan``'s cells): the part files,
+    the iterations' records, the tiles' description and the number of points held."""
+    (codes, counts), edge = plan.layout[:2], plan.layout[2]
+    k, rebuild_graph = plan.k, plan.rebuild_graph
     starts = np.concatenate(([0], np.cumsum(counts)))
     tiles = _tiles(starts, tile_points)
     paths = first.run("tiles", cloud.tiles, folder, codes[[c0 for c0, _ in tiles]], edge)
@@ -360,11 +340,12 @@ def _file_cells(cloud, found, folder, runner, first, report, k, iterations, sigm
          degree) for path, part in zip(paths, parts)])
     fit = coarse.fit_summary(sum(f[0] for f in fits), sum(f[1] for f in fits),
                              np.sum([f[2] for f in fits], axis=0), cloud.shape[0])
-    scale["coarse"] = coarse.describe(sigma, edge, counts, surface, cells.surface_k, fit)
+    plan.probe["coarse"] = coarse.describe(plan.noise, edge, counts, surface, cells.surface_k,
+                                           fit)
     tiled = {"count": len(tiles), "most_points": int(max(starts[c1] - starts[c0]
                                                          for c0, c1 in tiles)),
              "route": "cells"}
-    return parts, records, k, rebuild_graph, tiled, sum(f[0] for f in fits)
+    return parts, records, tiled, sum(f[0] for f in fits)
 
 
 def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, width, orient,
@@ -529,14 +510,14 @@ def _write(array, output, parts, n, dtype, folder, fields, copies):
 
 
 def _settings(preset, tile_points, sigma_n, iterations, client):
-    """The arguments both entry points share, checked: the preset's settings, ``tile_points``,
-    ``sigma_n`` and the iterations."""
+    """The arguments both entry points share, checked: ``tile_points``, ``sigma_n`` and the
+    iterations."""
     check_choice(preset, "preset", tuple(coarse.COARSE))
     if not (client is None or isinstance(client, str) or hasattr(client, "submit")):
         raise TypeError(f"client must be None, one of {LOCAL_SCHEDULERS}, a scheduler address "
                         f"or a distributed.Client; got {client!r}")
     setting = PRESETS[preset]
-    return (setting, check_int(tile_points, "tile_points", minimum=1),
+    return (check_int(tile_points, "tile_points", minimum=1),
             check_float(sigma_n, "sigma_n", positive=True),
             check_int(setting["iterations"] if iterations is None else iterations,
                       "iterations", minimum=1))

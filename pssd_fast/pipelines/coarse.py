@@ -71,12 +71,9 @@ class Cells(NamedTuple):
 _GROW_ROUNDS = 8
 
 
-def coarsen(points, normals, noise, preset):
-    """The coarse cloud of the ``preset``'s cells (:func:`layout`), as :class:`Cells`; None
-    where :func:`layout` finds none. The caller checks ``min_ratio``."""
-    found = layout(points, noise, preset)
-    if found is None:
-        return None
+def cells_of(points, normals, found, preset):
+    """The coarse cloud of the ``preset``'s cells ``found`` by :func:`layout`, as
+    :class:`Cells`."""
     order, starts, edge, k, rebuild_graph = found
     means, mean_normals = cell_means(points, normals, order, starts)
     return Cells(means, mean_normals, np.diff(starts), edge, k, COARSE[preset]["surface_k"],

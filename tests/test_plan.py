@@ -1,0 +1,83 @@
+"""The run plan: one decision of the route for denoise and the tiled runs
+(docs/ALGORITHM.md, "Routes")."""
+import numpy as np
+import pytest
+
+import pssd_fast
+from pssd_fast import datasets, plan
+from pssd_fast.pipelines import coarse
+
+
+@pytest.fixture(scope="module")
+def quiet():
+    """Noise well below the spacing: the default iterates on the points."""
+    return np.array(datasets.make("cad_part", n_points=3000, noise=0.001, seed=4).points)
+
+
+@pytest.mark.parametrize("options, route, k, rebuild", [
+    ({}, "walks", None, True),
+    ({"select_scales": False}, "points", None, True),
+    ({"select_scales": False, "rebuild_graph": False}, "points", None, False),
+    ({"k": 20, "select_scales": False}, "points", 20, True),
+    ({"preset": "fast"}, "cells", None, None),
+    ({"preset": "paper"}, "points", 25, True),
+    ({"method": "bilateral"}, "points", None, True),
+])
+def test_the_plan_says_which_route_the_run_took(quiet, options, route, k, rebuild):
+    result = pssd_fast.denoise(quiet, iterations=1, **options)
+    taken = result.stats["plan"]
+    assert taken["route"] == route
+    assert taken["k"] == result.stats["k"] and (k is None or taken["k"] == k)
+    assert taken["rebuild_graph"] == result.stats["rebuild_graph"]
+    assert rebuild is None or taken["rebuild_graph"] == rebuild
+    assert taken["select_scales"] == result.stats["params"].get("select_scales")
+    assert (result.stats["scales"] is not None) == (route == "walks")
+    assert (result.stats["auto_k"] is not None) == ("k" not in options
+                                                     and options.get("preset") != "paper")
+    if route == "cells":
+        assert result.stats["auto_k"]["coarse"] is not None
+
+
+def test_make_follows_the_callers_choices(quiet):
+    """A given k skips the probe; a given rebuild_graph or select_scales overrides the
+    preset's; a layout that finds no cells leaves the points route."""
+    points = quiet - quiet.mean(axis=0)
+    laid = []
+
+    def layout(noise):
+        laid.append(noise)
+        return None
+
+    found = plan.make(points, None, "fast", distinct=len(points), layout=layout,
+                      rebuild_graph=True, select_scales=False)
+    assert laid and found.route == "points" and found.rebuild_graph
+    assert found.k == plan.PRESETS["fast"]["without_cells_k"] and found.layout is None
+    given = plan.make(points, None, "default", distinct=len(points), layout=layout, k=30,
+                      select_scales=True, sigma_n=0.05)
+    assert given.probe is None and given.k == 30 and given.route == "walks"
+    assert given.walks is not None and given.describe() == {
+        "route": "walks", "k": 30, "rebuild_graph": True, "select_scales": True}
+    baseline = plan.make(points, None, "default", distinct=len(points), layout=layout,
+                         aware_pipeline=False)
+    assert baseline.route == "points" and baseline.select_scales is None
+    assert len(laid) == 1  # the baselines lay out no cells
+
+
+@pytest.mark.parametrize("noise, route", [(0.001, "points"), (0.02, "cells")])
+def test_tiled_runs_follow_the_same_plan(monkeypatch, tmp_path, noise, route):
+    pytest.importorskip("dask")
+    from pssd_fast import tiled
+
+    monkeypatch.setitem(coarse.COARSE["default"], "min_ratio", 0.3)
+    points = np.array(datasets.make("cad_part", n_points=30_000, noise=noise, seed=6).points)
+    whole = pssd_fast.denoise(points, select_scales=False, iterations=1)
+    tiles = tiled.denoise(points, select_scales=False, iterations=1, tile_points=12_000,
+                          client="sync")
+    assert whole.stats["plan"]["route"] == route
+    assert tiles.stats["plan"] == whole.stats["plan"]
+    np.testing.assert_array_equal(tiles.points, whole.points)
+    np.save(tmp_path / "in.npy", points)
+    stats = tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy", select_scales=False,
+                               iterations=1, tile_points=12_000, client="sync")
+    assert stats["plan"] == whole.stats["plan"]
+    np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), whole.points)
