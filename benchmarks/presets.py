@@ -7,6 +7,10 @@ Usage::
     python -m benchmarks.presets --sizes 30000 100000 --noises 0.0025 0.005 0.01 \
         --presets fast jet --out fast_vs_jet
     python -m benchmarks.presets --sizes 30000 100000 --presets at-k scales --out select_scales
+    python -m benchmarks.presets --grid --presets default fast --threads 2 --jobs 7 \
+        --out grid_baseline                        # the grid of sizes and noise levels
+    python -m benchmarks.presets --grid --presets default fast --against grid_baseline \
+        --out grid                                 # and the targets against a baseline
 
 Each (size, noise, preset) cell runs in a fresh process: the child loads the generated CAD part
 from a ``.npy`` file, compiles on small clouds, denoises the whole cloud with the preset's own
@@ -19,10 +23,22 @@ pykdtree's k=25 query on the same points in Morton order, the reference of the r
 points are denoised and queried three times and the fastest of each kept (their times are a
 fraction of a second). Errors are in 1e-4 of the bounding-box diagonal: the mean distance to
 the true surface over all points, and over the points within 1% of the diagonal of a sharp
-edge. Writes ``benchmarks/results/presets.md`` and ``.json``.
+edge. Writes ``benchmarks/results/presets.md`` and ``.json`` (``--out``), after every cell.
+
+``--grid`` measures every size of :data:`GRID_SIZES` at every noise of :data:`GRID_NOISES`;
+``--jobs`` runs that many cells at once, each with ``--threads`` threads (cells then share the
+memory bandwidth; the ratio to the kNN query, measured in the same process, is the number to
+read). ``--against STEM`` adds the targets of the default and of ``fast`` checked against the
+cells of an earlier run (``benchmarks/results/STEM.json``): the default at most
+:data:`TARGETS` ``"default_queries"`` kNN queries and its mean and edge errors at most
+``"accuracy"`` times the better of the earlier default and ``fast`` in that cell; ``fast`` at
+most ``"fast_queries"`` queries and never farther from the truth than its input; and the
+exponent of the default's time from 10^5 to 10^7 points at each noise level.
 """
 import argparse
+import concurrent.futures
 import json
+import math
 import os
 import resource
 import subprocess
@@ -46,6 +62,12 @@ VARIANTS = {"scales": {"preset": "default", "select_scales": True},
             "at-k": {"preset": "default", "select_scales": False}}
 #: Below this many points the runs and the reference query are repeated (best of three).
 REPEAT_BELOW = 1_000_000
+#: The grid of ``--grid``: sizes, and noise levels as fractions of the diagonal.
+GRID_SIZES = (10_000, 30_000, 100_000, 300_000, 1_000_000, 3_000_000, 10_000_000)
+GRID_NOISES = (0.0005, 0.001, 0.0025, 0.005, 0.01)
+#: What ``--against`` checks: kNN queries of the default and of ``fast``, the default's errors
+#: over the better of the baseline's default and ``fast``, the exponent of the default's time.
+TARGETS = {"default_queries": 8.0, "fast_queries": 3.0, "accuracy": 1.03, "exponent": 1.1}
 
 
 def child(path, noise, preset, iterations):
@@ -153,6 +175,58 @@ def table(cells):
     return "\n".join(lines) + "\n"
 
 
+def targets(cells, baseline):
+    """The ``--against`` table: each cell of the default and of ``fast`` checked against
+    :data:`TARGETS` (the default's errors against the better of ``baseline``'s default and
+    ``fast`` in that cell), and the exponent of the default's time at each noise level."""
+    earlier = {(c["points"], c["noise"], c["preset"]): c for c in baseline}
+    lines = ["| points | noise | default / kNN | default mean / edge | best before mean / edge "
+             "| ratio mean / edge | fast / kNN | fast mean / edge (noisy) | met |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    met = total = 0
+    for c in cells:
+        if c["preset"] != "default":
+            continue
+        key = (c["points"], c["noise"])
+        before = [earlier.get((*key, p)) for p in ("default", "fast")]
+        fast = next((f for f in cells if (f["points"], f["noise"], f["preset"]) ==
+                     (*key, "fast")), None)
+        queries = c["total"] / c["knn_query"]
+        ok = queries <= TARGETS["default_queries"]
+        best = ratio = None
+        if all(b is not None for b in before):
+            best = [min(b[f"{col}_after"] for b in before) for col in ("mean", "edge")]
+            ratio = [c[f"{col}_after"] / b for col, b in zip(("mean", "edge"), best)]
+            ok = ok and max(ratio) <= TARGETS["accuracy"]
+        if fast is not None:
+            ok = (ok and fast["total"] / fast["knn_query"] <= TARGETS["fast_queries"]
+                  and fast["mean_after"] <= fast["mean_before"]
+                  and fast["edge_after"] <= fast["edge_before"])
+        met += ok
+        total += 1
+        lines.append(
+            f"| {c['points']:,} | {c['noise']:.2%} | {queries:.1f} | {c['mean_after']:.2f} / "
+            f"{c['edge_after']:.2f} | "
+            + ("- | - | " if best is None else
+               f"{best[0]:.2f} / {best[1]:.2f} | {ratio[0]:.2f} / {ratio[1]:.2f} | ")
+            + ("- | - | " if fast is None else
+               f"{fast['total'] / fast['knn_query']:.1f} | {fast['mean_after']:.2f} / "
+               f"{fast['edge_after']:.2f} ({fast['mean_before']:.1f} / "
+               f"{fast['edge_before']:.1f}) | ")
+            + ("yes" if ok else "**no**") + " |")
+    lines += ["", f"Cells meeting every target: {met} of {total}.", ""]
+    for noise in sorted({c["noise"] for c in cells}):
+        row = sorted((c["points"], c["total"]) for c in cells
+                     if c["preset"] == "default" and c["noise"] == noise
+                     and 100_000 <= c["points"] <= 10_000_000)
+        if len(row) >= 2:
+            (n0, t0), (n1, t1) = row[0], row[-1]
+            exponent = math.log(t1 / t0) / math.log(n1 / n0)
+            lines.append(f"- default's time at {noise:.2%} noise, {n0:,} to {n1:,} points: "
+                         f"N^{exponent:.2f} (target at most N^{TARGETS['exponent']})")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[1_000_000])
@@ -162,6 +236,11 @@ def main(argv=None):
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--noises", type=float, nargs="+", default=[0.005],
                         help="noise levels, fractions of the diagonal")
+    parser.add_argument("--grid", action="store_true",
+                        help="every size of GRID_SIZES at every noise of GRID_NOISES")
+    parser.add_argument("--jobs", type=int, default=1, help="cells measured at once")
+    parser.add_argument("--against", metavar="STEM",
+                        help="check the targets against benchmarks/results/STEM.json")
     parser.add_argument("--noise", type=float, help=argparse.SUPPRESS)  # the child's
     parser.add_argument("--out", default="presets", help="file stem in benchmarks/results/")
     parser.add_argument("--keep", nargs="+", default=[], metavar="PRESET",
@@ -174,37 +253,62 @@ def main(argv=None):
         iterations = args.paper_iterations if preset == "paper" else 0
         child(args.child, args.noise, preset, iterations or None)
         return
+    if args.grid:
+        args.sizes, args.noises = list(GRID_SIZES), list(GRID_NOISES)
+    baseline = None if args.against is None else json.loads(
+        (RESULTS / f"{args.against}.json").read_text())["cells"]
 
-    cells = []
     kept = []
     if args.keep:
         earlier = json.loads((RESULTS / f"{args.out}.json").read_text())["cells"]
         kept = [c for c in earlier if c["preset"] in args.keep]
-    with tempfile.TemporaryDirectory() as scratch:
-        for n in args.sizes:
-            for noise in args.noises:
-                path = Path(scratch) / f"cloud_{n}_{noise}.npy"
-                if any(preset not in args.keep for preset in args.presets):
-                    write_cad_part(n, noise, path)
-                for preset in args.presets:
-                    reused = [c for c in kept if (c["points"], c["noise"], c["preset"]) ==
-                              (n, noise, preset)]
-                    if reused:
-                        cells.append(reused[0])
-                        continue
-                    cell = {"points": n, "noise": noise, "threads": args.threads,
-                            "preset": preset,
-                            **measure(path, noise, preset, args.paper_iterations, args.threads)}
-                    cells.append(cell)
-                    print(f"{n:>10,} points {noise:.2%} {preset:>8}: {cell['total']:8.2f} s "
-                          f"({cell['total'] / cell['knn_query']:.1f}x kNN), error "
-                          f"{cell['mean_after']:.1f} / {cell['edge_after']:.1f}", flush=True)
-                path.unlink(missing_ok=True)
-    text = (f"Machine: {machine()}\n\nInput: the generated CAD part, seed 0; noise in % of the "
-            f"diagonal; one process per cell; CGAL jet: k={JET['k']}, {JET['passes']} passes."
-            f"\n\n" + table(cells))
-    print(text)
-    write_results(RESULTS, args.out, text, {"noises": args.noises, "cells": cells})
+    cells = {}
+    order = [(n, noise, preset) for n in args.sizes for noise in args.noises
+             for preset in args.presets]
+
+    def save():
+        done = [cells[key] for key in order if key in cells]
+        text = (f"Machine: {machine()}\n\nInput: the generated CAD part, seed 0; noise in % of "
+                f"the diagonal; one process per cell ({args.jobs} at once); CGAL jet: "
+                f"k={JET['k']}, {JET['passes']} passes.\n\n" + table(done))
+        if baseline is not None:
+            text += (f"\nTargets against `{args.against}` (the default at most "
+                     f"{TARGETS['default_queries']:g} kNN queries, its errors at most "
+                     f"{TARGETS['accuracy']} times the better of that run's default and fast; "
+                     f"fast at most {TARGETS['fast_queries']:g} queries and no farther from the "
+                     f"truth than its input):\n\n" + targets(done, baseline))
+        write_results(RESULTS, args.out, text, {"noises": args.noises, "cells": done})
+        return text
+
+    def run(n, noise, path):
+        todo = []
+        for preset in args.presets:
+            reused = [c for c in kept if (c["points"], c["noise"], c["preset"]) ==
+                      (n, noise, preset)]
+            if reused:
+                cells[(n, noise, preset)] = reused[0]
+            else:
+                todo.append(preset)
+        if todo:
+            write_cad_part(n, noise, path)
+        for preset in todo:
+            cell = {"points": n, "noise": noise, "threads": args.threads, "preset": preset,
+                    **measure(path, noise, preset, args.paper_iterations, args.threads)}
+            cells[(n, noise, preset)] = cell
+            print(f"{n:>10,} points {noise:.2%} {preset:>8}: {cell['total']:8.2f} s "
+                  f"({cell['total'] / cell['knn_query']:.1f}x kNN), error "
+                  f"{cell['mean_after']:.1f} / {cell['edge_after']:.1f}", flush=True)
+        path.unlink(missing_ok=True)
+
+    with tempfile.TemporaryDirectory() as scratch, \
+            concurrent.futures.ThreadPoolExecutor(args.jobs) as pool:
+        # The largest clouds first, so that the long cells overlap the short ones.
+        futures = [pool.submit(run, n, noise, Path(scratch) / f"cloud_{n}_{noise}.npy")
+                   for n in sorted(args.sizes, reverse=args.jobs > 1) for noise in args.noises]
+        for future in concurrent.futures.as_completed(futures):
+            future.result()
+            save()
+    print(save())
 
 
 if __name__ == "__main__":
