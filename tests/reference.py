@@ -608,12 +608,12 @@ def refine(points, surface, normals, surface_k, blend, sigma_n=0.05):
     return moved, out_normals
 
 
-def blended(point, targets, distance, radius):
+def blended(point, targets, distance, origins, radius):
     """``point`` plus the mean of its steps to ``targets``, weighted by ``1 / distance``, of
-    those steps within their fit's support: no longer than its list ``radius``, from no farther
-    than it. Without any, the point stays."""
+    those steps within their fit's support: landing no farther than its list ``radius`` from
+    the fit's origin (in ``origins``). Without any, the point stays."""
     steps = np.array(targets) - point
-    keep = (np.linalg.norm(steps, axis=1) <= radius) & (distance <= radius)
+    keep = np.linalg.norm(np.array(targets) - origins, axis=1) <= radius
     if not keep.any():
         return point.copy()
     weights = 1.0 / np.maximum(distance[keep], 1e-300)

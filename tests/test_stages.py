@@ -574,8 +574,8 @@ def test_surface_fits(cloud, sigma_n):
     np.testing.assert_allclose(rms, ref_rms, atol=1e-9 * scale, rtol=0)
     rng = np.random.default_rng(7)
     points = surface[rng.integers(0, len(surface), 50)] + rng.normal(0, 0.01 * scale, (50, 3))
-    # Any rows and distances will do: each point's three fits, then the first alone; the
-    # distances reach past the fits' radii, which leaves those fits out.
+    # Any rows and distances (the weights) will do: each point's three fits, then the first
+    # alone; points land outside some fits' balls, which leaves those fits out.
     nearest = rng.integers(0, len(surface), (50, 3))
     distance = rng.uniform(0.0, 0.3 * scale, (50, 3))
     distance[0, 1] = 0.0  # a point on an origin: that fit alone
@@ -589,10 +589,10 @@ def test_surface_fits(cloud, sigma_n):
             targets = [reference.on_fit(p, surface[j], nrm[j], *fit)
                        for j, fit in zip(near, fits)]
             radius = np.array([fit[1] for fit in fits])
-            want = reference.blended(p, targets, d, radius)
+            want = reference.blended(p, targets, d, surface[near], radius)
             np.testing.assert_allclose(got, want, atol=1e-9 * scale, rtol=0)
-            assert was_held == ((np.linalg.norm(np.array(targets) - p, axis=1) > radius)
-                                | (d > radius)).all()
+            assert was_held == (np.linalg.norm(np.array(targets) - surface[near], axis=1)
+                                > radius).all()
     if name != "tiny":  # eleven points: every list spans the cloud, and every fit reaches
         assert outcomes == {False, True}  # points moved and points held
     if name == "plane":
@@ -623,8 +623,10 @@ def test_evaluate_fits_holds_a_point_whose_step_is_not_finite():
 
 
 def test_evaluate_fits_uses_a_fit_only_within_its_support():
-    """A fit broken on purpose (its surface 10 list radii above its origin) or read from
-    farther than its list radius is left out; with no fit left, the point stays, held."""
+    """A fit broken on purpose (its surface 10 list radii above its origin), or read so far
+    from its origin that the point would land outside the ball of its list, is left out; with
+    no fit left, the point stays, held. A point far above a sound fit's surface still drops
+    onto it."""
     points = np.array([[0.1, 0.2, 0.3]])
     origins = np.zeros((2, 3))
     nrm = np.tile([0.0, 0.0, 1.0], (2, 1))
@@ -639,10 +641,17 @@ def test_evaluate_fits_uses_a_fit_only_within_its_support():
     moved, held = core.evaluate_fits(points, origins, nrm, coef, np.array([[0]]),
                                      np.array([[0.3]]))
     assert held[0] and (moved == points).all()
-    # The sound fit read from beyond its radius: no support either.
-    moved, held = core.evaluate_fits(points, origins, nrm, coef, np.array([[1]]),
-                                     np.array([[0.6]]))
-    assert held[0] and (moved == points).all()
+    # The sound fit read from beyond its radius: it would land outside its ball.
+    far = np.array([[0.45, 0.3, 0.05]])
+    moved, held = core.evaluate_fits(far, origins, nrm, coef, np.array([[1]]),
+                                     np.array([[0.54]]))
+    assert held[0] and (moved == far).all()
+    # Far above the sound surface, within its radius across: the whole drop is supported.
+    high = np.array([[0.1, 0.2, 3.0]])
+    moved, held = core.evaluate_fits(high, origins, nrm, coef, np.array([[1]]),
+                                     np.array([[3.0]]))
+    assert not held[0]
+    np.testing.assert_allclose(moved[0], [0.1, 0.2, 0.1])
 
 
 def test_a_point_on_the_fitted_patch_stays():

@@ -479,8 +479,8 @@ def evaluate_fits(points, origins, normals, coef, nearest, distance, moved, held
     moved : (n, 3) float64
         Output: ``p_i`` plus the weighted mean of the steps ``(g_j(x, y) - z) n_j``, with
         ``(x, y, z)`` the point in the frame of origin ``j``. A fit is used only within its
-        support: steps that are not finite, longer than the fit's list radius ``r_j``, or of
-        a point farther than ``r_j`` from the origin are left out.
+        support: steps that are not finite, or that land the point farther than the fit's
+        list radius ``r_j`` from its origin (outside the ball its list covers), are left out.
     held : (n,) bool
         Output: whether no step was left, so that the point stayed where it was.
     """
@@ -503,9 +503,10 @@ def evaluate_fits(points, origins, normals, coef, nearest, distance, moved, held
                 z = dx * nx + dy * ny + dz * nz
                 step = (coef[j, 0] + coef[j, 1] * y + coef[j, 2] * x + coef[j, 3] * x * y
                         + coef[j, 4] * y * y + coef[j, 5] * x * x - z)
-                # A fit extrapolated past its own list, or swinging out of it, has no support.
-                radius = 1.0 / coef[j, 6] if coef[j, 6] > 0.0 else math.inf
-                if not (abs(step) <= radius and distance[i, t] <= radius):
+                # A fit describes the ball of its own list: a step that lands outside it
+                # (read past the list, or swinging out of it) has no support.
+                height = (step + z) * coef[j, 6]
+                if not x * x + y * y + height * height <= 1.0:
                     continue
                 if not (math.isfinite(step * nx) and math.isfinite(step * ny)
                         and math.isfinite(step * nz)):
