@@ -603,7 +603,7 @@ def refine(points, surface, normals, surface_k, blend, sigma_n=0.05):
         distance = np.linalg.norm(surface - p, axis=1)
         near = np.argsort(distance, kind="stable")[:blend]
         moved[i] = blended(p, [on_fit(p, surface[j], normals[j], *fits[j]) for j in near],
-                           distance[near], np.array([fits[j][1] for j in near]))
+                           distance[near], surface[near], np.array([fits[j][1] for j in near]))
         out_normals[i] = normals[near[0]]
     return moved, out_normals
 
