@@ -11,14 +11,12 @@ from hypothesis import strategies as st
 from pykdtree.kdtree import KDTree
 
 import pssd_fast
+# The files' folder when PSSD_LIDAR is unset, every preset and method, and the bound's r16, as
+# the benchmark of the real files has them.
+from benchmarks.lidar import DEFAULT_FOLDER as DEFAULT_LIDAR_DIR
+from benchmarks.lidar import RUNS, r16
 from pssd_fast import core, datasets
 
-#: Where the tests look for the real LiDAR files when ``PSSD_LIDAR`` is unset: the folder
-#: ``shared/data/lidar`` beside the repository.
-DEFAULT_LIDAR_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "lidar"
-#: Every preset and method, as a user would call them.
-RUNS = {"default": {}, "fast": {"preset": "fast"}, "paper": {"preset": "paper"},
-        "bilateral": {"method": "bilateral"}, "mls": {"method": "mls"}}
 #: The parts of the shared files where the library flung points before the guard (each box
 #: ``(x0, y0, x1, y1)`` relative to the file's lowest corner, in metres): trees and roofs of
 #: the airborne survey (10,675 points) where preset "fast" moved 19 points more than 2 x r16,
@@ -44,13 +42,6 @@ def lidar_points(name):
     rel = points[:, :2] - points[:, :2].min(axis=0)
     inside = (rel[:, 0] >= x0) & (rel[:, 0] < x1) & (rel[:, 1] >= y0) & (rel[:, 1] < y1)
     return points[inside]
-
-
-def r16(points):
-    """The distance from each point to its 16th nearest neighbour (the point itself not
-    counted), as the bound of the issue is stated."""
-    centred = points - points.mean(axis=0)
-    return KDTree(centred).query(centred, k=17)[0][:, -1]
 
 
 @pytest.fixture(scope="module", params=sorted(CROPS))
