@@ -1,6 +1,6 @@
 """The denoisers a user would pick instead of ours, run on a numpy point cloud.
 
-Thin wrappers around two libraries, so that a benchmark can print their rows next to ours:
+Thin wrappers around three libraries, so that a benchmark can print their rows next to ours:
 
 * **CGAL** (``pip install cgal``, the SWIG bindings, modules ``CGAL.CGAL_Point_set_3`` and
   ``CGAL.CGAL_Point_set_processing_3``): :func:`cgal_jet` (``jet_smooth_point_set``) and
@@ -9,6 +9,10 @@ Thin wrappers around two libraries, so that a benchmark can print their rows nex
 * **MeshLab** (``pip install pymeshlab``): :func:`meshlab_rimls` and :func:`meshlab_apss`
   (``compute_mls_projection_rimls`` / ``compute_mls_projection_apss``, projecting the cloud onto
   the MLS surface it defines).
+* **Open3D** (``pip install open3d``, 0.20 or later; on Linux it needs the system's
+  ``libusb-1.0``): :func:`open3d_mls` (``PointCloud.smooth_mls``, a weighted tangent plane per
+  point) and :func:`open3d_bilateral` (``PointCloud.smooth_bilateral``, a bilateral average of
+  the neighbours).
 
 Every wrapper takes ``points``, an ``(n, 3)`` array (read, never modified), plus the method's own
 parameters, and returns a :class:`PeerResult` whose ``points`` are in the *same order* as the
@@ -57,11 +61,16 @@ __all__ = [
     "cgal_bilateral",
     "meshlab_rimls",
     "meshlab_apss",
+    "open3d_mls",
+    "open3d_bilateral",
     "measure_cgal_conversion",
     "noisy_sphere",
 ]
 
-_PIP = {"cgal": "pip install cgal", "pymeshlab": "pip install pymeshlab"}
+_PIP = {"cgal": "pip install cgal", "pymeshlab": "pip install pymeshlab",
+        "open3d": "pip install open3d"}
+#: The libraries the wrappers call, by the name :func:`available` reports.
+LIBRARIES = ("cgal", "pymeshlab", "open3d")
 
 
 @dataclass(frozen=True)
@@ -120,9 +129,24 @@ def _import_pymeshlab():
     return pymeshlab
 
 
+def _import_open3d():
+    """The open3d module (0.20 or later: ``smooth_mls``), or ImportError with the pip command."""
+    try:
+        import open3d
+    except ImportError as error:
+        raise ImportError(
+            f"open3d is not installed or cannot load ({error}); install it with "
+            f"`{_PIP['open3d']}` (on Linux it also needs the system's libusb-1.0)") from error
+    if not hasattr(open3d.geometry.PointCloud, "smooth_mls"):
+        raise ImportError(f"open3d {open3d.__version__} has no smooth_mls; install 0.20 or "
+                          f"later with `{_PIP['open3d']}`")
+    return open3d
+
+
 @functools.lru_cache(maxsize=None)
 def _can_import(library: str) -> bool:
-    loader = {"cgal": _import_cgal, "pymeshlab": _import_pymeshlab}[library]
+    loader = {"cgal": _import_cgal, "pymeshlab": _import_pymeshlab,
+              "open3d": _import_open3d}[library]
     try:
         loader()
     except ImportError:
@@ -131,8 +155,8 @@ def _can_import(library: str) -> bool:
 
 
 def available() -> Dict[str, bool]:
-    """``{"cgal": bool, "pymeshlab": bool}``: whether each library imports."""
-    return {library: _can_import(library) for library in ("cgal", "pymeshlab")}
+    """``{"cgal": bool, "pymeshlab": bool, "open3d": bool}``: whether each library imports."""
+    return {library: _can_import(library) for library in LIBRARIES}
 
 
 # --------------------------------------------------------------------------------------------------
@@ -619,6 +643,94 @@ def meshlab_apss(points, normals=None, *, filter_scale: float = 2.0,
 # The table of peers
 
 
+# --------------------------------------------------------------------------------------------------
+# Open3D peers
+
+
+def _open3d_cloud(points, peer: str, convert):
+    """``(open3d, PointCloud of points)``, the copy timed as conversion."""
+    open3d = _import_open3d()
+    with convert("to_open3d"):
+        # Open3D takes only a writeable buffer; it copies it, the input stays untouched.
+        cloud = open3d.geometry.PointCloud(open3d.utility.Vector3dVector(points.copy()))
+    return open3d, cloud
+
+
+def _open3d_points(cloud, n: int, peer: str, convert) -> np.ndarray:
+    """The cloud's points as a float64 array, checked to be ``n`` rows (the methods keep every
+    point in place)."""
+    with convert("from_open3d"):
+        out = np.array(cloud.points, dtype=np.float64)
+    if out.shape != (n, 3):
+        raise RuntimeError(f"{peer}: the library returned {out.shape[0]} points for {n}")
+    _check_finite(out, peer, "points")
+    return out
+
+
+def open3d_mls(points, k: int = 48, passes: int = 1) -> PeerResult:
+    """Open3D's MLS-style smoothing: ``PointCloud.smooth_mls`` applied ``passes`` times.
+
+    Each pass fits a plane (PCA, uniform weights under a kNN search) to the ``k`` nearest
+    neighbours of every point and projects the point onto it
+    (``smooth_mls(KDTreeSearchParamKNN(k))``). No normals are produced.
+    """
+    peer = "Open3D MLS"
+    points = _check_points(points, peer)
+    n = len(points)
+    k = _check_k(k, n, peer)
+    if int(passes) < 1:
+        raise ValueError(f"{peer}: passes must be >= 1, got {passes}")
+    convert, run = _Timer(), _Timer()
+    open3d, cloud = _open3d_cloud(points, peer, convert)
+    search = open3d.geometry.KDTreeSearchParamKNN(k)
+    with run("smooth"):
+        for _ in range(int(passes)):
+            cloud = _library_call(peer, "smooth_mls", cloud.smooth_mls, search)
+    out = _open3d_points(cloud, n, peer, convert)
+    return PeerResult(points=out, normals=None, seconds=run.total(),
+                      convert_seconds=convert.total(), name=peer, stage_seconds=run.seconds)
+
+
+def open3d_bilateral(points, k: int = 48, passes: int = 1, sigma_s: float = 0.5,
+                     sigma_r: float = 0.3) -> PeerResult:
+    """Open3D's bilateral smoothing: ``PointCloud.smooth_bilateral`` applied ``passes`` times.
+
+    The normals are estimated first over the same ``k`` nearest neighbours
+    (``estimate_normals``; the method would otherwise estimate them at Open3D's defaults). Each
+    pass then moves every point to the average of its ``k`` nearest, weighted by
+    ``exp(-d^2 / 2 sigma_s^2) * exp(-((p_i - p_j) . n_i)^2 / 2 sigma_r^2)``. ``sigma_s`` and
+    ``sigma_r`` are given as multiples of the cloud's median distance to its ``k``-th nearest
+    neighbour (measured with pykdtree and timed as the stage ``"spacing"``), so that one setting
+    suits every scale. Returns the smoothed points and Open3D's final normals.
+    """
+    peer = "Open3D bilateral"
+    points = _check_points(points, peer)
+    n = len(points)
+    k = _check_k(k, n, peer)
+    if int(passes) < 1:
+        raise ValueError(f"{peer}: passes must be >= 1, got {passes}")
+    if not (sigma_s > 0 and sigma_r > 0):
+        raise ValueError(f"{peer}: sigma_s and sigma_r must be positive, got {sigma_s}, "
+                         f"{sigma_r}")
+    from pykdtree.kdtree import KDTree
+    convert, run = _Timer(), _Timer()
+    open3d, cloud = _open3d_cloud(points, peer, convert)
+    search = open3d.geometry.KDTreeSearchParamKNN(k)
+    with run("spacing"):
+        spacing = float(np.median(KDTree(points).query(points, k=k)[0][:, -1]))
+    with run("normals"):
+        _library_call(peer, "estimate_normals", cloud.estimate_normals, search)
+    with run("smooth"):
+        for _ in range(int(passes)):
+            cloud = _library_call(peer, "smooth_bilateral", cloud.smooth_bilateral, search,
+                                  sigma_s * spacing, sigma_r * spacing)
+    out = _open3d_points(cloud, n, peer, convert)
+    with convert("from_open3d"):
+        normals = _unit(np.array(cloud.normals, dtype=np.float64), peer)
+    return PeerResult(points=out, normals=normals, seconds=run.total(),
+                      convert_seconds=convert.total(), name=peer, stage_seconds=run.seconds)
+
+
 def _passes(count: int) -> str:
     return f"{count} pass" if count == 1 else f"{count} passes"
 
@@ -637,6 +749,12 @@ def _build_peers() -> Dict[str, Callable[[np.ndarray], PeerResult]]:
     if have["pymeshlab"]:
         peers["MeshLab RIMLS (defaults)"] = meshlab_rimls
         peers["MeshLab APSS (defaults)"] = meshlab_apss
+    if have["open3d"]:
+        for k in (24, 48, 96):
+            for passes in (1, 2):
+                peers[f"Open3D MLS (k={k}, {_passes(passes)})"] = functools.partial(
+                    open3d_mls, k=k, passes=passes)
+        peers[f"Open3D bilateral (k=48, {_passes(1)})"] = open3d_bilateral
     return peers
 
 

@@ -22,12 +22,15 @@ distance, *edge* the mean over points whose clean position lies within 1% of the
 an edge sharper than 30 degrees (none on the plane and the sphere: their edge cells are "-"
 and not compared). Shapes in :data:`IN_SAMPLE` are marked in the tables (at seed 0 only).
 
-Peers: CGAL jet smoothing (k in {24, 48, 96}, 1 or 2 passes) and CGAL bilateral smoothing
-(k in {60, 120}, 3 passes). "Best" is taken strictly: for each family and each cell, the
-minimum over its settings separately for the mean and for the edge column (the two minima may
-come from different settings). Peer runs are deterministic and slow, so their scores are cached
-in ``benchmarks/results/versus_peers.json`` under "shape|noise" (sized cells: "shape|noise|N";
-``--refresh-peers`` recomputes them).
+Peers (``pip install ".[compare]"``): CGAL jet smoothing (k in {24, 48, 96}, 1 or 2 passes),
+CGAL bilateral smoothing (k in {60, 120}, 3 passes), Open3D's ``smooth_mls`` (k in {24, 48,
+96}, 1 or 2 passes) and Open3D's ``smooth_bilateral`` (k in {24, 48}, 1 or 3 passes,
+``sigma_s`` half and ``sigma_r`` 0.1, 0.3 or 1 times the median distance to the k-th
+neighbour). "Best" is taken strictly: for each family and each cell, the minimum over its
+settings separately for the mean and for the edge column (the two minima may come from
+different settings). Peer runs are deterministic and slow, so their scores are cached in
+``benchmarks/results/versus_peers.json`` under "shape|noise" (sized cells: "shape|noise|N"); a
+cached cell runs only the families it lacks, ``--refresh-peers`` recomputes them all.
 
 Ours: ``denoise(points)`` at its defaults, ``preset="fast"`` and ``preset="paper"``. Times are
 warm wall times divided by pykdtree's k=25 kNN query (tree build + query, points in Morton
@@ -61,12 +64,27 @@ SIZED_SHAPES = tuple(models.MODELS) + tuple(datasets.GENERATORS)
 IN_SAMPLE = {"cad_part"}
 NOISE_LEVELS = (0.0025, 0.005, 0.01)
 CAD_POINTS = 100_000
+def _passes(p):
+    return f"{p} pass{'es' if p > 1 else ''}"
+
+
 #: Peer family -> label -> keyword arguments.
 PEER_SETTINGS = {
-    "jet": {f"k={k}, {p} pass{'es' if p > 1 else ''}": {"k": k, "passes": p}
-            for k in (24, 48, 96) for p in (1, 2)},
+    "jet": {f"k={k}, {_passes(p)}": {"k": k, "passes": p} for k in (24, 48, 96) for p in (1, 2)},
     "bilateral": {f"k={k}, 3 passes": {"k": k, "passes": 3} for k in (60, 120)},
+    "o3d_mls": {f"k={k}, {_passes(p)}": {"k": k, "passes": p}
+                for k in (24, 48, 96) for p in (1, 2)},
+    "o3d_bilateral": {f"k={k}, {_passes(p)}, sigma_r {r:g}": {"k": k, "passes": p,
+                                                              "sigma_s": 0.5, "sigma_r": r}
+                      for k in (24, 48) for p in (1, 3) for r in (0.1, 0.3, 1.0)},
 }
+#: Each family's wrapper in ``benchmarks.peers`` and its name in the tables.
+PEER_CALLS = {"jet": "cgal_jet", "bilateral": "cgal_bilateral", "o3d_mls": "open3d_mls",
+              "o3d_bilateral": "open3d_bilateral"}
+PEER_NAMES = {"jet": "CGAL jet", "bilateral": "CGAL bilateral", "o3d_mls": "Open3D MLS",
+              "o3d_bilateral": "Open3D bilateral"}
+#: Short column heads of each family.
+SHORT = {"jet": "jet", "bilateral": "bil.", "o3d_mls": "o3d MLS", "o3d_bilateral": "o3d bil."}
 FAMILIES = tuple(PEER_SETTINGS)
 COLUMNS = ("mean", "edge")
 
@@ -144,11 +162,13 @@ def load_peer_cache(path=PEER_CACHE):
 
 
 def peer_cell(case, key, cache_path, refresh, log):
-    """The peer scores of one cell from the cache, running CGAL (and caching) when missing."""
-    cells = load_peer_cache(cache_path)["cells"]
-    if key in cells and not refresh:
-        return cells[key]
-    cell = run_peers(case, log)
+    """The peer scores of one cell from the cache, running the families it lacks (all of them
+    with ``refresh``) and caching them."""
+    cached = {} if refresh else load_peer_cache(cache_path)["cells"].get(key, {})
+    missing = [family for family in FAMILIES if family not in cached]
+    if not missing:
+        return cached
+    cell = {**cached, **run_peers(case, log, missing)}
     cache = load_peer_cache(cache_path)  # re-read: another run may have added cells meanwhile
     cache["cells"][key] = cell
     cache["machine"] = machine()
@@ -157,19 +177,20 @@ def peer_cell(case, key, cache_path, refresh, log):
     return cell
 
 
-def run_peers(case, log):
-    """Every peer setting on one case: family -> label -> {mean, edge, seconds}."""
+def run_peers(case, log, families=FAMILIES):
+    """Every setting of the peer ``families`` on one case: family -> label -> {mean, edge,
+    seconds}."""
     from . import peers
     out = {}
-    for family, settings in PEER_SETTINGS.items():
-        call = peers.cgal_jet if family == "jet" else peers.cgal_bilateral
+    for family in families:
+        call = getattr(peers, PEER_CALLS[family])
         out[family] = {}
-        for label, kwargs in settings.items():
+        for label, kwargs in PEER_SETTINGS[family].items():
             result = call(case.points, **kwargs)
             mean, edge = case.score(result.points)
             out[family][label] = {"mean": mean, "edge": edge, "seconds": result.seconds}
-            log(f"  CGAL {family:9s} {label:18s} {_fmt(mean, 2):>7s} {_fmt(edge, 2):>7s} "
-                f"{result.seconds:7.2f} s")
+            log(f"  {PEER_NAMES[family]:16s} {label:26s} {_fmt(mean, 2):>7s} "
+                f"{_fmt(edge, 2):>7s} {result.seconds:7.2f} s")
     return out
 
 
@@ -285,36 +306,41 @@ def markdown(rows, compile_seconds, sized=False):
     rule = "|---|---|" + ("---|" if sized else "")
     no_edge = any(r["noisy"]["edge"] is None for r in rows)
     seeds = sorted({r.get("seed", 0) for r in rows})
+    peers_head = "".join(f" best {SHORT[f]} | W/L {SHORT[f]} |" for f in FAMILIES)
+    peers_time = "".join(f" {SHORT[f]} / kNN |" for f in FAMILIES)
     out = [f"Machine: {machine()}. JIT compilation before timing: {compile_seconds:.1f} s. "
            f"Noise seed: {', '.join(map(str, seeds))}.", "",
            "Errors in 1e-4 of the bounding-box diagonal, *mean* / *edge* (points within 1% of "
            "the diagonal of an edge sharper than 30 degrees"
            + ("; \"-\" where a shape has none" if no_edge else "")
            + "). *Jet* / *Bil.*: the best CGAL jet (k 24, 48, 96; 1-2 passes) and CGAL "
-           "bilateral (k 60, 120; 3 passes) result, minimum over settings taken separately "
-           "for each column. *W/L*: win or lose of our default against that peer, mean then "
-           "edge. Time: wall time divided by pykdtree's k=25 kNN "
+           "bilateral (k 60, 120; 3 passes) result; *o3d MLS* / *o3d bil.*: the best Open3D "
+           "`smooth_mls` (k 24, 48, 96; 1-2 passes) and `smooth_bilateral` (k 24, 48; 1 or 3 "
+           "passes; 3 range widths) result; each the minimum over its settings taken "
+           "separately for each column. *W/L*: win or lose of our default against that peer, "
+           "mean then edge. Time: wall time divided by pykdtree's k=25 kNN "
            "query on the same points in the same run (*kNN* in seconds).", "",
-           lead + " noisy | ours default (k) | ours paper | best jet | W/L jet | "
-           "best bil. | W/L bil. | ours fast | kNN (s) | default / kNN | default per it. / kNN "
-           "| fast / kNN | paper / kNN | jet / kNN | bil. / kNN |",
-           rule + "---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           lead + " noisy | ours default (k) | ours paper |" + peers_head + " ours fast | "
+           "kNN (s) | default / kNN | default per it. / kNN | fast / kNN | paper / kNN |"
+           + peers_time,
+           rule + "---|---|---|" + "---|---|" * len(FAMILIES) + "---|---|---|---|---|---|"
+           + "---|" * len(FAMILIES)]
     for r in rows:
-        d, p, j, b, f = r["default"], r["paper"], r["jet"], r["bilateral"], r["fast"]
+        d, p, f = r["default"], r["paper"], r["fast"]
         knn = r["knn_seconds"]
+        versus = "".join(f" {_pair(r[fam])} | {_wl(d['mean'], r[fam]['mean'])} / "
+                         f"{_wl(d['edge'], r[fam]['edge'])} |" for fam in FAMILIES)
+        times = "".join(f" {r[fam]['seconds'] / knn:.0f} |" for fam in FAMILIES)
         out.append(
             f"{_lead(r, sized)} {_pair(r['noisy'])} | **{_pair(d)}** ({d['k']}) | "
-            f"{_pair(p)} | {_pair(j)} | "
-            f"{_wl(d['mean'], j['mean'])} / {_wl(d['edge'], j['edge'])} | {_pair(b)} | "
-            f"{_wl(d['mean'], b['mean'])} / {_wl(d['edge'], b['edge'])} | "
-            f"{_pair(f)} | {knn:.3f} | "
+            f"{_pair(p)} |{versus} {_pair(f)} | {knn:.3f} | "
             f"{d['seconds'] / knn:.0f} | {d['iteration_seconds'] / knn:.0f} | "
-            f"{f['seconds'] / knn:.0f} | {p['seconds'] / knn:.0f} | "
-            f"{j['seconds'] / knn:.0f} | {b['seconds'] / knn:.0f} |")
+            f"{f['seconds'] / knn:.0f} | {p['seconds'] / knn:.0f} |{times}")
     out += ["", _tally(rows, sized)]
     out += ["", "Peer setting behind each minimum (mean / edge) and its time in seconds "
             "(peer times are cached with the scores, from the run that made the cache):", "",
-            lead + " jet mean | jet edge | bil. mean | bil. edge |", rule + "---|---|---|---|"]
+            lead + "".join(f" {SHORT[f]} {col} |" for f in FAMILIES for col in COLUMNS),
+            rule + "---|" * (len(FAMILIES) * len(COLUMNS))]
     for r in rows:
         cells = ["-" if r[fam][col + "_setting"] is None else
                  f"{r[fam][col + '_setting']} ({r[fam][col + '_seconds']:.1f} s)"

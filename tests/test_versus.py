@@ -1,4 +1,4 @@
-"""The CGAL comparison suite: its verdicts and its output, without running CGAL."""
+"""The peer comparison suite: its verdicts and its output, without running the peers."""
 import json
 
 import pytest
@@ -31,7 +31,8 @@ def test_versus_writes_the_table_from_a_peer_cache(tmp_path):
     text = (tmp_path / "versus.md").read_text()
     assert "| cad_part\\* | 0.50% |" in text and "win / lose" in text
     assert "\\* In-sample" in text
-    assert "Cells won: 2 of 4." in text and "cad_part 0.50% edge vs jet" in text
+    assert f"Cells won: {len(versus.FAMILIES)} of {2 * len(versus.FAMILIES)}." in text
+    assert "cad_part 0.50% edge vs jet" in text and "cad_part 0.50% edge vs o3d_mls" in text
     assert len(json.loads((tmp_path / "versus.json").read_text())["rows"]) == 1
 
 
@@ -54,7 +55,9 @@ def test_sized_run_compares_only_real_cells(tmp_path):
     text = (tmp_path / "versus_sparse.md").read_text()
     assert not (tmp_path / "versus.md").exists()
     assert "| plane | 2,000 | 0.50% |" in text and "win / -" in text
-    assert "Cells won: 4 of 6." in text and "cube 2,000 pts 0.50% edge vs jet" in text
+    families = len(versus.FAMILIES)
+    assert f"Cells won: {2 * families} of {3 * families}." in text
+    assert "cube 2,000 pts 0.50% edge vs jet" in text
     assert "In-sample" not in text
 
 
@@ -76,3 +79,27 @@ def test_another_seed_draws_other_cells_and_files(tmp_path):
     text = (tmp_path / "versus_sparse_seed1.md").read_text()
     assert "Noise seed: 1." in text and "In-sample" not in text
     assert not (tmp_path / "versus_sparse.md").exists()
+
+
+def test_a_cached_cell_runs_only_the_families_it_lacks(tmp_path, monkeypatch):
+    fake = {"mean": 1.0, "edge": 1.0, "seconds": 1.0}
+    cached = {family: {label: dict(fake) for label in versus.PEER_SETTINGS[family]}
+              for family in ("jet", "bilateral")}
+    path = tmp_path / versus.PEER_CACHE.name
+    path.write_text(json.dumps({"machine": "test", "cells": {"cube|0.005": cached}}))
+    ran = []
+
+    def run_peers(case, log, families):
+        ran.append(tuple(families))
+        return {family: {"s": dict(fake, mean=2.0)} for family in families}
+
+    monkeypatch.setattr(versus, "run_peers", run_peers)
+    case = versus.make_case("cube", 0.005, 500)
+    cell = versus.peer_cell(case, "cube|0.005", path, False, print)
+    assert ran == [tuple(f for f in versus.FAMILIES if f not in cached)]
+    assert cell["jet"] == cached["jet"] and set(cell) == set(versus.FAMILIES)
+    assert json.loads(path.read_text())["cells"]["cube|0.005"] == cell
+    assert versus.peer_cell(case, "cube|0.005", path, False, print) == cell  # nothing to run
+    assert len(ran) == 1
+    versus.peer_cell(case, "cube|0.005", path, True, print)  # refresh: every family again
+    assert ran[-1] == versus.FAMILIES
