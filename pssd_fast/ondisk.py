@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import atomic
 from ._validation import check_size
 from .graph import _MORTON_BITS, bounds
 from .kernels.order import morton_codes
@@ -560,11 +561,11 @@ def part_records(rows, points, normals, likelihood, feature, displacement):
 
 
 def save(records, path):
-    """``records`` to ``path`` through a temporary name: a task run again after a lost worker
-    never finds a half-written file."""
-    temporary = path.with_suffix(".partial")
-    records.tofile(temporary)
-    os.replace(temporary, path)
+    """``records`` to ``path``, whole or not at all (:func:`pssd_fast.atomic.replacing`): a
+    task run again while a worker thought lost still writes the same part leaves one whole
+    part, never a mix."""
+    with atomic.replacing(path) as fh:
+        records.tofile(fh)
 
 
 #: A point between the iterations of a tiled run on its points: its input row, its

@@ -18,14 +18,13 @@ view), ``"x"`` by the cyclic exchange that makes ``x`` the new ``z`` (and ``y`` 
 Each field has one colour map and one fixed range (:data:`STYLES`), shared by ``pssd render``,
 ``pssd demo`` and :func:`figure_set`, so pictures meant to be compared use one scale.
 """
-import os
-import secrets
 from pathlib import Path
 from types import SimpleNamespace
 from typing import NamedTuple, Optional
 
 import numpy as np
 
+from . import atomic
 from ._validation import as_normals, as_points, check_float, check_int
 
 __all__ = ["COLOR_FIELDS", "DEFAULT_VIEW", "IMAGE_FORMATS", "STYLES", "UP_AXES", "Style",
@@ -575,19 +574,10 @@ def image_format(path):
 
 
 def _write_image(path, picture, kind, imsave):
-    """Write ``picture`` to ``path`` as ``kind`` atomically: a hidden temporary file, then
-    ``os.replace``."""
-    path = Path(path)
-    # Open the temporary with "xb" (not mkstemp) so it gets the umask's permissions, like any
-    # file the user writes, and never clobbers another file.
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-    try:
-        with open(tmp, "xb") as f:
-            imsave(f, picture, format=kind)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    """Write ``picture`` to ``path`` as ``kind``, whole or not at all
+    (:func:`pssd_fast.atomic.replacing`)."""
+    with atomic.replacing(path) as f:
+        imsave(f, picture, format=kind)
 
 
 def figure_set(folder, noisy, denoised, *, likelihood, feature, displacement,

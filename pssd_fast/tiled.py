@@ -13,7 +13,6 @@ fits. The result is bit-identical to :func:`pssd_fast.denoise`.
 Dask is an optional dependency: ``pip install "pssd_fast[dask]"``.
 """
 import importlib
-import os
 import shutil
 import tempfile
 import time
@@ -21,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import core, duplicates, halo, ondisk
+from . import atomic, core, duplicates, halo, ondisk
 from . import plan as planning
 from ._threads import threads
 from ._validation import (
@@ -264,8 +263,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     started = time.perf_counter()
     folder = Path(tempfile.mkdtemp(prefix="pssd_tiles_", dir=scratch or destination.parent))
     # Beside the destination, so that the last rename stays on one file system.
-    output = destination.with_name(f".{destination.stem}.{os.getpid()}.partial"
-                                   f"{destination.suffix}")
+    output = atomic.temporary(destination)
     params = {**PARAMS, "sigma_n": sigma_n}
     try:
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
@@ -299,7 +297,8 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
             clock = Clock(report, iterations - 1, iterations)
             clock.run("write", _write, array, output, parts, cloud.rows, dtype, folder, fields,
                       cloud.copies if cloud.duplicates else None)
-            _replace(output, destination)
+            atomic.sync(output)
+            atomic.replace(output, destination)
         records[0]["times"].update(first.times)
         records[-1]["times"].update(clock.times)
     finally:
@@ -473,18 +472,6 @@ def _file_finish(part, dbar, centre, orient, centroid, n_jobs):
         if orient is not None:
             halo.orient_pointwise(records["xyz"] - centre, records["nrm"], orient, centroid)
         ondisk.save(records, part)
-
-
-def _replace(output, destination):
-    """``output`` renamed to ``destination``; a folder there (a Zarr store) is moved aside
-    first and removed after."""
-    if not destination.is_dir():
-        os.replace(output, destination)
-        return
-    old = destination.with_name(f".{destination.name}.{os.getpid()}.old")
-    os.replace(destination, old)
-    os.replace(output, destination)
-    shutil.rmtree(old)
 
 
 def _relative(orient, centre):

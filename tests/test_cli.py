@@ -277,7 +277,7 @@ def test_sigterm_while_writing_leaves_nothing(tmp_path, cloud):
                              str(tmp_path / "out.ply"), "--iterations", "1", "--quiet"],
                             stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 300
-    while not list(tmp_path.glob(".out.ply.*.tmp")):
+    while not list(tmp_path.glob(".out.*.partial.ply")):
         assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
         time.sleep(0.05)
     proc.send_signal(signal.SIGTERM)
@@ -357,7 +357,7 @@ def test_an_unwritable_folder_is_one_line(tmp_path, cloud, monkeypatch, capsys):
     """Root ignores permission bits, so the refusal is simulated where the file is created."""
     import builtins
 
-    from pssd_fast.io import _common
+    from pssd_fast import atomic
 
     source = tmp_path / "in.xyz"
     np.savetxt(source, cloud.points)
@@ -367,7 +367,7 @@ def test_an_unwritable_folder_is_one_line(tmp_path, cloud, monkeypatch, capsys):
             raise PermissionError(13, "Permission denied", str(file))
         return builtins.open(file, mode, *args, **kwargs)
 
-    monkeypatch.setattr(_common, "open", refuse, raising=False)  # atomic_write's open
+    monkeypatch.setattr(atomic, "open", refuse, raising=False)  # the temporary's open
     status = cli.main(["denoise", str(source), str(tmp_path / "out.ply"), "--iterations", "1",
                        "--quiet"])
     assert_one_line_error(status, capsys.readouterr().err, "Permission denied")

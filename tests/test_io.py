@@ -582,7 +582,7 @@ def test_laz_without_lazrs_says_how_to_install(tmp_path, monkeypatch):
 
 
 def leftovers(folder):
-    return sorted(p.name for p in folder.iterdir() if p.name.endswith(".tmp"))
+    return sorted(p.name for p in folder.iterdir() if ".partial" in p.name)
 
 
 def write_some_then_fail(fh, *args, **kwargs):

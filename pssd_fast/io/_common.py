@@ -1,10 +1,11 @@
 """What the format modules share: the cloud, the errors, argument checks and atomic writing."""
 import importlib
 import os
-import secrets
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from .. import atomic
 
 COORDS = ("x", "y", "z")
 NORMALS = ("nx", "ny", "nz")
@@ -168,28 +169,11 @@ def exists_message(path, cloud):
 
 
 def atomic_write(path, payload, overwrite, cloud):
-    """Run ``payload(file)`` on a temporary file next to ``path``, then rename it onto ``path``.
-
-    The temporary file is in the same folder so that ``os.replace`` is an atomic rename on the
-    same file system; it is created with ``open(..., "xb")`` so that it gets the usual
-    permissions (umask) rather than mkstemp's private ones.
-    """
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-    try:
-        with open(tmp, "xb") as fh:
-            payload(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        # Checked again: another process may have created the file while this one wrote.
-        if not overwrite and path.exists():
-            raise FileExistsError(exists_message(path, cloud))
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    """Run ``payload(file)`` on a file that replaces ``path`` whole or not at all
+    (:func:`pssd_fast.atomic.replacing`)."""
+    message = exists_message(path, cloud) if path.exists() else None
+    with atomic.replacing(path, overwrite=overwrite, exists_message=message) as fh:
+        payload(fh)
 
 
 def need(module, package, what):
