@@ -13,6 +13,7 @@ fits. The result is bit-identical to :func:`pssd_fast.denoise`.
 Dask is an optional dependency: ``pip install "pssd_fast[dask]"``.
 """
 import importlib
+import os
 import shutil
 import tempfile
 import time
@@ -64,15 +65,19 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     iterations, orient, sigma_n, select_scales, n_jobs, progress
         As in :func:`pssd_fast.denoise` (``select_scales`` on the points only, as there; the
         plan of its walks is made before the tiles, and each task's halo covers the lists of
-        ``4.5 k``); ``n_jobs`` threads run each task's kernels and
-        ``progress`` also hears of each finished tile (stages ``tile_cells`` and
-        ``tile_update``).
+        ``4.5 k``). ``n_jobs`` is the threads of this machine that the tasks share: the local
+        schedulers run at most that many tasks at once, with ``n_jobs // tasks`` threads
+        each (``"sync"``: one task with all of them); on ``distributed`` each worker shares
+        its own cores between the tasks it runs at once (its threads). ``progress`` also
+        hears of each finished tile (stages ``tile_cells`` and ``tile_update``).
 
     Returns
     -------
     DenoiseResult
         Bit-identical to ``pssd_fast.denoise(points, normals, preset=preset, ...)``;
-        ``stats["tiles"]`` gives the number of tiles, their most points and the scheduler.
+        ``stats["tiles"]`` gives the number of tiles, their most points, the scheduler and
+        the ``threads`` the tasks took (``tasks_at_once`` and ``threads_per_task``: the most
+        of each; on ``distributed`` the workers' threads in all and the largest share).
 
     Raises
     ------
@@ -125,7 +130,7 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
                 # Propagation over the whole cloud's lists does not tile: one by one.
                 halo.orient_pointwise(current, out_normals, _relative(orient, centre), centroid)
             tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
-                     "scheduler": runner.name, "route": "halo"}
+                     "scheduler": runner.name, "threads": runner.threads, "route": "halo"}
             return result(pts, dtype, (order, groups), centre, current, out_normals, extra,
                           held, np.arange(n_input), (pts.astype(dtype), n_jobs),
                           _stats(n_input, n, plan, preset, orient, iterations, params,
@@ -160,7 +165,7 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
                                       cells.surface_k, coarse.fit_record(held, nearest, rms,
                                                                          degree))
     tiled = {"count": len(tiles), "most_points": int(max(len(p) for p in parts)),
-             "scheduler": runner.name, "route": "cells"}
+             "scheduler": runner.name, "threads": runner.threads, "route": "cells"}
     return result(pts, dtype, (order, groups), centre, current, surface_normals[nearest],
                   tuple(x[nearest] for x in extra), held, np.arange(n_input),
                   (pts.astype(dtype), n_jobs),
@@ -293,7 +298,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
                 parts, records, tiled, held = _file_cells(
                     cloud, plan, folder, runner, first, report, iterations, sigma_n,
                     tile_points, preset, params, orient)
-            tiled["scheduler"] = runner.name
+            tiled.update(scheduler=runner.name, threads=runner.threads)
             clock = Clock(report, iterations - 1, iterations)
             clock.run("write", _write, array, output, parts, cloud.rows, dtype, folder, fields,
                       cloud.copies if cloud.duplicates else None)
@@ -568,7 +573,13 @@ def _tile_update(points, surface, normals, coef, n_jobs):
 
 
 class _Runner:
-    """Runs each tile's task on the chosen scheduler and reports each finished tile."""
+    """Runs each tile's task on the chosen scheduler and reports each finished tile.
+
+    The tasks that run at once share the cores: on the local schedulers at most ``n_jobs``
+    tasks at once with ``n_jobs // tasks`` threads each (``"sync"``: one task with all of
+    them), on ``distributed`` each worker's cores split between its threads' tasks
+    (:func:`_worker_threads`). ``threads`` records what the tasks took, for ``stats``.
+    """
 
     def __init__(self, client, n_jobs, report):
         self.client = client
@@ -577,6 +588,7 @@ class _Runner:
         self.own = None
         self.name = "threads" if client is None else (
             client if client in LOCAL_SCHEDULERS else "distributed")
+        self.threads = None
 
     def __enter__(self):
         try:
@@ -592,6 +604,12 @@ class _Runner:
     def __exit__(self, *exc):
         if self.own is not None:
             self.own.close()
+
+    def _record(self, at_once, per_task):
+        """Keep the most tasks at once and the most threads a task took."""
+        before = self.threads or {"tasks_at_once": 0, "threads_per_task": 0}
+        self.threads = {"tasks_at_once": max(before["tasks_at_once"], at_once),
+                        "threads_per_task": max(before["threads_per_task"], per_task)}
 
     def map(self, stage, iteration, iterations, func, argsets):
         """``func(*args, n_jobs)`` for each of ``argsets``, results in their order."""
@@ -609,7 +627,12 @@ class _Runner:
         if self.name == "distributed":
             import distributed
 
-            futures = [self.client.submit(func, *args, self.n_jobs, pure=False)
+            slots = {address: worker["nthreads"]
+                     for address, worker in self.client.scheduler_info()["workers"].items()}
+            # A worker lost meanwhile is left out here; Dask reruns its tasks elsewhere.
+            shares = self.client.run(_worker_threads, on_error="ignore")
+            self._record(sum(slots.values()), max(shares.values(), default=1))
+            futures = [self.client.submit(_on_worker, func, *args, pure=False)
                        for args in argsets]
             for _ in distributed.as_completed(futures):
                 finished()
@@ -621,6 +644,27 @@ class _Runner:
             def _posttask(self, key, value, dsk, state, worker_id):
                 finished()
 
-        tasks = [dask.delayed(func, pure=False)(*args, self.n_jobs) for args in argsets]
+        at_once = 1 if self.name == "sync" else max(1, min(total, self.n_jobs))
+        per_task = max(1, self.n_jobs // at_once)
+        self._record(at_once, per_task)
+        tasks = [dask.delayed(func, pure=False)(*args, per_task) for args in argsets]
         with Tiles():
-            return list(dask.compute(*tasks, scheduler=self.name))
+            return list(dask.compute(*tasks, scheduler=self.name, num_workers=at_once))
+
+
+def _worker_threads(dask_worker=None):
+    """The threads of each task on a Dask worker (this task's, or ``dask_worker``, as
+    ``Client.run`` passes it): the cores its process may use, shared between the tasks it runs
+    at once (its ``nthreads``)."""
+    if dask_worker is None:
+        import distributed
+
+        dask_worker = distributed.get_worker()
+    cores = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+             else os.cpu_count() or 1)
+    return max(1, cores // max(1, dask_worker.state.nthreads))
+
+
+def _on_worker(func, *args):
+    """``func(*args, n_jobs)`` with the worker's share of threads."""
+    return func(*args, _worker_threads())

@@ -1,4 +1,6 @@
 """Tiled runs on Dask give the in-core result, bit for bit."""
+import os
+
 import numpy as np
 import pytest
 
@@ -75,6 +77,43 @@ def test_threads_give_the_in_core_result(noisy, in_core, preset):
     _assert_same(got, in_core[preset])
 
 
+def test_tasks_at_once_share_the_cores(noisy, in_core, monkeypatch):
+    """Dask's local schedulers run at most n_jobs threads in all, tasks at once times the
+    threads of each, and say so in stats; the result stays the in-core one."""
+    import contextlib
+    import threading
+
+    from pssd_fast._threads import resolve_n_jobs
+
+    cores = resolve_n_jobs(2)
+    lock, busy, most = threading.Lock(), [0], [0]
+    real = tiled.threads
+
+    @contextlib.contextmanager
+    def counted(n_jobs):
+        with real(n_jobs) as n:
+            if threading.current_thread() is threading.main_thread():
+                yield n  # the run's own setting, around the tasks
+                return
+            with lock:
+                busy[0] += n
+                most[0] = max(most[0], busy[0])
+            try:
+                yield n
+            finally:
+                with lock:
+                    busy[0] -= n
+
+    monkeypatch.setattr(tiled, "threads", counted)
+    got = tiled.denoise(noisy.points, tile_points=20_000, n_jobs=2)
+    assert 0 < most[0] <= cores
+    assert got.stats["tiles"]["threads"] == {"tasks_at_once": cores, "threads_per_task": 1}
+    _assert_same(got, in_core["default"])
+    alone = tiled.denoise(noisy.points, tile_points=20_000, n_jobs=2, client="sync")
+    assert alone.stats["tiles"]["threads"] == {"tasks_at_once": 1, "threads_per_task": cores}
+    _assert_same(alone, in_core["default"])
+
+
 def test_a_local_cluster_of_two_processes_gives_the_in_core_result(noisy, in_core):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
@@ -84,6 +123,11 @@ def test_a_local_cluster_of_two_processes_gives_the_in_core_result(noisy, in_cor
         assert got.stats["tiles"]["scheduler"] == "distributed"
         assert got.stats["tiles"]["count"] >= 8
         _assert_same(got, in_core["default"])
+        # Each worker runs one task at a time: it gives that task all its cores.
+        shares = client.run(tiled._worker_threads)
+        assert set(shares.values()) == {len(os.sched_getaffinity(0))}
+        assert got.stats["tiles"]["threads"] == {
+            "tasks_at_once": 2, "threads_per_task": len(os.sched_getaffinity(0))}
         # The scheduler's address does as well as the client.
         by_address = tiled.denoise(noisy.points, tile_points=100_000,
                                    client=cluster.scheduler_address)
@@ -363,7 +407,6 @@ def test_a_zarr_group_tiled_out_of_core_gives_the_in_core_points(tmp_path):
                                              (40_000, 0.002, "tile_step")])
 def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path, n, noise, stage):
     """A worker killed while the tiles run: Dask runs its tasks again, the result stands."""
-    import os
     import signal
 
     distributed = pytest.importorskip("distributed")
