@@ -10,9 +10,9 @@ Thin wrappers around three libraries, so that a benchmark can print their rows n
   (``compute_mls_projection_rimls`` / ``compute_mls_projection_apss``, projecting the cloud onto
   the MLS surface it defines).
 * **Open3D** (``pip install open3d``, 0.20 or later; on Linux it needs the system's
-  ``libusb-1.0``): :func:`open3d_mls` (``PointCloud.smooth_mls``, a weighted tangent plane per
-  point) and :func:`open3d_bilateral` (``PointCloud.smooth_bilateral``, a bilateral average of
-  the neighbours).
+  ``libusb-1.0``): :func:`open3d_mls` (``PointCloud.smooth_mls``, a tangent plane through
+  each point's neighbours) and :func:`open3d_bilateral` (``PointCloud.smooth_bilateral``, a
+  bilateral average of the neighbours).
 
 Every wrapper takes ``points``, an ``(n, 3)`` array (read, never modified), plus the method's own
 parameters, and returns a :class:`PeerResult` whose ``points`` are in the *same order* as the
@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Dict, Mapping, Optional, Tuple
 
 import numpy as np
+from pykdtree.kdtree import KDTree
 
 __all__ = [
     "PeerResult",
@@ -647,7 +648,7 @@ def meshlab_apss(points, normals=None, *, filter_scale: float = 2.0,
 # Open3D peers
 
 
-def _open3d_cloud(points, peer: str, convert):
+def _open3d_cloud(points, convert):
     """``(open3d, PointCloud of points)``, the copy timed as conversion."""
     open3d = _import_open3d()
     with convert("to_open3d"):
@@ -681,7 +682,7 @@ def open3d_mls(points, k: int = 48, passes: int = 1) -> PeerResult:
     if int(passes) < 1:
         raise ValueError(f"{peer}: passes must be >= 1, got {passes}")
     convert, run = _Timer(), _Timer()
-    open3d, cloud = _open3d_cloud(points, peer, convert)
+    open3d, cloud = _open3d_cloud(points, convert)
     search = open3d.geometry.KDTreeSearchParamKNN(k)
     with run("smooth"):
         for _ in range(int(passes)):
@@ -712,9 +713,8 @@ def open3d_bilateral(points, k: int = 48, passes: int = 1, sigma_s: float = 0.5,
     if not (sigma_s > 0 and sigma_r > 0):
         raise ValueError(f"{peer}: sigma_s and sigma_r must be positive, got {sigma_s}, "
                          f"{sigma_r}")
-    from pykdtree.kdtree import KDTree
     convert, run = _Timer(), _Timer()
-    open3d, cloud = _open3d_cloud(points, peer, convert)
+    open3d, cloud = _open3d_cloud(points, convert)
     search = open3d.geometry.KDTreeSearchParamKNN(k)
     with run("spacing"):
         spacing = float(np.median(KDTree(points).query(points, k=k)[0][:, -1]))
