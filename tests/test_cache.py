@@ -168,3 +168,38 @@ def test_the_type_key_tells_apart_what_numba_types_tell_apart():
     assert len(set(zip(keys, types))) == len(set(keys)) == len(values)
     assert len(set(types)) == len(values) - 1
     assert cache._type_key(np.ones((9, 3))) == keys[0] and cache._type_key(7) == keys[6]
+
+
+def _twice(x):
+    return 2.0 * x
+
+
+def _thrice(x):
+    return 3.0 * x
+
+
+def test_a_failed_or_hung_child_moves_only_its_kernel_into_this_process(tmp_path, monkeypatch):
+    """A child that hangs past the timeout (or cannot start) makes its own kernel compile in
+    this process, with a warning naming it; the next kernel still asks its child."""
+    import numba
+
+    monkeypatch.setattr(cache, "CACHE_DIR", tmp_path / "kernels-test")
+    asked = []
+
+    def run(command, *, timeout, **kwargs):
+        asked.append(timeout)
+        if len(asked) == 1:
+            raise subprocess.TimeoutExpired(command, timeout)
+        raise FileNotFoundError(2, "No such file or directory", command[0])
+
+    monkeypatch.setattr(cache.subprocess, "run", run)
+    # In-memory dispatchers: what this process compiles never reaches a cache.
+    hung = cache.Kernel(numba.njit(cache=False)(_twice))
+    other = cache.Kernel(numba.njit(cache=False)(_thrice))
+    with pytest.warns(RuntimeWarning, match=r"_twice in a child process failed \(Timeout"):
+        assert hung(2.0) == 4.0
+    assert hung(1.0) == 2.0 and hung(3) == 6.0  # new types: no second child for this kernel
+    assert asked == [cache.CHILD_TIMEOUT]
+    with pytest.warns(RuntimeWarning, match=r"_thrice in a child process failed \(FileNotF"):
+        assert other(2.0) == 6.0
+    assert asked == [cache.CHILD_TIMEOUT] * 2

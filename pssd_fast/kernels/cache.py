@@ -34,6 +34,9 @@ import numpy as np
 
 #: Environment variable naming the folder under which compiled kernels are cached.
 CACHE_ENV = "PSSD_FAST_CACHE_DIR"
+#: Seconds a child may take to compile one kernel signature; past them that kernel compiles in
+#: the calling process (a hung child would otherwise hold every kernel's first call).
+CHILD_TIMEOUT = 600.0
 _KERNEL_DIR = Path(__file__).resolve().parent
 _PACKAGE_PARENT = _KERNEL_DIR.parent.parent
 
@@ -134,11 +137,11 @@ class Kernel:
     """
 
     _lock = threading.Lock()
-    _child_failed = False
 
     def __init__(self, dispatcher):
         self.dispatcher = dispatcher
         self._ready = set()
+        self._child_failed = False
         self.__doc__ = dispatcher.__doc__
         self.__name__ = dispatcher.__name__
         self.__module__ = dispatcher.__module__
@@ -168,16 +171,22 @@ class Kernel:
         stamp = os.stat(source)
         built = f"{name}{types}{source}{stamp.st_mtime}{stamp.st_size}"
         marker = CACHE_DIR / "built" / hashlib.sha1(built.encode()).hexdigest()
-        if marker.exists() or Kernel._child_failed:
+        if marker.exists() or self._child_failed:
             return
         request = pickle.dumps((self.__module__, self.__name__, types, str(marker)))
         env = dict(os.environ, **{CACHE_ENV: str(CACHE_DIR.parent)})
-        done = subprocess.run([sys.executable, "-m", "pssd_fast.kernels.build"], input=request,
-                              cwd=_PACKAGE_PARENT, env=env, capture_output=True, check=False)
-        if done.returncode != 0 or not marker.exists():
-            # From now on the dispatchers compile in this process: correct, but see the module
-            # notes. One warning, not one per kernel.
-            Kernel._child_failed = True
-            warnings.warn(f"pssd_fast: compiling {name} in a child process failed "
-                          f"({done.stderr.decode(errors='replace').strip()[-300:]}); compiling "
-                          f"the kernels in this process", RuntimeWarning, stacklevel=3)
+        try:
+            done = subprocess.run([sys.executable, "-m", "pssd_fast.kernels.build"],
+                                  input=request, cwd=_PACKAGE_PARENT, env=env,
+                                  capture_output=True, check=False, timeout=CHILD_TIMEOUT)
+            failure = (None if done.returncode == 0 and marker.exists()
+                       else done.stderr.decode(errors="replace").strip()[-300:])
+        except (OSError, subprocess.TimeoutExpired) as error:
+            # No Python to start (an embedded interpreter), or a child that hangs.
+            failure = f"{type(error).__name__}: {error}"
+        if failure is not None:
+            # This kernel's dispatcher compiles in this process from now on: correct, but see
+            # the module notes. The other kernels still try their children.
+            self._child_failed = True
+            warnings.warn(f"pssd_fast: compiling {name} in a child process failed ({failure}); "
+                          f"compiling it in this process", RuntimeWarning, stacklevel=3)
