@@ -185,6 +185,16 @@ def _check_k(k: int, n: int, peer: str, what: str = "k") -> int:
     return k
 
 
+def _check_passes(points, k: int, passes: int, peer: str):
+    """What every smoothing wrapper checks first: ``(points, n, k, passes)`` with the points as
+    :func:`_check_points` gives them, ``k`` as :func:`_check_k` and ``passes`` at least 1."""
+    points = _check_points(points, peer)
+    k = _check_k(k, len(points), peer)
+    if int(passes) < 1:
+        raise ValueError(f"{peer}: passes must be >= 1, got {passes}")
+    return points, len(points), k, int(passes)
+
+
 def _check_finite(array: np.ndarray, peer: str, what: str) -> None:
     bad = int((~np.isfinite(array)).any(axis=1).sum())
     if bad:
@@ -418,17 +428,13 @@ def cgal_jet(points, k: int = 48, passes: int = 1, *, neighbor_radius: float = 0
     a ball query capped at ``k`` points). No normals are produced.
     """
     peer = "CGAL jet"
-    points = _check_points(points, peer)
-    n = len(points)
-    k = _check_k(k, n, peer)
-    if int(passes) < 1:
-        raise ValueError(f"{peer}: passes must be >= 1, got {passes}")
+    points, n, k, passes = _check_passes(points, k, passes, peer)
     _, processing = _import_cgal()
     convert, run = _Timer(), _Timer()
     with convert("to_cgal"):
         point_set = _to_point_set(points)
     with run("smooth"):
-        for _ in range(int(passes)):
+        for _ in range(passes):
             _library_call(peer, "jet_smooth_point_set", processing.jet_smooth_point_set,
                           point_set, k, float(neighbor_radius), int(degree_fitting),
                           int(degree_monge))
@@ -464,12 +470,8 @@ def cgal_bilateral(points, k: int = 120, passes: int = 3, sharpness_angle: float
     Returns the smoothed points and the final unit normals.
     """
     peer = "CGAL bilateral"
-    points = _check_points(points, peer)
-    n = len(points)
-    k = _check_k(k, n, peer)
+    points, n, k, passes = _check_passes(points, k, passes, peer)
     normal_k = k if normal_k is None else _check_k(normal_k, n, peer, "normal_k")
-    if int(passes) < 1:
-        raise ValueError(f"{peer}: passes must be >= 1, got {passes}")
     _, processing = _import_cgal()
     convert, run = _Timer(), _Timer()
     notes = ""
@@ -487,7 +489,7 @@ def cgal_bilateral(points, k: int = 120, passes: int = 3, sharpness_angle: float
         notes = (f"mst_orient_normals could not orient {unoriented} of {n} normals; those points "
                  "were restored and keep an unoriented normal")
     with run("smooth"):
-        for _ in range(int(passes)):
+        for _ in range(passes):
             _library_call(peer, "bilateral_smooth_point_set",
                           processing.bilateral_smooth_point_set, point_set, k,
                           float(neighbor_radius), float(sharpness_angle))
@@ -676,16 +678,12 @@ def open3d_mls(points, k: int = 48, passes: int = 1) -> PeerResult:
     (``smooth_mls(KDTreeSearchParamKNN(k))``). No normals are produced.
     """
     peer = "Open3D MLS"
-    points = _check_points(points, peer)
-    n = len(points)
-    k = _check_k(k, n, peer)
-    if int(passes) < 1:
-        raise ValueError(f"{peer}: passes must be >= 1, got {passes}")
+    points, n, k, passes = _check_passes(points, k, passes, peer)
     convert, run = _Timer(), _Timer()
     open3d, cloud = _open3d_cloud(points, convert)
     search = open3d.geometry.KDTreeSearchParamKNN(k)
     with run("smooth"):
-        for _ in range(int(passes)):
+        for _ in range(passes):
             cloud = _library_call(peer, "smooth_mls", cloud.smooth_mls, search)
     out = _open3d_points(cloud, n, peer, convert)
     return PeerResult(points=out, normals=None, seconds=run.total(),
@@ -705,11 +703,7 @@ def open3d_bilateral(points, k: int = 48, passes: int = 1, sigma_s: float = 0.5,
     suits every scale. Returns the smoothed points and Open3D's final normals.
     """
     peer = "Open3D bilateral"
-    points = _check_points(points, peer)
-    n = len(points)
-    k = _check_k(k, n, peer)
-    if int(passes) < 1:
-        raise ValueError(f"{peer}: passes must be >= 1, got {passes}")
+    points, n, k, passes = _check_passes(points, k, passes, peer)
     if not (sigma_s > 0 and sigma_r > 0):
         raise ValueError(f"{peer}: sigma_s and sigma_r must be positive, got {sigma_s}, "
                          f"{sigma_r}")
@@ -721,7 +715,7 @@ def open3d_bilateral(points, k: int = 48, passes: int = 1, sigma_s: float = 0.5,
     with run("normals"):
         _library_call(peer, "estimate_normals", cloud.estimate_normals, search)
     with run("smooth"):
-        for _ in range(int(passes)):
+        for _ in range(passes):
             cloud = _library_call(peer, "smooth_bilateral", cloud.smooth_bilateral, search,
                                   sigma_s * spacing, sigma_r * spacing)
     out = _open3d_points(cloud, n, peer, convert)
