@@ -1,9 +1,12 @@
-"""Numba's cache: keyed by every kernel source, never different from a fresh compile, and
-optional when nothing is writable."""
+"""Numba's cache: keyed by every kernel source and the CPU, never different from a fresh
+compile, shared by concurrent processes, loud when it misses, optional when nothing is
+writable."""
 import os
 import shutil
 import subprocess
 import sys
+import threading
+import time
 
 import pytest
 
@@ -12,73 +15,83 @@ from pssd_fast.kernels import cache
 from .conftest import PACKAGE_PARENT
 
 #: Run in a child: denoise a small cloud with the pipelines named in argv[2] (comma-separated);
-#: print whether this process compiled any kernel itself; write each run's outputs' bytes to
-#: ``<argv[1]>/<name>.bin``.
+#: print how many kernel signatures this process compiled itself and the warnings it saw; write
+#: each run's outputs' bytes to ``<argv[1]>/<name>.bin``.
 CHILD = """
-import sys, numpy as np, pssd_fast
+import sys, warnings, numpy as np, pssd_fast
 from pathlib import Path
-from pssd_fast import datasets, kernels
-from pssd_fast.kernels.cache import Kernel
+from pssd_fast import datasets
+from pssd_fast.kernels import cache
 points = datasets.cad_part(n_points=3000, noise=0.005, seed=3).points
 runs = {"default": dict(iterations=2), "paper": dict(preset="paper"),
         "bilateral": dict(method="bilateral", k=20, iterations=1),
         "mls": dict(method="mls", k=20, iterations=1)}
-for name in sys.argv[2].split(","):
-    r = pssd_fast.denoise(points, **runs[name])
-    with open(Path(sys.argv[1]) / f"{name}.bin", "wb") as out:
-        for a in (r.points, r.normals, r.likelihood, r.feature_intensity):
-            if a is not None:
-                out.write(a.tobytes())
-compiled_here = sum(sum(k.stats.cache_misses.values())
-                    for m in kernels.__all__ for k in vars(getattr(kernels, m)).values()
-                    if isinstance(k, Kernel))
-print("compiled here:", compiled_here)
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    for name in sys.argv[2].split(","):
+        r = pssd_fast.denoise(points, **runs[name])
+        with open(Path(sys.argv[1]) / f"{name}.bin", "wb") as out:
+            for a in (r.points, r.normals, r.likelihood, r.feature_intensity):
+                if a is not None:
+                    out.write(a.tobytes())
+print("compiled here:", cache.stats()["compiled"])
+print("warnings:", [str(w.message) for w in caught])
 """
 EVERY_RUN = "default,paper,bilateral,mls"
 
 
-def _child(script, cache_dir, *args, env=None, cwd=None):
+def _child(script, cache_dir, *args, env=None, cwd=None, wait=True):
     env = dict(os.environ if env is None else env, PSSD_FAST_CACHE_DIR=str(cache_dir))
-    return subprocess.run([sys.executable, "-c", script, *map(str, args)], env=env,
-                          cwd=PACKAGE_PARENT if cwd is None else cwd, capture_output=True,
-                          text=True, check=True)
+    command = [sys.executable, "-c", script, *map(str, args)]
+    cwd = PACKAGE_PARENT if cwd is None else cwd
+    if not wait:
+        return subprocess.Popen(command, env=env, cwd=cwd, stdout=subprocess.PIPE, text=True)
+    return subprocess.run(command, env=env, cwd=cwd, capture_output=True, text=True, check=True)
 
 
 def _outputs(folder):
     return {path.stem: path.read_bytes() for path in folder.glob("*.bin")}
 
 
+def _compiled(stdout):
+    return int(stdout.split("compiled here:")[1].split()[0])
+
+
 @pytest.fixture(scope="module")
 def cold(tmp_path_factory):
-    """A child's run of every pipeline on an empty cache folder: the folder (its base, as
-    ``PSSD_FAST_CACHE_DIR``), the outputs' bytes by run and the child's report.
+    """Two children that run every pipeline at once on one empty cache folder: the folder (its
+    base, as ``PSSD_FAST_CACHE_DIR``), each child's outputs' bytes and report.
 
-    Compiling every kernel takes most of two minutes on CI, and the tests below share it. While
-    this process's own cache folder is still empty (a fresh clone, as on CI), the cold run
-    compiles into it, so the rest of the suite loads what it compiled instead of compiling it
-    again; otherwise into a folder of its own.
+    Both compile (or load what the other has just saved); the tests below share the folder.
     """
     folder = tmp_path_factory.mktemp("cold")
-    own = cache.CACHE_DIR
-    fresh = cache.PERSISTENT and not any((own / "built").glob("*"))  # no kernel built yet
-    base = own.parent if fresh else folder / "cache"
-    done = _child(CHILD, base, folder, EVERY_RUN)
-    return base, _outputs(folder), done.stdout
+    base = folder / "cache"
+    outs = [folder / f"child{i}" for i in range(2)]
+    children = []
+    for out in outs:
+        out.mkdir()
+        children.append(_child(CHILD, base, out, EVERY_RUN, wait=False))
+    reports = [child.communicate()[0] for child in children]
+    assert [child.returncode for child in children] == [0, 0], reports
+    return base, [_outputs(out) for out in outs], reports
 
 
-def test_empty_and_warm_cache_give_identical_bytes(cold, tmp_path):
-    base, cold_bytes, cold_stdout = cold
+def test_processes_compiling_into_one_empty_cache_give_a_warm_runs_bytes(cold, tmp_path):
+    """Fresh code and cached code compute the same bits (no fast-math flags), and numba's files
+    written by two processes at once stay whole."""
+    base, cold_bytes, cold_reports = cold
     warm = _child(CHILD, base, tmp_path, EVERY_RUN)
-    assert set(cold_bytes) == set(EVERY_RUN.split(",")) and cold_bytes == _outputs(tmp_path)
-    # The calling process only ever loads kernels: children compiled them into the cache.
-    assert "compiled here: 0" in cold_stdout and "compiled here: 0" in warm.stdout
-    assert len(list(base.glob(f"kernels-{cache.source_key()}/built/*"))) >= 9
+    assert set(cold_bytes[0]) == set(EVERY_RUN.split(","))
+    assert cold_bytes[0] == cold_bytes[1] == _outputs(tmp_path)
+    assert sum(_compiled(report) for report in cold_reports) >= 9
+    assert _compiled(warm.stdout) == 0 and "warnings: []" in warm.stdout
+    folder, = base.glob("kernels-*")
+    assert len(list((folder / "built").iterdir())) >= 9
 
 
 def test_a_copy_of_the_package_sharing_the_cache_gives_identical_bytes(cold, tmp_path):
-    """Another checkout or install of the same source finds the same cache folder, but numba
-    serves a kernel only to the file it was compiled from, as it was then: the copy, and the
-    copy with a rewritten kernel file, still load their kernels instead of compiling them.
+    """Another checkout or install of the same source finds the same cache folder and loads its
+    kernels, also when a kernel file was rewritten with the same contents (a ``git checkout``).
     The MLS baseline alone (its kernels compile in seconds; the mechanism is the same for all)."""
     base, original, _ = cold
     copy = tmp_path / "copy"
@@ -93,8 +106,32 @@ def test_a_copy_of_the_package_sharing_the_cache_gives_identical_bytes(cold, tmp
         out = tmp_path / run
         out.mkdir()
         done = _child(where + CHILD, base, out, "mls", env=env, cwd=tmp_path)
-        assert f"from {copy}" in done.stdout and "compiled here: 0" in done.stdout, run
-        assert _outputs(out) == {"mls": original["mls"]}, run
+        assert f"from {copy}" in done.stdout and _compiled(done.stdout) == 0, run
+        assert _outputs(out) == {"mls": original[0]["mls"]}, run
+
+
+#: Print the cache key of a process whose numba compiles for a generic x86-64 CPU.
+GENERIC = "from pssd_fast.kernels import cache; print(cache.cache_key())"
+
+
+def test_a_cache_copied_across_cpus_is_detected_and_gives_the_same_bytes(cold, tmp_path):
+    """Numba keys each cached signature on the CPU. A cache copied to a folder that numba keys
+    differently (here: the folder of a process compiling for a generic CPU) misses: the process
+    compiles, says so once, naming the folder, and still computes the same bits."""
+    base, original, _ = cold
+    env = dict(os.environ, NUMBA_CPU_NAME="generic", NUMBA_CPU_FEATURES="")
+    generic = _child(GENERIC, base, env=env).stdout.strip()
+    folder, = base.glob("kernels-*")
+    assert generic != folder.name.removeprefix("kernels-")  # the CPU is part of the key
+    copied = tmp_path / "cache" / f"kernels-{generic}"
+    shutil.copytree(folder, copied)
+    out = tmp_path / "out"
+    out.mkdir()
+    done = _child(CHILD, copied.parent, out, "mls", env=env)
+    assert _compiled(done.stdout) > 0
+    warned = done.stdout.split("warnings:")[1]
+    assert warned.count("could not load") == 1 and str(copied) in warned
+    assert _outputs(out) == {"mls": original[0]["mls"]}
 
 
 def test_the_key_changes_with_any_kernel_source(tmp_path, monkeypatch):
@@ -112,13 +149,20 @@ def test_the_key_changes_with_any_kernel_source(tmp_path, monkeypatch):
     assert cache.source_key() == before
 
 
+def test_the_folder_name_changes_with_the_cpu(monkeypatch):
+    before = cache.cache_key()
+    triple, name, features = cache.cpu_key()
+    monkeypatch.setattr(cache, "cpu_key", lambda: (triple, name, features + ",-avx2"))
+    assert cache.cache_key() != before
+
+
 def test_unwritable_cache_folder_falls_back_to_a_private_temporary_one(tmp_path, monkeypatch):
     monkeypatch.setenv(cache.CACHE_ENV, "/proc/pssd_fast_cannot_be_created")
     monkeypatch.setattr(cache.tempfile, "mkdtemp", lambda prefix: str(tmp_path / "scratch"))
     with pytest.warns(RuntimeWarning, match="not writable") as caught:
         folder, persistent = cache._resolve()
     assert len(caught) == 1 and not persistent
-    assert folder == tmp_path / "scratch" / f"kernels-{cache.source_key()}"
+    assert folder == tmp_path / "scratch" / f"kernels-{cache.cache_key()}"
 
 
 def test_nothing_writable_compiles_in_memory(monkeypatch):
@@ -151,7 +195,7 @@ def test_kernel_wrapper_exposes_the_dispatcher():
     from pssd_fast.kernels import normals
     assert normals.pca_normals.py_func.__name__ == "pca_normals"
     assert normals.pca_normals.__doc__.startswith("Unit normals by PCA")
-    assert cache.CACHE_DIR.name == f"kernels-{cache.source_key()}"
+    assert cache.cache_folder().name == f"kernels-{cache.cache_key()}"
 
 
 def test_the_type_key_tells_apart_what_numba_types_tell_apart():
@@ -174,32 +218,86 @@ def _twice(x):
     return 2.0 * x
 
 
-def _thrice(x):
-    return 3.0 * x
+@pytest.fixture
+def own_folder(tmp_path, monkeypatch):
+    """This process's cache state pointed at an empty folder, for in-process kernels."""
+    folder = tmp_path / "kernels-test"
+    folder.mkdir()
+    monkeypatch.setattr(cache, "_state", dict(folder=folder, persistent=True, stamp="test",
+                                              compiled=0, loaded=0, seconds=0.0))
+    return folder
 
 
-def test_a_failed_or_hung_child_moves_only_its_kernel_into_this_process(tmp_path, monkeypatch):
-    """A child that hangs past the timeout (or cannot start) makes its own kernel compile in
-    this process, with a warning naming it; the next kernel still asks its child."""
+def _kernel():
+    """A new dispatcher of ``_twice``, as a fresh process would make it."""
     import numba
+    return cache.Kernel(numba.njit(_twice))
 
-    monkeypatch.setattr(cache, "CACHE_DIR", tmp_path / "kernels-test")
-    asked = []
 
-    def run(command, *, timeout, **kwargs):
-        asked.append(timeout)
-        if len(asked) == 1:
-            raise subprocess.TimeoutExpired(command, timeout)
-        raise FileNotFoundError(2, "No such file or directory", command[0])
+def test_a_kernel_loads_what_another_compiled_and_warns_once_when_the_cache_misses(own_folder):
+    first = _kernel()
+    assert first(2.0) == 4.0 and first(3.0) == 6.0
+    assert cache.stats()["compiled"] == 1 and len(list((own_folder / "built").iterdir())) == 1
+    assert _kernel()(1.5) == 3.0 and cache.stats()["loaded"] == 1  # a later process loads it
+    # The index removed, the marker kept: numba compiles again; one warning names the folder.
+    for index in own_folder.glob("*.nbi"):
+        index.unlink()
+    with pytest.warns(RuntimeWarning, match="could not load") as caught:
+        assert _kernel()(1.0) == 2.0 and _kernel()(1.0) == 2.0
+    assert len(caught) == 1 and str(own_folder) in str(caught[0].message)
+    assert cache.stats()["compiled"] == 2
 
-    monkeypatch.setattr(cache.subprocess, "run", run)
-    # In-memory dispatchers: what this process compiles never reaches a cache.
-    hung = cache.Kernel(numba.njit(cache=False)(_twice))
-    other = cache.Kernel(numba.njit(cache=False)(_thrice))
-    with pytest.warns(RuntimeWarning, match=r"_twice in a child process failed \(Timeout"):
-        assert hung(2.0) == 4.0
-    assert hung(1.0) == 2.0 and hung(3) == 6.0  # new types: no second child for this kernel
-    assert asked == [cache.CHILD_TIMEOUT]
-    with pytest.warns(RuntimeWarning, match=r"_thrice in a child process failed \(FileNotF"):
-        assert other(2.0) == 6.0
-    assert asked == [cache.CHILD_TIMEOUT] * 2
+
+def test_threads_calling_a_new_kernel_at_once_compile_it_once(own_folder):
+    kernel = _kernel()
+    results = []
+    threads = [threading.Thread(target=lambda x=x: results.append(kernel(float(x))))
+               for x in range(8)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert sorted(results) == [2.0 * x for x in range(8)]
+    assert cache.stats()["compiled"] + cache.stats()["loaded"] == 1
+    assert len(list((own_folder / "built").iterdir())) == 1
+
+
+def test_stale_folders_of_other_keys_are_removed(tmp_path):
+    old = time.time() - (cache.STALE_DAYS + 1) * 86400
+    folders = {}
+    for name, used in (("kernels-keep", old), ("kernels-old", old),
+                       ("kernels-recent", time.time()), ("other-old", old)):
+        folders[name] = tmp_path / name
+        (folders[name] / "built").mkdir(parents=True)
+        os.utime(folders[name], (used, used))
+    assert cache.remove_stale(tmp_path, folders["kernels-keep"]) == ["kernels-old"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kernels-keep", "kernels-recent",
+                                                          "other-old"]
+
+
+def test_a_process_marks_its_folder_used(tmp_path):
+    done = _child("from pssd_fast.kernels import cache; print(cache.cache_folder())", tmp_path)
+    folder = tmp_path / done.stdout.strip().rsplit("/", 1)[1]
+    assert folder.is_dir() and time.time() - folder.stat().st_mtime < 600
+
+
+def test_no_kernel_or_function_they_call_uses_fast_math():
+    """Fresh and cached code agree because LLVM may not reorder floating-point operations; with
+    fast-math flags the two copies of a ``prange`` body numba makes can sum in other orders
+    (see ``pssd_fast/kernels/cache.py``)."""
+    import importlib
+    import pkgutil
+
+    from numba.core.registry import CPUDispatcher
+
+    import pssd_fast.kernels
+
+    checked = []
+    for info in pkgutil.iter_modules(pssd_fast.kernels.__path__):
+        module = importlib.import_module(f"pssd_fast.kernels.{info.name}")
+        for name, obj in vars(module).items():
+            dispatcher = obj.dispatcher if isinstance(obj, cache.Kernel) else obj
+            if isinstance(dispatcher, CPUDispatcher) and obj.__module__ == module.__name__:
+                assert not dispatcher.targetoptions.get("fastmath"), f"{info.name}.{name}"
+                checked.append(name)
+    assert {"mls_fit", "aware_fit", "sym3_eigh", "_feature_chunk"} <= set(checked)

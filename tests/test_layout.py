@@ -6,9 +6,8 @@ import pssd_fast
 
 PACKAGE = Path(pssd_fast.__file__).resolve().parent
 #: What kernel modules may import: the standard library pieces they use, numpy and numba.
-KERNEL_IMPORTS = {"atexit", "hashlib", "importlib", "math", "os", "pathlib", "pickle", "shutil",
-                  "subprocess", "sys", "tempfile", "threading", "warnings", "llvmlite", "numba",
-                  "numpy"}
+KERNEL_IMPORTS = {"atexit", "hashlib", "math", "os", "pathlib", "shutil", "sys", "tempfile",
+                  "threading", "time", "warnings", "llvmlite", "numba", "numpy"}
 
 
 def _imports(path):

@@ -1,54 +1,69 @@
-"""Where compiled kernels are cached, and why they are compiled in a child process.
+"""Where compiled kernels are cached, and how a process checks that it loaded them.
 
-Numba invalidates a cached kernel only when the file defining it changes, so a kernel that
-inlines a helper from ``linalg.py`` or a constant from ``config.py`` would keep stale machine code
-after that file changed. The cache folder is therefore keyed by a hash of every kernel source
-and of the numba, llvmlite and Python versions (:func:`source_key`): any change gives a new,
-empty folder.
+Numba invalidates a cached kernel only when the file defining it changes, so a kernel calling a
+helper from ``linalg.py`` or a constant from ``config.py`` would keep stale machine code after
+that file changed. The cache folder is therefore named (:func:`cache_key`) by a hash of every
+kernel source, of the numba, llvmlite and Python versions, and of the CPU that numba compiles
+for: any change gives a new, empty folder, and machines with different CPUs that share a home
+folder (a cluster) each fill their own. Numba's files inside are stamped with the sources'
+hash alone, not with a source file's path, so every copy of the same package shares them.
 
-A kernel compiled in the calling process does not run the machine code that numba writes to the
-cache. Numba compiles the body of each ``prange`` loop as a library of its own, registers it with
-the JIT, then links a copy into the kernel and optimises that copy again together with the
-kernel. The JIT resolves the kernel's call to the body by name, and finds the first registration:
-the body optimised alone. The cached object file holds only the second copy, and a process that
-loads it runs that one. With reassociation allowed (``config.FASTMATH``), the two optimisations
-sum the neighbour loops in different orders, and results differed by about 1e-11. So every
-kernel signature is compiled in a child process that writes the cache, and the calling process
-only ever loads it (:class:`Kernel`): fresh and cached runs execute the same object code.
+Every kernel is compiled without fast-math flags (``config.py``), so LLVM may not reorder,
+contract or approximate any floating-point operation: whichever copy of a ``prange`` body a
+process runs (the one it just compiled, or the one loaded from the cache) computes the same
+bits. Kernels therefore compile in the calling process, only when first called with new
+argument types, and nothing about the cache can change a result; it changes only the time.
+
+The folder is found on the first kernel call, not at import. A process that finds a kernel
+recorded as compiled into its folder (a marker file) but has numba compile it anyway warns once,
+naming the folder: the cache was copied from a machine numba tells apart, or its index files
+were removed.
 """
 import atexit
 import hashlib
 import os
-import pickle
 import shutil
-import subprocess
 import sys
 import tempfile
 import threading
+import time
 import warnings
 from pathlib import Path
 
 import llvmlite
 import numba
 import numpy as np
+from numba.core import caching, registry
 
 #: Environment variable naming the folder under which compiled kernels are cached.
 CACHE_ENV = "PSSD_FAST_CACHE_DIR"
-#: Seconds a child may take to compile one kernel signature; past them that kernel compiles in
-#: the calling process (a hung child would otherwise hold every kernel's first call).
-CHILD_TIMEOUT = 600.0
+#: Days after its last use that another key's ``kernels-*`` folder is removed.
+STALE_DAYS = 30
 _KERNEL_DIR = Path(__file__).resolve().parent
-_PACKAGE_PARENT = _KERNEL_DIR.parent.parent
+
+
+def cpu_key():
+    """What numba compiles for: target triple, CPU name and CPU features."""
+    return registry.cpu_target.target_context.codegen().magic_tuple()
 
 
 def source_key():
-    """Hash of every kernel source file and of the compiler versions (16 hex digits)."""
+    """Hash of every kernel source file and of the numba, llvmlite and Python versions (16 hex
+    digits): numba's stamp of the sources its cached files were compiled from."""
     digest = hashlib.sha256()
     for path in sorted(_KERNEL_DIR.glob("*.py")):
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
     for version in (numba.__version__, llvmlite.__version__, sys.version):
         digest.update(version.encode())
+    return digest.hexdigest()[:16]
+
+
+def cache_key():
+    """Hash of :func:`source_key` and :func:`cpu_key` (16 hex digits): the folder's name."""
+    digest = hashlib.sha256(source_key().encode())
+    for part in cpu_key():
+        digest.update(str(part).encode())
     return digest.hexdigest()[:16]
 
 
@@ -73,17 +88,38 @@ def _user_cache_base():
     return (Path(xdg) if xdg else Path.home() / ".cache") / "pssd_fast"
 
 
+def remove_stale(base, keep, days=STALE_DAYS):
+    """Remove the ``kernels-*`` folders under ``base`` other than ``keep`` whose last use (the
+    folder's modification time) is more than ``days`` ago; return their names.
+
+    Another installed version or another CPU sharing the folder keeps its folder as long as it
+    is used; a folder removed by mistake only costs one compile.
+    """
+    cutoff = time.time() - days * 86400
+    removed = []
+    for folder in base.glob("kernels-*"):
+        try:
+            stale = folder != keep and folder.stat().st_mtime < cutoff
+        except OSError:
+            continue
+        if stale:
+            shutil.rmtree(folder, ignore_errors=True)
+            removed.append(folder.name)
+    return removed
+
+
 def _resolve():
     """The cache folder of this process and whether it outlives it.
 
-    A per-user folder when it is writable; else a private temporary folder removed at exit (the
-    kernels then compile once per process, but still in a child, so results stay identical);
-    else None: kernels compile in memory in this process.
+    A per-user folder when it is writable; else a private temporary folder removed at exit;
+    else None: kernels compile in memory in this process. Results are the same in all three.
     """
-    key = f"kernels-{source_key()}"
+    key = f"kernels-{cache_key()}"
     base = _user_cache_base()
     folder = _writable(base / key)
     if folder is not None:
+        os.utime(folder)  # its last use, for remove_stale in other versions
+        remove_stale(base, folder)
         return folder, True
     try:
         scratch = Path(tempfile.mkdtemp(prefix="pssd_fast-"))
@@ -91,30 +127,86 @@ def _resolve():
         warnings.warn(f"pssd_fast: no writable cache folder ({base} and the temporary folder are "
                       f"read-only); kernels are compiled in memory for this process only. Set "
                       f"{CACHE_ENV} to a writable folder to keep them.", RuntimeWarning,
-                      stacklevel=3)
+                      stacklevel=4)
         return None, False
     atexit.register(shutil.rmtree, scratch, ignore_errors=True)
     warnings.warn(f"pssd_fast: cache folder {base} is not writable; kernels are compiled for this "
                   f"process only. Set {CACHE_ENV} to a writable folder to keep them.",
-                  RuntimeWarning, stacklevel=3)
+                  RuntimeWarning, stacklevel=4)
     return scratch / key, False
 
 
-CACHE_DIR, PERSISTENT = _resolve()
+_state_lock = threading.Lock()
+_state = {}
 
 
-def compile_kernel(func, **options):
-    """``numba.njit(**options)(func)``, caching into :data:`CACHE_DIR` when there is one."""
-    if CACHE_DIR is None:
-        return numba.njit(cache=False, **options)(func)
-    # Numba reads its cache folder when the dispatcher is created; set it only for that moment so
-    # that the caller's own numba functions keep their cache where it was.
-    previous = numba.config.CACHE_DIR
-    numba.config.CACHE_DIR = str(CACHE_DIR)
-    try:
-        return numba.njit(cache=True, **options)(func)
-    finally:
-        numba.config.CACHE_DIR = previous
+def cache_folder():
+    """The folder this process caches kernels in (None: in memory only), found on first use."""
+    with _state_lock:
+        if "folder" not in _state:
+            _state["folder"], _state["persistent"] = _resolve()
+            _state["stamp"] = source_key()
+            _state["compiled"], _state["loaded"], _state["seconds"] = 0, 0, 0.0
+        return _state["folder"]
+
+
+def stats():
+    """Kernel signatures this process has compiled and loaded from the cache, and the seconds
+    their first calls spent doing so."""
+    cache_folder()
+    return {name: _state[name] for name in ("folder", "persistent", "compiled", "loaded",
+                                            "seconds")}
+
+
+class _Locator(caching._CacheLocator):
+    """Numba's files of one kernel: in ``folder``, stamped with :func:`source_key`.
+
+    Numba's own locators file a function under its source file's path and stamp it with that
+    file's contents only; here every copy of the same package (a second checkout, an install)
+    shares the compiled code, and a change to any kernel source invalidates it.
+    """
+
+    def __init__(self, folder, stamp, py_func):
+        self._folder = folder
+        self._stamp = stamp
+        self._lineno = py_func.__code__.co_firstlineno
+
+    def get_cache_path(self):
+        return str(self._folder)
+
+    def get_source_stamp(self):
+        return self._stamp
+
+    def get_disambiguator(self):
+        return str(self._lineno)
+
+
+class _Impl(caching.CompileResultCacheImpl):
+    """Numba's compile-result serialisation, filed by :class:`_Locator`."""
+
+    def __init__(self, py_func, folder, stamp):
+        # Not numba's __init__: it would pick a locator from its own list, or from
+        # NUMBA_CACHE_LOCATOR_CLASSES, which must not move these kernels.
+        self._lineno = py_func.__code__.co_firstlineno
+        self._locator = _Locator(folder, stamp, py_func)
+        module = Path(py_func.__code__.co_filename).stem
+        self._filename_base = self.get_filename_base(f"{module}.{py_func.__qualname__}",
+                                                     getattr(sys, "abiflags", ""))
+
+
+class _Cache(caching.FunctionCache):
+    """Numba's function cache, in ``folder``, for the sources of ``stamp``."""
+
+    def __init__(self, py_func, folder, stamp):
+        # Numba's __init__ as it is, with this module's _Impl.
+        self._name = repr(py_func)
+        self._py_func = py_func
+        self._impl = _Impl(py_func, folder, stamp)
+        self._cache_path = str(folder)
+        self._cache_file = caching.IndexDataCacheFile(
+            cache_path=self._cache_path, filename_base=self._impl.filename_base,
+            source_stamp=self._impl.locator.get_source_stamp())
+        self.enable()
 
 
 def _type_key(value):
@@ -128,20 +220,16 @@ def _type_key(value):
 
 
 class Kernel:
-    """A numba dispatcher whose signatures are compiled in a child process (see module notes).
+    """A numba dispatcher that compiles or loads each signature on its first call, in the
+    folder of :func:`cache_folder`, and checks which of the two happened.
 
-    Calls go to the dispatcher; the first call with new argument types in this process makes sure
-    a child has compiled that signature into the cache (once per cache folder, recorded by a
-    marker file), so the dispatcher loads it instead of compiling it here. Attributes such as
-    ``py_func`` and ``signatures`` are the dispatcher's.
+    Attributes such as ``py_func`` and ``signatures`` are the dispatcher's.
     """
-
-    _lock = threading.Lock()
 
     def __init__(self, dispatcher):
         self.dispatcher = dispatcher
         self._ready = set()
-        self._child_failed = False
+        self._lock = threading.Lock()
         self.__doc__ = dispatcher.__doc__
         self.__name__ = dispatcher.__name__
         self.__module__ = dispatcher.__module__
@@ -151,42 +239,48 @@ class Kernel:
         return getattr(self.dispatcher, name)
 
     def __call__(self, *args):
-        if CACHE_DIR is not None:
-            # A cheap key first: numba.typeof of every argument costs about 15 us each, a
-            # few milliseconds a run on a small cloud.
-            key = tuple(_type_key(a) for a in args)
-            if key not in self._ready:
-                types = tuple(numba.typeof(a) for a in args)
-                with self._lock:
-                    self._build(types)
-                self._ready.add(key)
+        # A cheap key first: numba.typeof of every argument costs about 15 us each, a few
+        # milliseconds a run on a small cloud.
+        key = tuple(_type_key(a) for a in args)
+        if key not in self._ready:
+            with self._lock:
+                if key not in self._ready:
+                    self._prepare(tuple(numba.typeof(a) for a in args))
+                    self._ready.add(key)
         return self.dispatcher(*args)
 
-    def _build(self, types):
-        name = f"{self.__module__}.{self.__name__}"
-        # Numba's cache serves a kernel only to the file it was compiled from, at that file's
-        # modification time and size: a copy of the package elsewhere (another checkout or
-        # install) or a rewritten file misses it, and must compile in a child too.
-        source = self.dispatcher.py_func.__code__.co_filename
-        stamp = os.stat(source)
-        built = f"{name}{types}{source}{stamp.st_mtime}{stamp.st_size}"
-        marker = CACHE_DIR / "built" / hashlib.sha1(built.encode()).hexdigest()
-        if marker.exists() or self._child_failed:
+    def _prepare(self, types):
+        """Compile or load the signature ``types``; record it, or warn that the cache missed."""
+        folder = cache_folder()
+        dispatcher = self.dispatcher
+        if folder is not None and isinstance(dispatcher._cache, caching.NullCache):
+            dispatcher._cache = _Cache(dispatcher.py_func, folder, _state["stamp"])
+        misses = sum(dispatcher.stats.cache_misses.values())
+        started = time.perf_counter()
+        dispatcher.compile(types)
+        compiled = sum(dispatcher.stats.cache_misses.values()) > misses
+        with _state_lock:
+            _state["seconds"] += time.perf_counter() - started
+            _state["compiled" if compiled else "loaded"] += 1
+        if folder is None or not compiled:
             return
-        request = pickle.dumps((self.__module__, self.__name__, types, str(marker)))
-        env = dict(os.environ, **{CACHE_ENV: str(CACHE_DIR.parent)})
-        try:
-            done = subprocess.run([sys.executable, "-m", "pssd_fast.kernels.build"],
-                                  input=request, cwd=_PACKAGE_PARENT, env=env,
-                                  capture_output=True, check=False, timeout=CHILD_TIMEOUT)
-            failure = (None if done.returncode == 0 and marker.exists()
-                       else done.stderr.decode(errors="replace").strip()[-300:])
-        except (OSError, subprocess.TimeoutExpired) as error:
-            # No Python to start (an embedded interpreter), or a child that hangs.
-            failure = f"{type(error).__name__}: {error}"
-        if failure is not None:
-            # This kernel's dispatcher compiles in this process from now on: correct, but see
-            # the module notes. The other kernels still try their children.
-            self._child_failed = True
-            warnings.warn(f"pssd_fast: compiling {name} in a child process failed ({failure}); "
-                          f"compiling it in this process", RuntimeWarning, stacklevel=3)
+        name = f"{self.__module__}.{self.__name__}{types}"
+        marker = folder / "built" / hashlib.sha1(name.encode()).hexdigest()
+        if marker.exists():
+            _warn_missed(folder)
+        else:
+            marker.parent.mkdir(exist_ok=True)
+            marker.touch()
+
+
+def _warn_missed(folder):
+    """Once per process: kernels recorded in ``folder`` were compiled again instead of loaded."""
+    with _state_lock:
+        if _state.get("warned"):
+            return
+        _state["warned"] = True
+    warnings.warn(f"pssd_fast: the kernel cache {folder} records kernels that numba could not "
+                  f"load here (a copy from a machine with another CPU, or its index files were "
+                  f"removed), so they were compiled again; results are the same. Remove the "
+                  f"folder, or set {CACHE_ENV} to a folder of this machine's own.",
+                  RuntimeWarning, stacklevel=4)

@@ -5,7 +5,7 @@ import math
 import numpy as np
 from numba import prange
 
-from .config import CHUNK, chunk_body, helper, parallel_kernel
+from .config import CHUNK, helper, parallel_kernel
 from .linalg import set_sym3, sym3_eigh
 
 # Below this squared length the tangential part of a neighbour's normal is taken as zero: the
@@ -255,11 +255,16 @@ def _node_tables(capacity, index_dtype):
             np.empty(capacity, np.int64))
 
 
-@chunk_body
+@helper
 def _feature_chunk(points, normals, indptr, indices, radius2, n_vote, delta, alpha, beta, lo, hi,
                    out, region_size):
     """:func:`feature_intensity` for the points ``lo..hi-1``, block by block, with node tables
-    of its own that grow when a block needs more."""
+    of its own that grow when a block needs more.
+
+    A function of its own, not the body of the ``prange`` loop: written inline, a body that
+    reallocates its scratch gave wrong results for every block after the first reallocation
+    under numba's parfor transformations (``tests/test_stages.py`` covers the growth).
+    """
     capacity = NODES
     table, slot_at, nodes, ball, reach, queued, work, gathered, members = _node_tables(
         capacity, indices.dtype)

@@ -55,7 +55,7 @@ def _basis(x, y, phi, t):
 @helper
 def _normal_equations(phi, wts, zs, count, m, a, b):
     """Lower triangle of ``A = Phi W Phi^T`` and ``b = Phi W z`` for the first ``m`` monomials,
-    as dot products over the neighbours: contiguous inner loops that vectorise."""
+    as dot products over the neighbours, each summed in neighbour order."""
     for p in range(m):
         s = 0.0
         for t in range(count):
