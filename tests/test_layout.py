@@ -6,7 +6,7 @@ import pssd_fast
 
 PACKAGE = Path(pssd_fast.__file__).resolve().parent
 #: What kernel modules may import: the standard library pieces they use, numpy and numba.
-KERNEL_IMPORTS = {"atexit", "hashlib", "math", "os", "pathlib", "shutil", "sys", "tempfile",
+KERNEL_IMPORTS = {"atexit", "contextlib", "hashlib", "math", "os", "pathlib", "shutil", "sys", "tempfile",
                   "threading", "time", "warnings", "llvmlite", "numba", "numpy"}
 
 

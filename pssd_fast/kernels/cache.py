@@ -20,6 +20,7 @@ naming the folder: the cache was copied from a machine numba tells apart, or its
 were removed.
 """
 import atexit
+import contextlib
 import hashlib
 import os
 import shutil
@@ -118,7 +119,8 @@ def _resolve():
     base = _user_cache_base()
     folder = _writable(base / key)
     if folder is not None:
-        os.utime(folder)  # its last use, for remove_stale in other versions
+        with contextlib.suppress(OSError):
+            os.utime(folder)  # its last use, for remove_stale in other versions
         remove_stale(base, folder)
         return folder, True
     try:
@@ -269,8 +271,9 @@ class Kernel:
         if marker.exists():
             _warn_missed(folder)
         else:
-            marker.parent.mkdir(exist_ok=True)
-            marker.touch()
+            with contextlib.suppress(OSError):  # a cache that cannot record costs only time
+                marker.parent.mkdir(parents=True, exist_ok=True)
+                marker.touch()
 
 
 def _warn_missed(folder):
