@@ -184,31 +184,22 @@ class _Locator(caching._CacheLocator):
 
 
 class _Impl(caching.CompileResultCacheImpl):
-    """Numba's compile-result serialisation, filed by :class:`_Locator`."""
+    """Numba's compile-result serialisation, filed by :class:`_Locator` in :func:`cache_folder`."""
 
-    def __init__(self, py_func, folder, stamp):
+    def __init__(self, py_func):
         # Not numba's __init__: it would pick a locator from its own list, or from
         # NUMBA_CACHE_LOCATOR_CLASSES, which must not move these kernels.
         self._lineno = py_func.__code__.co_firstlineno
-        self._locator = _Locator(folder, stamp, py_func)
+        self._locator = _Locator(cache_folder(), _state["stamp"], py_func)
         module = Path(py_func.__code__.co_filename).stem
         self._filename_base = self.get_filename_base(f"{module}.{py_func.__qualname__}",
                                                      getattr(sys, "abiflags", ""))
 
 
 class _Cache(caching.FunctionCache):
-    """Numba's function cache, in ``folder``, for the sources of ``stamp``."""
+    """Numba's function cache, in :func:`cache_folder`."""
 
-    def __init__(self, py_func, folder, stamp):
-        # Numba's __init__ as it is, with this module's _Impl.
-        self._name = repr(py_func)
-        self._py_func = py_func
-        self._impl = _Impl(py_func, folder, stamp)
-        self._cache_path = str(folder)
-        self._cache_file = caching.IndexDataCacheFile(
-            cache_path=self._cache_path, filename_base=self._impl.filename_base,
-            source_stamp=self._impl.locator.get_source_stamp())
-        self.enable()
+    _impl_class = _Impl
 
 
 def _type_key(value):
@@ -256,7 +247,7 @@ class Kernel:
         folder = cache_folder()
         dispatcher = self.dispatcher
         if folder is not None and isinstance(dispatcher._cache, caching.NullCache):
-            dispatcher._cache = _Cache(dispatcher.py_func, folder, _state["stamp"])
+            dispatcher._cache = _Cache(dispatcher.py_func)
         misses = sum(dispatcher.stats.cache_misses.values())
         started = time.perf_counter()
         dispatcher.compile(types)
