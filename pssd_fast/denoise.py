@@ -16,7 +16,7 @@ from ._validation import (
 )
 from .graph import bounds, knn_graph, refresh_graph, truncate_graph
 from .kernels.order import gather_rows, scatter_rows
-from .pipelines import STEPS, coarse, scales
+from .pipelines import STEPS, coarse, edges, scales
 from .plan import PRESETS
 from .progress import Clock, reporter
 
@@ -126,7 +126,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         mean of its neighbours' heights; ``"mls"`` moves it to its MLS projection ``q_i``.
     iterations : int, optional
         Number of passes; each recomputes everything from the current positions. Default from
-        ``preset``: 4 ("default"), 2 ("fast", "paper"; the paper uses 1 to 3).
+        ``preset``: 4 ("default"; 2 on "fast"'s cells, see ``preset``), 2 ("fast", "paper";
+        the paper uses 1 to 3).
     k : int, optional
         Neighbourhood size including the point itself (paper Section 2.2: ``k in [20, 35]``);
         at least 10 and at most ``n - 1``. Default from ``preset``: chosen from the estimated
@@ -142,7 +143,10 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         first paragraph). ``"default"``: the feature-aware pipeline (Notes), ``k`` from the
         estimated noise, 4 iterations; chosen on generated shapes to beat CGAL's jet and
         bilateral smoothing (docs/DECISIONS.md, README "Beyond the paper"); where the noise
-        spans several point spacings it iterates on cell means (Notes). ``"fast"``: the same
+        spans several point spacings it iterates on cell means (Notes). Above 50,000 points,
+        where "fast"'s probe finds the noise at most 0.15 of its list radius, it takes
+        "fast"'s cells and iterations, and then the points near features iterate on their
+        own lists (the edges route; docs/ALGORITHM.md, "Routes"). ``"fast"``: the same
         pipeline, always on cell means (of at least 3 points), 2 iterations and a cheaper noise
         probe. For the baselines a preset sets ``k`` ("default" and "fast": from the noise
         probe; "fast" 48), ``iterations`` and ``rebuild_graph``.
@@ -258,8 +262,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     neither.
 
     Coarse to fine (``k=None``; "default" where the probe's noise is at least half its list
-    radius and grid cells of 1.5 times the noise hold at least 3 points on average, "fast"
-    always, its cells widened to 3 points): the iterations run on
+    radius and grid cells of 1.5 times the noise hold at least 3 points on average, or on
+    "fast"'s cells (see ``preset``), "fast" always, its cells widened to 3 points): the
+    iterations run on
     the cell means, each neighbour's fit weight times the points its cell holds; the denoised
     means are averaged again over the same grid and each is fitted by the feature-aware
     quadratic of its 16 nearest, and every input point moves onto the fits of its 3 nearest
@@ -293,8 +298,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     report = reporter(progress)
     pts, dtype = as_points(points)
     n = pts.shape[0]
-    iterations = setting["iterations"] if iterations is None else iterations
-    iterations = check_int(iterations, "iterations", minimum=1)
+    if iterations is not None:
+        iterations = check_int(iterations, "iterations", minimum=1)
     auto = k is None and setting["k"] is None
     if k is None:
         # The caller chose no k: the message is about the cloud's size, not about k.
@@ -345,16 +350,18 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     with threads(n_jobs) as n_threads:
         plan = planning.make(
             current, given, preset, distinct=distinct, k=None if auto else k,
-            layout=lambda noise: coarse.layout(current, noise, preset),
+            iterations=iterations, layout=lambda noise, key: coarse.layout(current, noise, key),
             aware_pipeline="select_scales" in params, rebuild_graph=rebuild_graph,
             select_scales=params.get("select_scales"), sigma_n=params.get("sigma_n"),
             shift_normals=params.get("shift_normals"))
+        iterations = plan.iterations
         if "select_scales" in params:
             params["select_scales"] = plan.select_scales
-        if plan.route == "cells":
+        if plan.cells is not None:
             # Iterate on the cell means; the input points are projected onto them last.
-            cells = coarse.cells_of(current, given, plan.layout, preset)
-            fine, current, given = current, cells.points, cells.normals
+            cells = coarse.cells_of(current, given, plan.layout, plan.cells)
+            fine, fine_given = current, given
+            current, given = cells.points, cells.normals
         current, out_normals, extra, records, held = iterate(
             current, given, step, plan.k, iterations, plan.rebuild_graph, plan.lists, lam,
             params, orient, centre, report, None if cells is None else cells.counts,
@@ -364,6 +371,10 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             surface, surface_normals, extra = coarse.collapse(cells, current, out_normals, extra)
             current, out_normals, nearest, fit, held = coarse.refine(
                 fine, surface, surface_normals, cells.surface_k, params["sigma_n"], clock)
+            if plan.edges is not None:
+                edges.finish(plan.edges, fine, current, out_normals, held, nearest,
+                             edges.zones(surface, extra[1], plan.edges["radius"]), order,
+                             fine_given, params["keep_normals"], params["sigma_n"], clock)
             records[-1]["times"].update(clock.times)
             extra = tuple(x[nearest] for x in extra)
             plan.probe["coarse"] = coarse.describe(plan.noise, cells.edge, cells.counts,

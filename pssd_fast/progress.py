@@ -13,12 +13,13 @@ class Clock:
         self.iterations = iterations
 
     def run(self, stage, func, *args):
-        """``func(*args)``, timed as ``stage``."""
+        """``func(*args)``, timed as ``stage`` (added to the stage's earlier runs)."""
         started = time.perf_counter()
         result = func(*args)
-        self.times[stage] = time.perf_counter() - started
+        seconds = time.perf_counter() - started
+        self.times[stage] = self.times.get(stage, 0.0) + seconds
         if self.report is not None:
-            self.report(self.iteration + 1, self.iterations, stage, self.times[stage])
+            self.report(self.iteration + 1, self.iterations, stage, seconds)
         return result
 
 

@@ -30,7 +30,7 @@ from ._validation import (
 from .denoise import check_distinct, iterate, result
 from .graph import bounds
 from .kernels.order import gather_rows
-from .pipelines import STEPS, aware, coarse, scales
+from .pipelines import STEPS, aware, coarse, edges, scales
 from .plan import PRESETS
 from .progress import Clock, reporter
 
@@ -111,13 +111,13 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     given = None if given is None else given[order]
     params = {**PARAMS, "sigma_n": sigma_n}
     with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
-        plan = planning.make(current, given, preset, distinct=n,
-                             layout=lambda noise: coarse.layout(current, noise, preset),
+        plan = planning.make(current, given, preset, distinct=n, iterations=iterations,
+                             layout=lambda noise, key: coarse.layout(current, noise, key),
                              select_scales=select_scales, sigma_n=sigma_n,
                              shift_normals=PARAMS["shift_normals"])
         params["select_scales"] = plan.select_scales
-        k, scale = plan.k, plan.probe
-        if plan.route != "cells":
+        k, scale, iterations = plan.k, plan.probe, plan.iterations
+        if plan.cells is None:
             _check_points_route(preset)
             spans = halo.tiles(n, tile_points)
             centroid = current.mean(axis=0)
@@ -143,7 +143,7 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
              starts[c0:c1 + 1] - starts[c0]) for part, (c0, c1) in zip(parts, tiles)])
         cells = coarse.Cells(np.concatenate([s[0] for s in sums]),
                              None if given is None else np.concatenate([s[1] for s in sums]),
-                             np.diff(starts), edge, k, coarse.COARSE[preset]["surface_k"],
+                             np.diff(starts), edge, k, coarse.COARSE[plan.cells]["surface_k"],
                              rebuild_graph)
         means, out_normals, extra, records, _ = iterate(
             cells.points, cells.normals, STEPS["aware"], k, iterations, rebuild_graph, None,
@@ -154,19 +154,26 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
                                                sigma_n, clock)
         moved = runner.map("tile_update", iterations, iterations, _tile_update, [
             (current[part], surface, surface_normals, coef) for part in parts])
-    every = np.concatenate(parts)
-    current[every] = np.concatenate([m[0] for m in moved])
-    held = np.empty(n, np.bool_)
-    held[every] = np.concatenate([m[1] for m in moved])
-    nearest = np.empty(n, np.int64)
-    nearest[every] = np.concatenate([m[2] for m in moved])
+        every = np.concatenate(parts)
+        fine = current.copy() if plan.edges is not None else None
+        current[every] = np.concatenate([m[0] for m in moved])
+        held = np.empty(n, np.bool_)
+        held[every] = np.concatenate([m[1] for m in moved])
+        nearest = np.empty(n, np.int64)
+        nearest[every] = np.concatenate([m[2] for m in moved])
+        out_normals = surface_normals[nearest]
+        if plan.edges is not None:
+            # In memory, as denoise runs it: the same rows in, the same bits out.
+            edges.finish(plan.edges, fine, current, out_normals, held, nearest,
+                         edges.zones(surface, extra[1], plan.edges["radius"]), order, given,
+                         False, sigma_n, clock)
     records[-1]["times"].update(clock.times)
     scale["coarse"] = coarse.describe(plan.noise, edge, cells.counts, surface,
                                       cells.surface_k, coarse.fit_record(held, nearest, rms,
                                                                          degree))
     tiled = {"count": len(tiles), "most_points": int(max(len(p) for p in parts)),
              "scheduler": runner.name, "threads": runner.threads, "route": "cells"}
-    return result(pts, dtype, (order, groups), centre, current, surface_normals[nearest],
+    return result(pts, dtype, (order, groups), centre, current, out_normals,
                   tuple(x[nearest] for x in extra), held, np.arange(n_input),
                   (pts.astype(dtype), n_jobs),
                   _stats(n_input, n, plan, preset, orient, iterations, params, n_threads,
@@ -272,19 +279,20 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     params = {**PARAMS, "sigma_n": sigma_n}
     try:
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
-            first = Clock(report, 0, iterations)
+            # The plan may change the preset's iterations; the buckets come before it.
+            first = Clock(report, 0, iterations or PRESETS[preset]["iterations"])
             cloud = first.run("buckets", ondisk.Buckets, array, folder, tile_points)
             n = check_distinct(cloud.shape[0], cloud.rows, None)
             given = cloud.normals
             if given is not None and orient is not None:
                 raise ValueError(f"orient applies to estimated normals; {source} has normals, "
                                  f"whose signs are kept (drop orient)")
-            plan = planning.make(cloud, given, preset, distinct=n,
-                                 layout=lambda noise: cloud.layout(noise, preset),
-                                 select_scales=select_scales, sigma_n=sigma_n,
-                                 shift_normals=PARAMS["shift_normals"])
+            plan = planning.make(cloud, given, preset, distinct=n, iterations=iterations,
+                                 layout=cloud.layout, select_scales=select_scales,
+                                 sigma_n=sigma_n, shift_normals=PARAMS["shift_normals"])
             params["select_scales"] = plan.select_scales
-            if plan.route != "cells":
+            iterations = first.iterations = plan.iterations
+            if plan.cells is None:
                 _check_points_route(preset)
                 spans = halo.tiles(n, tile_points)
                 reach = plan.k if plan.walks is None else int(plan.walks.lengths[-1])
@@ -297,7 +305,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
             else:
                 parts, records, tiled, held = _file_cells(
                     cloud, plan, folder, runner, first, report, iterations, sigma_n,
-                    tile_points, preset, params, orient)
+                    tile_points, params, orient)
             tiled.update(scheduler=runner.name, threads=runner.threads)
             clock = Clock(report, iterations - 1, iterations)
             clock.run("write", _write, array, output, parts, cloud.rows, dtype, folder, fields,
@@ -316,7 +324,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
 
 
 def _file_cells(cloud, plan, folder, runner, first, report, iterations, sigma_n, tile_points,
-                preset, params, orient):
+                params, orient):
     """The coarse-to-fine route of :func:`denoise_file` (``plan``'s cells): the part files,
     the iterations' records, the tiles' description and the number of points held."""
     (codes, counts), edge = plan.layout[:2], plan.layout[2]
@@ -329,7 +337,7 @@ def _file_cells(cloud, plan, folder, runner, first, report, iterations, sigma_n,
     given = cloud.normals is not None
     cells = coarse.Cells(np.concatenate([s[0] for s in sums]),
                          np.concatenate([s[1] for s in sums]) if given else None, counts, edge,
-                         k, coarse.COARSE[preset]["surface_k"], rebuild_graph)
+                         k, coarse.COARSE[plan.cells]["surface_k"], rebuild_graph)
     means, out_normals, extra, records, _ = iterate(
         cells.points, cells.normals, STEPS["aware"], k, iterations, rebuild_graph, None, None,
         params, orient, cloud.centre, report, cells.counts)
@@ -337,11 +345,17 @@ def _file_cells(cloud, plan, folder, runner, first, report, iterations, sigma_n,
     clock = Clock(report, iterations - 1, iterations)
     coef, rms, degree = coarse.fit_surface(surface, surface_normals, cells.surface_k, sigma_n,
                                            clock)
-    records[-1]["times"].update(clock.times)
+    code = (None if plan.edges is None
+            else edges.zones(surface, extra[1], plan.edges["radius"]))
     parts = [folder / f"part_{i}.bin" for i in range(len(paths))]
     fits = runner.map("tile_update", iterations, iterations, _file_update, [
         (path, part, cloud.centre, cloud.dtype, surface, surface_normals, coef, extra, rms,
-         degree) for path, part in zip(paths, parts)])
+         degree, code) for path, part in zip(paths, parts)])
+    held = sum(f[0] for f in fits)
+    if plan.edges is not None:
+        held += _file_edges(plan.edges, [f[3] for f in fits], parts, runner, cloud.centre,
+                            sigma_n, clock, iterations)
+    records[-1]["times"].update(clock.times)
     fit = coarse.fit_summary(sum(f[0] for f in fits), sum(f[1] for f in fits),
                              np.sum([f[2] for f in fits], axis=0), cloud.shape[0])
     plan.probe["coarse"] = coarse.describe(plan.noise, edge, counts, surface, cells.surface_k,
@@ -349,7 +363,51 @@ def _file_cells(cloud, plan, folder, runner, first, report, iterations, sigma_n,
     tiled = {"count": len(tiles), "most_points": int(max(starts[c1] - starts[c0]
                                                          for c0, c1 in tiles)),
              "route": "cells"}
-    return parts, records, tiled, sum(f[0] for f in fits)
+    return parts, records, tiled, held
+
+
+def _file_edges(setting, zones, parts, runner, centre, sigma_n, clock, iterations):
+    """The edges route's pass of :func:`denoise_file`: the zones the tiles gathered, put in
+    :func:`pssd_fast.pipelines.edges.canonical` order as in core, sharpened, and the flagged
+    points' records replaced in their parts. Returns the points it held that the cells had
+    not (the pass's counts go into ``setting``)."""
+    def joined(name):
+        return np.concatenate([zone[name] for zone in zones])
+
+    rows, fine, flagged = joined("rows"), joined("fine"), joined("flagged")
+    start = joined("placed")
+    start[flagged] = fine[flagged]
+    order = edges.canonical(rows, start)
+    rows, fine, flagged, start = rows[order], fine[order], flagged[order], start[order]
+    part_of = np.repeat(np.arange(len(zones)), [zone["rows"].shape[0] for zone in zones])
+    given = None if zones[0]["given"] is None else joined("given")[order]
+    moved, out, held_now = edges.sharpen(start, joined("normals")[order], flagged, given,
+                                         False, sigma_n, clock)
+    rows, fine, part_of = rows[flagged], fine[flagged], part_of[order][flagged]
+    was_held = joined("held")[order][flagged]
+    displacement = np.linalg.norm(moved - fine, axis=1)
+    touched = np.unique(part_of)
+    runner.map("tile_edges", iterations, iterations, _file_patch, [
+        (parts[i], rows[part_of == i], moved[part_of == i] + centre, out[part_of == i],
+         displacement[part_of == i]) for i in touched])
+    setting.update(flagged=int(rows.shape[0]), zone=int(order.shape[0]),
+                   held=int(held_now.sum()))
+    return int((held_now & ~was_held).sum())
+
+
+def _file_patch(part, rows, points, normals, displacement, n_jobs):
+    """The records of ``rows`` in a ``part`` file given new coordinates, normals and
+    displacements (the edges route's pass)."""
+    records = np.fromfile(part, ondisk.PART)
+    by_row = np.argsort(records["row"])
+    at = by_row[np.searchsorted(records["row"], rows, sorter=by_row)]
+    records["xyz"][at] = points
+    records["nrm"][at] = normals
+    records["displacement"][at] = displacement
+    ondisk.save(records, part)
+
+
+
 
 
 def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, width, orient,
@@ -508,11 +566,9 @@ def _settings(preset, tile_points, sigma_n, iterations, client):
     if not (client is None or isinstance(client, str) or hasattr(client, "submit")):
         raise TypeError(f"client must be None, one of {LOCAL_SCHEDULERS}, a scheduler address "
                         f"or a distributed.Client; got {client!r}")
-    setting = PRESETS[preset]
     return (check_int(tile_points, "tile_points", minimum=1),
             check_float(sigma_n, "sigma_n", positive=True),
-            check_int(setting["iterations"] if iterations is None else iterations,
-                      "iterations", minimum=1))
+            None if iterations is None else check_int(iterations, "iterations", minimum=1))
 
 
 def _check_points_route(preset):
@@ -531,19 +587,29 @@ def _file_cells_task(path, centre, dtype, n_jobs):
         return coarse.cell_means(points, normals, *coarse.group_codes(codes))
 
 
-def _file_update(path, part, centre, dtype, surface, normals, coef, extra, rms, degree,
+def _file_update(path, part, centre, dtype, surface, normals, coef, extra, rms, degree, code,
                  n_jobs):
     """A tile file's points moved onto the fits, saved to ``part`` with the normal, the
     likelihood and the feature intensity of their nearest denoised mean; returns the held
-    points, the sum of the nearest fits' residuals and their degrees."""
+    points, the sum of the nearest fits' residuals, their degrees and, with the zone ``code``
+    of the edges route (:func:`pssd_fast.pipelines.edges.zones`, else None), the tile's zone:
+    its points' input ``rows``, ``fine`` and ``placed`` positions, ``normals``, whether
+    ``flagged`` and whether ``held``, and their ``given`` normals (or None)."""
     with threads(n_jobs):
-        rows, _, points, _ = ondisk.read_tile(path, centre, dtype)
+        rows, _, points, given = ondisk.read_tile(path, centre, dtype)
         moved, held, nearest = coarse.onto_fits(points, surface, normals, coef)
         ondisk.save(ondisk.part_records(rows, moved + centre, normals[nearest],
                                         extra[0][nearest], extra[1][nearest],
                                         np.linalg.norm(moved - points, axis=1)), part)
+        zone = None
+        if code is not None:
+            inside = np.flatnonzero(code[nearest] != edges.OUTSIDE)
+            zone = {"rows": rows[inside], "fine": points[inside], "placed": moved[inside],
+                    "normals": normals[nearest[inside]],
+                    "flagged": code[nearest[inside]] == edges.FLAGGED, "held": held[inside],
+                    "given": None if given is None else given[inside]}
         return (int(held.sum()), float(rms[nearest].sum()),
-                np.bincount(degree[nearest], minlength=7))
+                np.bincount(degree[nearest], minlength=7), zone)
 
 
 def _tiles(starts, tile_points):

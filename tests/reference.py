@@ -743,3 +743,46 @@ def scale_iteration_fit(points, filtered, k_lists, long_lists, lengths, first, n
     fits = scale_fits(points, filtered, long_lists, lengths, sigma_n, k, thin)
     height, rms, pick, flat = walk_scales(fits, first, noise2, height, rms)
     return height, rms, pick, flat, np.isfinite(fits["quad"][np.arange(len(points)), pick])
+
+
+def zones(surface, feature, radius, fraction):
+    """The edges route's zone code of each cell mean: 2 for the ``round(fraction * m)`` (at
+    least one) highest ``feature`` (ties to the lower row), 1 within ``radius`` of one of
+    those, else 0."""
+    m = len(surface)
+    top = max(1, int(round(fraction * m)))
+    flagged = sorted(range(m), key=lambda i: (-feature[i], i))[:top]
+    code = np.zeros(m, np.int8)
+    for i in range(m):
+        if any(np.linalg.norm(surface[i] - surface[j]) <= radius for j in flagged):
+            code[i] = 1
+    code[flagged] = 2
+    return code
+
+
+def edges_pass(start, normals, flagged, k, iterations, sigma_n=0.05):
+    """The edges route's pass: each flagged point takes the feature-aware iteration over its
+    ``k`` nearest zone points (PCA normals signed like its last normal, shifted in the first
+    iteration), while the others keep their positions and lend their ``normals``. Returns the
+    flagged points' positions and filtered normals."""
+    points = np.array(start, dtype=float)
+    normals = np.array(normals, dtype=float)
+    rows = np.flatnonzero(flagged)
+    for iteration in range(iterations):
+        nearest, _ = knn_lists(points, k)
+        lists = [nearest[i] if flagged[i] else np.array([i]) for i in range(len(points))]
+        nrm = normals.copy()
+        for i in rows:
+            nrm[i] = pca_normal(points, lists[i])[0]
+            if nrm[i] @ normals[i] < 0:
+                nrm[i] = -nrm[i]
+        if iteration == 0:
+            shifted = shifted_normals(points, nrm, lists, max(1, round(SHIFT["candidates"] * k)),
+                                      SHIFT["tolerance"])[0]
+            nrm[rows] = shifted[rows]
+        filtered = filter_normals(points, nrm, lists)
+        with np.errstate(divide="ignore", invalid="ignore"):  # the lists of one point
+            height, _, _ = aware_fit(points, filtered, lists, sigma_n, robust=True)
+        points[rows] += height[rows, None] * filtered[rows]
+        normals[rows] = filtered[rows]
+    return points[rows], normals[rows]

@@ -44,8 +44,8 @@ def test_make_follows_the_callers_choices(quiet):
     points = quiet - quiet.mean(axis=0)
     laid = []
 
-    def layout(noise):
-        laid.append(noise)
+    def layout(noise, cells):
+        laid.append((noise, cells))
         return None
 
     found = plan.make(points, None, "fast", distinct=len(points), layout=layout,
@@ -56,19 +56,58 @@ def test_make_follows_the_callers_choices(quiet):
                       select_scales=True, sigma_n=0.05)
     assert given.probe is None and given.k == 30 and given.route == "walks"
     assert given.walks is not None and given.describe() == {
-        "route": "walks", "k": 30, "rebuild_graph": True, "select_scales": True}
+        "route": "walks", "k": 30, "rebuild_graph": True, "select_scales": True,
+        "iterations": plan.PRESETS["default"]["iterations"], "cells": None, "edges": None}
     baseline = plan.make(points, None, "default", distinct=len(points), layout=layout,
                          aware_pipeline=False)
     assert baseline.route == "points" and baseline.select_scales is None
-    assert len(laid) == 1  # the baselines lay out no cells
+    assert laid == [(laid[0][0], "fast")]  # the baselines lay out no cells
 
 
-@pytest.mark.parametrize("noise, route", [(0.001, "points"), (0.02, "cells")])
-def test_tiled_runs_follow_the_same_plan(monkeypatch, tmp_path, noise, route):
+@pytest.mark.parametrize("noise, light", [(0.0005, True), (0.005, False)])
+def test_the_default_takes_the_edges_route_where_the_noise_is_low(monkeypatch, noise, light):
+    """Above ``scales_up_to`` points (0 here): fast's probe, then fast's cells and the edges
+    pass up to ``LIGHT["up_to"]``; the preset's own plan above."""
+    monkeypatch.setitem(plan.PRESETS["default"], "scales_up_to", 0)
+    points = datasets.cad_part(n_points=30_000, noise=noise, seed=2).points
+    result = pssd_fast.denoise(points)
+    taken = result.stats["plan"]
+    assert (taken["route"] == "edges") == light and (taken["cells"] == "fast") == light
+    assert result.stats["auto_k"]["probe_k"] == (32 if light else 96)
+    assert taken["iterations"] == result.stats["n_iterations"] == (2 if light else 4)
+    if light:
+        assert result.stats["auto_k"]["ratio"] <= plan.LIGHT["up_to"]
+        assert 0 < taken["edges"]["flagged"] < taken["edges"]["zone"] < len(points)
+    else:
+        assert taken["edges"] is None
+
+
+@pytest.fixture(scope="module")
+def edgy():
+    """Where the default takes the edges route once it is allowed to (above 0 points)."""
+    return datasets.cad_part(n_points=30_000, noise=0.0005, seed=2).points
+
+
+@pytest.mark.parametrize("options, route", [
+    ({"k": 30}, "points"), ({"select_scales": True}, "walks"), ({"method": "mls"}, "points"),
+    ({"preset": "paper"}, "points"), ({"iterations": 3}, "edges")])
+def test_the_light_routes_leave_the_callers_choices(monkeypatch, edgy, options, route):
+    monkeypatch.setitem(plan.PRESETS["default"], "scales_up_to", 0)
+    result = pssd_fast.denoise(edgy, **{"iterations": 1, **options})
+    assert result.stats["plan"]["route"] == route
+    assert result.stats["n_iterations"] == result.stats["plan"]["iterations"] == \
+        options.get("iterations", 1)
+
+
+@pytest.mark.parametrize("noise, route, light", [
+    (0.001, "points", False), (0.02, "cells", False), (0.0005, "edges", True)])
+def test_tiled_runs_follow_the_same_plan(monkeypatch, tmp_path, noise, route, light):
     pytest.importorskip("dask")
     from pssd_fast import tiled
 
     monkeypatch.setitem(coarse.COARSE["default"], "min_ratio", 0.3)
+    if light:
+        monkeypatch.setitem(plan.PRESETS["default"], "scales_up_to", 0)
     points = np.array(datasets.make("cad_part", n_points=30_000, noise=noise, seed=6).points)
     whole = pssd_fast.denoise(points, select_scales=False, iterations=1)
     tiles = tiled.denoise(points, select_scales=False, iterations=1, tile_points=12_000,

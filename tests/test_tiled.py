@@ -17,11 +17,13 @@ FIELDS = ("points", "normals", "likelihood", "feature_intensity", "displacement"
 def coarse_default():
     """The default's coarse-to-fine route from the probe ratio of these small clouds on (it
     takes it from 0.5, which a probe of 200,000 points hardly reaches; only the calling
-    process reads the setting)."""
+    process reads the setting), and its own routes, not the light one, unless a test asks
+    for it (:func:`light`)."""
     from pssd_fast.pipelines import coarse
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setitem(coarse.COARSE["default"], "min_ratio", 0.3)
+        patch.setitem(PRESETS["default"], "light", False)
         yield
 
 
@@ -43,6 +45,12 @@ def fit_at_k(monkeypatch):
     cheap; the walks of ``select_scales`` tile in the tests that ask for them (and in
     :func:`test_the_default_selects_scales_on_the_whole_cloud`)."""
     monkeypatch.setitem(PRESETS["default"], "scales_up_to", 0)
+
+
+@pytest.fixture
+def light(monkeypatch):
+    """The default's light route on these small clouds (above ``scales_up_to``, 0 here)."""
+    monkeypatch.setitem(PRESETS["default"], "light", True)
 
 
 def test_a_million_points_in_sixteen_tiles_give_the_in_core_result():
@@ -259,6 +267,21 @@ def test_halos_take_given_normals():
     _assert_same(got, expected)
 
 
+@pytest.mark.usefixtures("light")
+@pytest.mark.parametrize("normals", [False, True])
+def test_the_edges_route_tiles_as_in_core(normals):
+    """The pass of the edges route reads the same zone, in the same order, in every tile
+    layout."""
+    cloud = datasets.cad_part(n_points=40_000, noise=0.0005, seed=4)
+    given = -cloud.normals if normals else None
+    expected = pssd_fast.denoise(cloud.points, given)
+    assert expected.stats["plan"]["route"] == "edges"
+    got = tiled.denoise(cloud.points, given, tile_points=5_000, client="sync")
+    assert got.stats["tiles"]["count"] >= 8 and got.stats["plan"] == expected.stats["plan"]
+    assert got.stats["held_points"] == expected.stats["held_points"]
+    _assert_same(got, expected)
+
+
 def test_halos_orient_each_normal_alone(sparse, sparse_in_core):
     got = tiled.denoise(sparse, tile_points=30_000, orient="up")
     np.testing.assert_array_equal(got.points, sparse_in_core.points)
@@ -335,13 +358,18 @@ def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dty
 @pytest.mark.parametrize("ext, noise, route, normals", [
     (".las", 0.02, "cells", False), (".laz", 0.02, "cells", False),
     (".las", 0.001, "halo", False), (".las", 0.02, "cells", True),
-    (".laz", 0.001, "halo", True)])
-def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, ext, noise, route,
-                                                          normals):
+    (".laz", 0.001, "halo", True), (".las", 0.0005, "edges", False),
+    (".laz", 0.0005, "edges", True)])
+def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, request, ext, noise,
+                                                          route, normals):
     """Records, scale, offset, VLRs and EVLRs as read; the coordinates, normals, likelihood,
-    feature intensity and displacement those of denoise, as the in-core writer stores them."""
+    feature intensity and displacement those of denoise, as the in-core writer stores them
+    (``route``: the tiles', or the plan's edges route)."""
     laspy = pytest.importorskip("laspy")
     from pssd_fast import io
+
+    if route == "edges":
+        request.getfixturevalue("light")
 
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = [0.0001, 0.0001, 0.0001]
@@ -371,7 +399,9 @@ def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, ext, noise, 
         for name in ("likelihood", "feature_intensity", "displacement")})
     stats = tiled.denoise_file(source, tmp_path / f"tiled{ext}", tile_points=5_000,
                                client="sync")
-    assert stats["tiles"]["count"] >= 8 and stats["tiles"]["route"] == route
+    assert stats["tiles"]["count"] >= 8
+    assert route in (stats["tiles"]["route"], stats["plan"]["route"])
+    assert stats["plan"] == result.stats["plan"]
     got, want, before = (laspy.read(str(tmp_path / name))
                          for name in (f"tiled{ext}", f"in_core{ext}", f"scan{ext}"))
     np.testing.assert_array_equal(got.points.array, want.points.array)
@@ -404,12 +434,17 @@ def test_a_zarr_group_tiled_out_of_core_gives_the_in_core_points(tmp_path):
 
 
 @pytest.mark.parametrize("n, noise, stage", [(100_000, 0.02, "tile_update"),
-                                             (40_000, 0.002, "tile_step")])
-def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path, n, noise, stage):
-    """A worker killed while the tiles run: Dask runs its tasks again, the result stands."""
+                                             (40_000, 0.002, "tile_step"),
+                                             (40_000, 0.0005, "tile_edges")])
+def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path, request, n, noise,
+                                                            stage):
+    """A worker killed while the tiles run: Dask runs its tasks again, the result stands
+    (``tile_edges``: the edges route's tasks that write the pass's points into the parts)."""
     import signal
 
     distributed = pytest.importorskip("distributed")
+    if stage == "tile_edges":
+        request.getfixturevalue("light")
     points = datasets.cad_part(n_points=n, noise=noise, seed=9).points
     source, out = tmp_path / "in.npy", tmp_path / "out.npy"
     np.save(source, points)
