@@ -144,7 +144,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         estimated noise, 4 iterations; chosen on generated shapes to beat CGAL's jet and
         bilateral smoothing (docs/DECISIONS.md, README "Beyond the paper"); where the noise
         spans several point spacings it iterates on cell means (Notes). Above 50,000 points,
-        where "fast"'s probe finds the noise at most 0.15 of its list radius, it takes
+        where "fast"'s probe finds the noise at most 0.3 of its list radius, it takes
         "fast"'s cells and iterations, and then the points near features iterate on their
         own lists (the edges route; docs/ALGORITHM.md, "Routes"). ``"fast"``: the same
         pipeline, always on cell means (of at least 3 points), 2 iterations and a cheaper noise

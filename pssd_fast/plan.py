@@ -44,7 +44,7 @@ PRESETS = {
 #: the edges pass (:mod:`pssd_fast.pipelines.edges`): the ``"edges"`` route. Elsewhere, or
 #: where ``fast`` finds no cells, the preset's own plan. Chosen on the CAD part at 100,000
 #: to 1,000,000 points (docs/DECISIONS.md, "One default on every cloud: the edges route").
-LIGHT = {"up_to": 0.15}
+LIGHT = {"up_to": 0.3}
 
 
 @dataclass
@@ -78,9 +78,10 @@ class Plan:
     cells : str or None
         The key of :data:`pssd_fast.pipelines.coarse.COARSE` whose cells the run takes.
     edges : dict or None
-        The edges route's pass: the zone's ``radius`` around a flagged cell mean
-        (:func:`pssd_fast.pipelines.edges.reach`), then what the run did (``flagged``,
-        ``zone``, ``held``).
+        The edges route's pass: the flagged points' ``k``
+        (:func:`pssd_fast.pipelines.edges.list_length`) and the zone's ``radius`` around a
+        flagged cell mean (:func:`pssd_fast.pipelines.edges.reach`), then what the run did
+        (``flagged``, ``zone``, ``held``).
     """
 
     route: str
@@ -190,7 +191,8 @@ def _light(points, given, layout, iterations, rebuild_graph):
     if found is None:
         return None
     probe["coarse"] = None
+    k = edges.list_length(probe)
     return Plan("edges", found[3], bool(found[4] if rebuild_graph is None else rebuild_graph),
                 False, probe, noise, found, None, None, None,
                 fast["iterations"] if iterations is None else iterations, "fast",
-                {"radius": float(edges.reach(probe))})
+                {"k": k, "radius": float(edges.reach(probe, k))})

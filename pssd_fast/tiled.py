@@ -382,7 +382,7 @@ def _file_edges(setting, zones, parts, runner, centre, sigma_n, clock, iteration
     part_of = np.repeat(np.arange(len(zones)), [zone["rows"].shape[0] for zone in zones])
     given = None if zones[0]["given"] is None else joined("given")[order]
     moved, out, held_now = edges.sharpen(start, joined("normals")[order], flagged, given,
-                                         False, sigma_n, clock)
+                                         False, setting["k"], sigma_n, clock)
     rows, fine, part_of = rows[flagged], fine[flagged], part_of[order][flagged]
     was_held = joined("held")[order][flagged]
     displacement = np.linalg.norm(moved - fine, axis=1)

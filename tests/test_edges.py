@@ -59,7 +59,6 @@ def test_zones_flag_the_top_features_and_their_surroundings(monkeypatch, m, frac
 @pytest.mark.parametrize("n, share, k, iterations", [(220, 0.4, 16, 2), (90, 1.0, 12, 1),
                                                      (60, 0.1, 60, 2)])
 def test_the_pass_is_the_references(monkeypatch, n, share, k, iterations):
-    monkeypatch.setitem(edges.EDGES, "k", k)
     monkeypatch.setitem(edges.EDGES, "iterations", iterations)
     points = _folded(n, seed=n)
     order = np.argsort(np.abs(points[:, 0]) + np.abs(points[:, 2]), kind="stable")
@@ -69,7 +68,7 @@ def test_the_pass_is_the_references(monkeypatch, n, share, k, iterations):
     normals = rng.normal(size=(n, 3))
     normals /= np.linalg.norm(normals, axis=1)[:, None]
     normals[:, 2] = np.abs(normals[:, 2])
-    moved, out, held = edges.sharpen(points, normals, flagged, None, False, 0.05,
+    moved, out, held = edges.sharpen(points, normals, flagged, None, False, k, 0.05,
                                      Clock(None, 0, 1))
     want, want_normals = reference.edges_pass(points, normals, flagged, k, iterations)
     assert not held.any()
@@ -85,13 +84,23 @@ def test_the_pass_takes_given_normals_first(monkeypatch):
     up = np.tile([0.0, 0.0, 1.0], (150, 1))
     clock = Clock(None, 0, 1)
     monkeypatch.setitem(edges.EDGES, "iterations", 1)
-    kept = edges.sharpen(points, up, flagged, up, True, 0.05, clock)
-    estimated = edges.sharpen(points, up, flagged, None, False, 0.05, clock)
+    kept = edges.sharpen(points, up, flagged, up, True, 16, 0.05, clock)
+    estimated = edges.sharpen(points, up, flagged, None, False, 16, 0.05, clock)
     assert not np.array_equal(kept[0], estimated[0])
     monkeypatch.setitem(edges.EDGES, "iterations", 2)
-    first = edges.sharpen(points, up, flagged, up, False, 0.05, clock)
-    always = edges.sharpen(points, up, flagged, up, True, 0.05, clock)
+    first = edges.sharpen(points, up, flagged, up, False, 16, 0.05, clock)
+    always = edges.sharpen(points, up, flagged, up, True, 16, 0.05, clock)
     assert not np.array_equal(first[0], always[0])
+
+
+@pytest.mark.parametrize("ratio, k", [(0.01, 48), (0.1, 48), (0.16, 96), (0.33, 128),
+                                      (0.9, 128), (0.22, 109)])
+def test_the_lists_grow_with_the_noise(ratio, k):
+    """Anchored as ``EDGES["k"]`` says, log-log in between (0.22: between 96 at 0.16 and 128
+    at 0.33)."""
+    assert edges.list_length({"ratio": ratio}) == k
+    probe = {"ratio": ratio, "probe_radius": 2.0, "probe_k": 32}
+    assert edges.reach(probe, k) == pytest.approx(edges.EDGES["reach"] * 2.0 * np.sqrt(k / 32))
 
 
 def test_unflagged_points_stay_where_the_cells_put_them(monkeypatch):

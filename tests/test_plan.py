@@ -64,7 +64,7 @@ def test_make_follows_the_callers_choices(quiet):
     assert laid == [(laid[0][0], "fast")]  # the baselines lay out no cells
 
 
-@pytest.mark.parametrize("noise, light", [(0.0005, True), (0.005, False)])
+@pytest.mark.parametrize("noise, light", [(0.0005, True), (0.03, False)])
 def test_the_default_takes_the_edges_route_where_the_noise_is_low(monkeypatch, noise, light):
     """Above ``scales_up_to`` points (0 here): fast's probe, then fast's cells and the edges
     pass up to ``LIGHT["up_to"]``; the preset's own plan above."""

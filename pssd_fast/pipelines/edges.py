@@ -20,11 +20,15 @@ from ..progress import Clock
 from . import aware
 
 #: ``fraction``: the share of the cell means flagged (highest feature intensity first);
-#: ``k``: list length of the flagged points; ``iterations``: their feature-aware iterations;
-#: ``reach``: the zone's radius around a flagged mean, in mean list radii at ``k``. Chosen on
-#: the CAD part at 30,000 to 1,000,000 points and 0.05% to 1% noise (docs/DECISIONS.md, "One
-#: default on every cloud: the edges route").
-EDGES = {"fraction": 0.15, "k": 48, "iterations": 2, "reach": 1.5}
+#: ``k``: list length of the flagged points, interpolated linearly in ``log`` of the noise
+#: probe's ``sigma / r`` (lists of 32) and ``log k`` between the anchors ``(ratio, k)`` and
+#: held at the end values outside them (the noise wants longer lists to average down);
+#: ``iterations``: their feature-aware iterations; ``reach``: the zone's radius around a
+#: flagged mean, in mean list radii at ``k``. Chosen on the CAD part at 100,000 to 1,000,000
+#: points and 0.05% to 1% noise (docs/DECISIONS.md, "One default on every cloud: the edges
+#: route").
+EDGES = {"fraction": 0.15, "k": ((0.1, 48), (0.16, 96), (0.33, 128)), "iterations": 2,
+         "reach": 1.5}
 
 #: Codes of :func:`zones`.
 OUTSIDE, SUPPORT, FLAGGED = 0, 1, 2
@@ -46,11 +50,18 @@ def zones(surface, feature, radius):
     return code
 
 
-def reach(probe):
+def list_length(probe):
+    """The flagged points' ``k`` at the noise ``probe``'s ratio (``EDGES["k"]``)."""
+    anchors = np.log(np.array(EDGES["k"], dtype=float))
+    return int(round(np.exp(np.interp(np.log(max(probe["ratio"], 1e-12)), anchors[:, 0],
+                                      anchors[:, 1]))))
+
+
+def reach(probe, k):
     """The zone's radius from the noise ``probe`` of the plan (``probe_radius`` of
     ``probe_k`` lists, scaled to the whole cloud): ``EDGES["reach"]`` list radii at ``k``,
     as on a surface (radius as ``sqrt(k)``)."""
-    return EDGES["reach"] * probe["probe_radius"] * np.sqrt(EDGES["k"] / probe["probe_k"])
+    return EDGES["reach"] * probe["probe_radius"] * np.sqrt(k / probe["probe_k"])
 
 
 def finish(setting, fine, placed, normals, held, nearest, code, rows, given, keep_normals,
@@ -61,7 +72,7 @@ def finish(setting, fine, placed, normals, held, nearest, code, rows, given, kee
     Parameters
     ----------
     setting : dict
-        The plan's ``edges``; the counts of the pass are added to it.
+        The plan's ``edges`` (its ``k``); the counts of the pass are added to it.
     fine, placed : (n, 3) float64
         The points where they came in and where the cells put them.
     normals : (n, 3) float64
@@ -85,7 +96,7 @@ def finish(setting, fine, placed, normals, held, nearest, code, rows, given, kee
     zone, flagged, start = zone[order], flagged[order], start[order]
     moved, out, held_now = sharpen(start, normals[zone], flagged,
                                    None if given is None else given[zone], keep_normals,
-                                   sigma_n, clock)
+                                   setting["k"], sigma_n, clock)
     changed = zone[flagged]
     placed[changed] = moved
     normals[changed] = out
@@ -102,7 +113,7 @@ def canonical(rows, start):
     return by_row[morton_order(np.ascontiguousarray(start[by_row]))]
 
 
-def sharpen(start, normals, flagged, given, keep_normals, sigma_n, clock):
+def sharpen(start, normals, flagged, given, keep_normals, k, sigma_n, clock):
     """The flagged points of a zone iterated on their own lists.
 
     Parameters
@@ -120,6 +131,8 @@ def sharpen(start, normals, flagged, given, keep_normals, sigma_n, clock):
         one with ``keep_normals``), as on the points route; else PCA normals of their lists.
     keep_normals : bool
         See ``given``.
+    k : int
+        The flagged points' list length (at most the zone's points).
     sigma_n : float
         The feature-aware fit's normal width.
     clock : pssd_fast.progress.Clock
@@ -139,7 +152,7 @@ def sharpen(start, normals, flagged, given, keep_normals, sigma_n, clock):
     current = start.copy()
     normals = normals.copy()
     held = np.zeros(rows.shape[0], np.bool_)
-    k = min(EDGES["k"], current.shape[0])
+    k = min(k, current.shape[0])
     for iteration in range(EDGES["iterations"]):
         graph = clock.run("edge_neighbors", zone_lists, current, rows, k)
         if given is not None and (iteration == 0 or keep_normals):
