@@ -37,6 +37,15 @@ def test_zone_lists_are_the_flagged_points_nearest_and_the_others_alone(n, k, sh
             assert list(got[i]) == [i] and graph.radius[i] == 0.0
 
 
+def test_zone_lists_in_chunks_are_one_query(monkeypatch):
+    points = np.random.default_rng(5).normal(size=(500, 3))
+    rows = np.arange(1, 500, 3)
+    whole = edges.zone_lists(points, rows, 20)
+    monkeypatch.setattr(edges, "QUERY_ENTRIES", 45)  # chunks of 2 rows
+    for got, want in zip(edges.zone_lists(points, rows, 20), whole):
+        np.testing.assert_array_equal(got, want)
+
+
 def test_zone_lists_on_a_plane_put_each_point_first():
     """Coplanar points (a degenerate surface for the fits; distances still distinct)."""
     points = np.random.default_rng(3).uniform(size=(80, 3)) * [1.0, 1.0, 0.0]

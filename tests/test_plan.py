@@ -91,7 +91,7 @@ def edgy():
 @pytest.mark.parametrize("options, route", [
     ({"k": 30}, "points"), ({"select_scales": True}, "walks"), ({"method": "mls"}, "points"),
     ({"preset": "paper"}, "points"), ({"iterations": 3}, "edges")])
-def test_the_light_routes_leave_the_callers_choices(monkeypatch, edgy, options, route):
+def test_the_edges_route_leaves_the_callers_choices(monkeypatch, edgy, options, route):
     monkeypatch.setitem(plan.PRESETS["default"], "scales_up_to", 0)
     result = pssd_fast.denoise(edgy, **{"iterations": 1, **options})
     assert result.stats["plan"]["route"] == route

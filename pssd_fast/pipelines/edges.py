@@ -14,8 +14,8 @@ rows and gets the same bits.
 import numpy as np
 from pykdtree.kdtree import KDTree
 
-from .. import core, inputs
-from ..graph import ListScales, morton_order
+from .. import inputs
+from ..graph import QUERY_ENTRIES, ListScales, morton_order
 from ..progress import Clock
 from . import aware
 
@@ -119,8 +119,8 @@ def sharpen(start, normals, flagged, given, keep_normals, k, sigma_n, clock):
     Parameters
     ----------
     start : (z, 3) float64
-        The zone's points (in the cloud's order): the flagged ones where they came in, the
-        others where the cells put them.
+        The zone's points (in :func:`canonical` order): the flagged ones where they came in,
+        the others where the cells put them.
     normals : (z, 3) float64
         The unit normals the cells gave the zone's points: the unflagged ones keep theirs, and
         the flagged ones' are signed like theirs.
@@ -132,7 +132,7 @@ def sharpen(start, normals, flagged, given, keep_normals, k, sigma_n, clock):
     keep_normals : bool
         See ``given``.
     k : int
-        The flagged points' list length (at most the zone's points).
+        The flagged points' list length (capped at the zone's points).
     sigma_n : float
         The feature-aware fit's normal width.
     clock : pssd_fast.progress.Clock
@@ -174,13 +174,33 @@ def sharpen(start, normals, flagged, given, keep_normals, k, sigma_n, clock):
 
 def zone_lists(points, rows, k):
     """Lists of ``k`` nearest ``points`` for the ``rows`` (the point itself first), and of the
-    point alone for every other row, as a :class:`~pssd_fast.graph.ListScales`."""
+    point alone for every other row, as a :class:`~pssd_fast.graph.ListScales`. The query
+    runs in chunks of ``QUERY_ENTRIES // k`` rows, as :func:`pssd_fast.graph.knn_graph`'s."""
     n = points.shape[0]
-    distance, index = KDTree(points).query(points[rows], k=k)
-    index = index.reshape(-1, k).astype(np.int64)
-    distance = np.ascontiguousarray(distance, np.float64).reshape(-1, k)
-    # A flagged point's input position may coincide with another point's placement: the
-    # point itself goes first, as in every list of the library.
+    tree = KDTree(points)
+    lengths = np.ones(n, np.int64)
+    lengths[rows] = k
+    indptr = np.concatenate(([0], np.cumsum(lengths)))
+    indices = np.repeat(np.arange(n, dtype=np.int32 if n < 2**31 else np.int64), lengths)
+    radius = np.zeros(n)
+    nearest = np.zeros(n)
+    chunk = max(1, QUERY_ENTRIES // k)
+    for first in range(0, rows.shape[0], chunk):
+        part = rows[first:first + chunk]
+        distance, index = tree.query(points[part], k=k)
+        index = index.reshape(-1, k).astype(np.int64)
+        distance = np.asarray(distance, np.float64).reshape(-1, k)
+        _self_first(index, part)
+        indices[indptr[part][:, None] + np.arange(k)] = index
+        radius[part] = distance[:, -1]
+        nearest[part] = distance[:, 1] if k > 1 else 0.0
+    return ListScales(indptr, indices, radius, nearest)
+
+
+def _self_first(index, rows):
+    """Each of ``rows`` moved to the front of its list in ``index`` (in place). A flagged
+    point's input position may coincide with another point's placement; the point itself goes
+    first, as in every list of the library."""
     own = index == rows[:, None]
     tied = ~own[:, 0]
     if tied.any():
@@ -189,15 +209,3 @@ def zone_lists(points, rows, k):
         swapped[np.arange(at.shape[0]), at] = swapped[:, 0]
         swapped[:, 0] = rows[tied]
         index[tied] = swapped
-    lengths = np.ones(n, np.int64)
-    lengths[rows] = k
-    indptr = np.concatenate(([0], np.cumsum(lengths)))
-    indices = np.repeat(np.arange(n, dtype=np.int64), lengths)
-    at = indptr[rows][:, None] + np.arange(k)
-    indices[at] = index
-    radius = np.zeros(n)
-    nearest = np.zeros(n)
-    radius[rows] = distance[:, -1]
-    nearest[rows] = distance[:, 1] if k > 1 else 0.0
-    index_dtype = np.int32 if n < 2**31 else np.int64
-    return ListScales(indptr, indices.astype(index_dtype), radius, nearest)
