@@ -53,7 +53,6 @@ class Plan:
 
     Attributes
     ----------
-    route : {"cells", "points", "walks"}
     k : int
         The iterations' neighbours (on the cell means on the cells route).
     rebuild_graph : bool
@@ -84,7 +83,6 @@ class Plan:
         (``flagged``, ``zone``, ``held``).
     """
 
-    route: str
     k: int
     rebuild_graph: bool
     select_scales: Optional[bool]
@@ -97,6 +95,15 @@ class Plan:
     iterations: int
     cells: Optional[str] = None
     edges: Optional[dict] = None
+
+    @property
+    def route(self):
+        """``"edges"``, ``"cells"``, ``"walks"`` or ``"points"``, from what the plan holds."""
+        if self.edges is not None:
+            return "edges"
+        if self.cells is not None:
+            return "cells"
+        return "points" if self.walks is None else "walks"
 
     def walks_record(self):
         """What the walks' plan set, for ``stats["scales"]``; None off the walks route."""
@@ -163,7 +170,6 @@ def make(points, given, preset, *, distinct, layout: Callable, k=None, iteration
         k, lists = found[3], None
     if rebuild_graph is None:
         rebuild_graph = setting["rebuild_graph"] if found is None else found[4]
-    route = "points" if found is None else "cells"
     walks = seconds = None
     if aware_pipeline:
         select_scales = scales.resolve(select_scales, setting["scales_up_to"], distinct,
@@ -175,8 +181,7 @@ def make(points, given, preset, *, distinct, layout: Callable, k=None, iteration
             # Its lists (at stride 1, the first iteration's) replace the probe's.
             walks, lists = scales.plan(points, given, k, sigma_n, stride, shift_normals)
             seconds = time.perf_counter() - started
-            route = "walks"
-    return Plan(route, k, bool(rebuild_graph), select_scales, probe, noise, found, walks,
+    return Plan(k, bool(rebuild_graph), select_scales, probe, noise, found, walks,
                 lists, seconds, iterations, None if found is None else preset)
 
 
@@ -192,7 +197,7 @@ def _light(points, given, layout, iterations, rebuild_graph):
         return None
     probe["coarse"] = None
     k = edges.list_length(probe)
-    return Plan("edges", found[3], bool(found[4] if rebuild_graph is None else rebuild_graph),
+    return Plan(found[3], bool(found[4] if rebuild_graph is None else rebuild_graph),
                 False, probe, noise, found, None, None, None,
                 fast["iterations"] if iterations is None else iterations, "fast",
                 {"k": k, "radius": float(edges.reach(probe, k))})

@@ -367,32 +367,24 @@ def _file_cells(cloud, plan, folder, runner, first, report, iterations, sigma_n,
 
 
 def _file_edges(setting, zones, parts, runner, centre, sigma_n, clock, iterations):
-    """The edges route's pass of :func:`denoise_file`: the zones the tiles gathered, put in
-    :func:`pssd_fast.pipelines.edges.canonical` order as in core, sharpened, and the flagged
-    points' records replaced in their parts. Returns the points it held that the cells had
-    not (the pass's counts go into ``setting``)."""
+    """The edges route's pass of :func:`denoise_file`: the zones the tiles gathered, passed
+    as in core (:func:`pssd_fast.pipelines.edges.gathered`), and the flagged points' records
+    replaced in their parts. Returns the points it held that the cells had not (the pass's
+    counts go into ``setting``)."""
     def joined(name):
         return np.concatenate([zone[name] for zone in zones])
 
-    rows, fine, flagged = joined("rows"), joined("fine"), joined("flagged")
-    start = joined("placed")
-    start[flagged] = fine[flagged]
-    order = edges.canonical(rows, start)
-    rows, fine, flagged, start = rows[order], fine[order], flagged[order], start[order]
-    part_of = np.repeat(np.arange(len(zones)), [zone["rows"].shape[0] for zone in zones])
-    given = None if zones[0]["given"] is None else joined("given")[order]
-    moved, out, held_now = edges.sharpen(start, joined("normals")[order], flagged, given,
-                                         False, setting["k"], sigma_n, clock)
-    rows, fine, part_of = rows[flagged], fine[flagged], part_of[order][flagged]
-    was_held = joined("held")[order][flagged]
-    displacement = np.linalg.norm(moved - fine, axis=1)
-    touched = np.unique(part_of)
+    fine = joined("fine")
+    picked, moved, out, held_now = edges.gathered(
+        setting, joined("rows"), fine, joined("placed"), joined("normals"), joined("flagged"),
+        None if zones[0]["given"] is None else joined("given"), False, sigma_n, clock)
+    rows = joined("rows")[picked]
+    part_of = np.repeat(np.arange(len(zones)), [zone["rows"].shape[0] for zone in zones])[picked]
+    displacement = np.linalg.norm(moved - fine[picked], axis=1)
     runner.map("tile_edges", iterations, iterations, _file_patch, [
         (parts[i], rows[part_of == i], moved[part_of == i] + centre, out[part_of == i],
-         displacement[part_of == i]) for i in touched])
-    setting.update(flagged=int(rows.shape[0]), zone=int(order.shape[0]),
-                   held=int(held_now.sum()))
-    return int((held_now & ~was_held).sum())
+         displacement[part_of == i]) for i in np.unique(part_of)])
+    return int((held_now & ~joined("held")[picked]).sum())
 
 
 def _file_patch(part, rows, points, normals, displacement, n_jobs):
@@ -405,9 +397,6 @@ def _file_patch(part, rows, points, normals, displacement, n_jobs):
     records["nrm"][at] = normals
     records["displacement"][at] = displacement
     ondisk.save(records, part)
-
-
-
 
 
 def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, width, orient,

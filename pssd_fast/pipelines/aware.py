@@ -27,6 +27,13 @@ PROBE_POINTS = 100_000
 NOISE_PROBE = {"ratio": 0.15, "target": 0.12, "points": 10_000}
 
 
+def interpolated_k(x, anchors):
+    """``k`` at ``x``, linear in ``log x`` and ``log k`` between the ``(x, k)`` ``anchors``
+    and held at the end values outside them (rounded)."""
+    logs = np.log(np.array(anchors, dtype=float))
+    return int(round(np.exp(np.interp(np.log(max(x, 1e-12)), logs[:, 0], logs[:, 1]))))
+
+
 def step(points, nrm, graph, lam, params, clock, last=True, mass=None):
     """One feature-aware iteration once the graph and normals exist.
 
@@ -124,8 +131,7 @@ def choose_k(points, given, probe_points=PROBE_POINTS, probe_k=AUTO_K["probe_k"]
     stride = -(-n // probe_points)
     sigma, radius, probe, graph = _probe(points, given, stride, probe_k)
     ratio = sigma / radius if radius > 0.0 else 0.0
-    anchors = np.log(np.array(AUTO_K["anchors"], dtype=float))
-    k = int(round(np.exp(np.interp(np.log(max(ratio, 1e-12)), anchors[:, 0], anchors[:, 1]))))
+    k = interpolated_k(ratio, AUTO_K["anchors"])
     k = max(min(k, n - 1), min(10, n - 1))
     scales = {"k": k, "probe_k": probe, "probe_points": -(-n // stride), "probe_stride": stride,
               "noise": sigma, "probe_radius": radius, "ratio": ratio,

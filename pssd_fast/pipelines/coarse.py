@@ -15,6 +15,7 @@ from pykdtree.kdtree import KDTree
 from .. import core, kernels
 from ..graph import QUERY_ENTRIES, bounds, knn_graph
 from ..kernels.order import morton_codes
+from .aware import interpolated_k
 
 #: Settings of each preset. ``cell``: cell edge over the noise's standard deviation
 #: (:func:`.aware.noise_sigma`); ``k``: neighbours of the iterations on the cell means,
@@ -112,8 +113,7 @@ def widen(n, noise, preset, group):
             break
         # Points per cell grow about as the square of the edge on a surface.
         edge *= 1.05 * np.sqrt(setting["min_points"] * m / n)
-    anchors = np.log(np.array(setting["k"], dtype=float))
-    k = int(round(np.exp(np.interp(np.log(n / m), anchors[:, 0], anchors[:, 1]))))
+    k = interpolated_k(n / m, setting["k"])
     if n < setting["min_points"] * m or m <= k:
         return None
     return grouping, edge, k, n >= setting["rebuild_from"] * m

@@ -52,9 +52,7 @@ def zones(surface, feature, radius):
 
 def list_length(probe):
     """The flagged points' ``k`` at the noise ``probe``'s ratio (``EDGES["k"]``)."""
-    anchors = np.log(np.array(EDGES["k"], dtype=float))
-    return int(round(np.exp(np.interp(np.log(max(probe["ratio"], 1e-12)), anchors[:, 0],
-                                      anchors[:, 1]))))
+    return aware.interpolated_k(probe["ratio"], EDGES["k"])
 
 
 def reach(probe, k):
@@ -89,20 +87,34 @@ def finish(setting, fine, placed, normals, held, nearest, code, rows, given, kee
         As :func:`sharpen` takes them.
     """
     zone = np.flatnonzero(code[nearest] != OUTSIDE)
-    flagged = code[nearest[zone]] == FLAGGED
-    start = placed[zone]
-    start[flagged] = fine[zone[flagged]]
-    order = canonical(rows[zone], start)
-    zone, flagged, start = zone[order], flagged[order], start[order]
-    moved, out, held_now = sharpen(start, normals[zone], flagged,
-                                   None if given is None else given[zone], keep_normals,
-                                   setting["k"], sigma_n, clock)
-    changed = zone[flagged]
+    picked, moved, out, held_now = gathered(
+        setting, rows[zone], fine[zone], placed[zone], normals[zone],
+        code[nearest[zone]] == FLAGGED, None if given is None else given[zone], keep_normals,
+        sigma_n, clock)
+    changed = zone[picked]
     placed[changed] = moved
     normals[changed] = out
     held[changed] |= held_now
-    setting.update(flagged=int(changed.shape[0]), zone=int(zone.shape[0]),
-                   held=int(held_now.sum()))
+
+
+def gathered(setting, rows, fine, placed, normals, flagged, given, keep_normals, sigma_n,
+             clock):
+    """The pass over a zone gathered in any order (its points' input ``rows``, ``fine`` and
+    ``placed`` positions, cells' ``normals``, ``flagged`` mask and ``given`` normals or
+    None): the flagged points start from ``fine``, the zone is put in :func:`canonical`
+    order and :func:`sharpen`ed with the plan's ``setting["k"]``. Returns the flagged points'
+    indices into the gathered arrays, in that order, and :func:`sharpen`'s outputs for them;
+    the counts of the pass go into ``setting``."""
+    start = placed.copy()
+    start[flagged] = fine[flagged]
+    order = canonical(rows, start)
+    moved, out, held = sharpen(start[order], normals[order], flagged[order],
+                               None if given is None else given[order], keep_normals,
+                               setting["k"], sigma_n, clock)
+    picked = order[flagged[order]]
+    setting.update(flagged=int(picked.shape[0]), zone=int(order.shape[0]),
+                   held=int(held.sum()))
+    return picked, moved, out, held
 
 
 def canonical(rows, start):
