@@ -1,6 +1,7 @@
 """Benchmarks of pssd_fast: run as scripts (``python -m benchmarks.stages``) or with pytest."""
 
-# First, before pykdtree loads its OpenMP runtime: pssd_fast shortens libgomp's idle spin for
-# every pool that loads after it (pssd_fast/__init__.py), as it does in a user's process that
-# imports it first.
-import pssd_fast  # noqa: F401,E402
+# First, before any benchmark imports pykdtree: its OpenMP pool and numba's load with the
+# library's short idle spin, as they do in a user's process that calls pssd_fast first.
+import pssd_fast
+
+pssd_fast.configure_threads()

@@ -1,4 +1,4 @@
-"""Outlier removal (issue 14): 100,000-point clouds with 2% uniform outliers.
+"""Outlier removal: 100,000-point clouds with 2% uniform outliers.
 
 For the generated sphere, cube and CAD part and the paper's models (Igea, Fandisk, the dragon
 head; skipped when the mesh folder is absent), noise 0.25% of the diagonal, seed 0: outliers

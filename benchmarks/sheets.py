@@ -1,4 +1,4 @@
-"""Two parallel sheets close together: does a denoiser keep them apart? (issue 16)
+"""Two parallel sheets close together: does a denoiser keep them apart?
 
 Usage::
 

@@ -12,17 +12,8 @@ The stages of the method are public too (:func:`neighbors`, :func:`estimate_norm
 Kernels are compiled by numba on first use and cached on disk; :func:`warmup` compiles them
 ahead of time.
 """
-import os
-
-# pykdtree and numba's kernels each bring their own OpenMP (libgomp) thread pool. An idle pool
-# spins for 300,000 rounds before it sleeps, holding the cores the other pool's next call
-# needs: a quarter of a run at 30,000 points (docs/DECISIONS.md, "Scan sizes: one fit per
-# surface point, and two thread pools"). Each pool reads this when it loads; a wait policy the
-# caller chose is left as it is.
-if "OMP_WAIT_POLICY" not in os.environ:
-    os.environ.setdefault("GOMP_SPINCOUNT", "10000")
-
-from .denoise import METHODS, DenoiseResult, denoise  # noqa: E402 (after the setting)
+from ._threads import configure_threads
+from .denoise import METHODS, DenoiseResult, denoise
 from .graph import NeighborGraph, morton_order, neighbors
 from .stages import (
     MLSFit, estimate_normals, feature_intensity, filter_normals, mls_fit, outlier_score,
@@ -33,7 +24,7 @@ from .warmup import warmup
 __version__ = "0.1.0"
 
 __all__ = [
-    "METHODS", "DenoiseResult", "MLSFit", "NeighborGraph", "denoise", "estimate_normals",
-    "feature_intensity", "filter_normals", "mls_fit", "morton_order", "neighbors",
-    "outlier_score", "sampling_likelihood", "warmup",
+    "METHODS", "DenoiseResult", "MLSFit", "NeighborGraph", "configure_threads", "denoise",
+    "estimate_normals", "feature_intensity", "filter_normals", "mls_fit", "morton_order",
+    "neighbors", "outlier_score", "sampling_likelihood", "warmup",
 ]

@@ -1,9 +1,77 @@
-"""The ``n_jobs`` convention: how many threads the kernels use, restored afterwards."""
+"""The threads of the library: its OpenMP pools, set up when it first starts them, and the
+``n_jobs`` convention (how many threads the kernels use, restored afterwards)."""
 import contextlib
+import importlib
+import os
+import sys
+import threading
 
 import numba
 
 from ._validation import check_int
+from .kernels import cache
+
+#: The idle spin of the OpenMP pools the library loads (``GOMP_SPINCOUNT``): pykdtree and numba's
+#: kernels each bring their own OpenMP (libgomp) thread pool, and at libgomp's default of
+#: 300,000 rounds an idle pool spins on the cores the other pool's next call needs, a quarter
+#: of a run at 30,000 points (docs/DECISIONS.md, "Scan sizes: one fit per surface point, and
+#: two thread pools").
+SPIN_COUNT = 10_000
+_pools_lock = threading.Lock()
+_pools = {}
+
+
+def configure_threads(spin_count=SPIN_COUNT):
+    """Load the OpenMP thread pools of pykdtree and numba with a short idle spin.
+
+    Each pool reads ``GOMP_SPINCOUNT`` once, when it loads. The library loads both here, with
+    ``GOMP_SPINCOUNT`` set to ``spin_count`` while they load, and then puts the environment
+    back as it was, so that no other library or subprocess inherits the setting.
+    :func:`~pssd_fast.denoise`, the stage functions, the tiled runs and the command line call
+    this before their first kernel or neighbour query; only the first call in a process acts.
+    A wait policy of the caller's own (``GOMP_SPINCOUNT`` or ``OMP_WAIT_POLICY`` in the
+    environment) is left to act instead. A pool that was loaded before the first call (by
+    importing pykdtree, or running numba's parallel code, first) keeps the setting it loaded
+    with: call this first, or set ``GOMP_SPINCOUNT`` yourself.
+
+    Parameters
+    ----------
+    spin_count : int
+        The idle spin of the pools this call loads.
+
+    Returns
+    -------
+    dict
+        ``spin_count``: the spin the library set (None where the caller's environment decided),
+        and ``loaded_before``: the pools that were running before the first call.
+    """
+    with _pools_lock:
+        if not _pools:
+            caller = "GOMP_SPINCOUNT" in os.environ or "OMP_WAIT_POLICY" in os.environ
+            before = [name for name, running in (
+                ("pykdtree", "pykdtree.kdtree" in sys.modules),
+                ("numba", numba.np.ufunc.parallel._is_initialized)) if running]
+            if not caller:
+                os.environ["GOMP_SPINCOUNT"] = str(check_int(spin_count, "spin_count"))
+            try:
+                importlib.import_module("pykdtree.kdtree")  # loads its pool
+                numba.get_num_threads()  # starts numba's threading layer
+            finally:
+                if not caller:
+                    del os.environ["GOMP_SPINCOUNT"]
+            _pools.update(spin_count=None if caller else int(spin_count), loaded_before=before)
+        return dict(_pools)
+
+
+cache.before_kernels(configure_threads)
+
+
+def kdtree(points):
+    """pykdtree's tree of ``points``, its thread pool set up first (:func:`configure_threads`)."""
+    configure_threads()
+    from pykdtree.kdtree import KDTree
+
+    return KDTree(points)
 
 
 def resolve_n_jobs(n_jobs):
@@ -28,6 +96,7 @@ def resolve_n_jobs(n_jobs):
 def threads(n_jobs):
     """Run the enclosed kernels with ``n_jobs`` threads, restoring numba's setting on exit."""
     wanted = resolve_n_jobs(n_jobs)
+    configure_threads()
     previous = numba.get_num_threads()
     numba.set_num_threads(wanted)
     try:

@@ -686,7 +686,7 @@ def _demo_files(args, noisy, result):
 
 
 def _info(args):
-    from pykdtree.kdtree import KDTree
+    from ._threads import kdtree
 
     from . import io
 
@@ -701,7 +701,7 @@ def _info(args):
     print(f"bounds: min {_vec(low, decimals)}, max {_vec(high, decimals)}, diagonal "
           f"{diagonal:.{decimals}f}")
     if len(points) > 1:
-        dist, _ = KDTree(points).query(points, k=2)
+        dist, _ = kdtree(points).query(points, k=2)
         print(f"average spacing (mean distance to the nearest other point): "
               f"{dist[:, 1].mean():.6g}")
     attributes = (["normals"] if cloud.normals is not None else []) + [

@@ -33,9 +33,13 @@ METHODS = tuple(METHOD_DEFAULTS)
 #: feature-aware pipeline uses.
 PAPER_ONLY = ("h", "radius_factor", "delta", "alpha", "beta", "likelihood")
 AWARE_ONLY = ("sigma_n", "shift_normals", "select_scales")
-@dataclass(frozen=True)
+
+
+@dataclass(frozen=True, eq=False)
 class DenoiseResult:
     """Output of :func:`denoise`; arrays are in the caller's point order and float dtype.
+
+    Results compare by identity; compare their arrays with :func:`numpy.array_equal`.
 
     Attributes
     ----------
@@ -142,11 +146,11 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         ``"paper"``: the paper's formulation (k = 25, lambda = 0.5, 2 iterations; the Notes'
         first paragraph). ``"default"``: the feature-aware pipeline (Notes), ``k`` from the
         estimated noise, 4 iterations; chosen on generated shapes to beat CGAL's jet and
-        bilateral smoothing (docs/DECISIONS.md, README "Beyond the paper"); where the noise
-        spans several point spacings it iterates on cell means (Notes). Above 50,000 points,
-        where "fast"'s probe finds the noise at most 0.3 of its list radius, it takes
-        "fast"'s cells and iterations, and then the points near features iterate on their
-        own lists (the edges route; docs/ALGORITHM.md, "Routes"). ``"fast"``: the same
+        bilateral smoothing (docs/DECISIONS.md; docs/benchmarks.md, "Beyond the paper");
+        where the noise spans several point spacings it iterates on cell means (Notes).
+        Above 50,000 points, where "fast"'s probe finds the noise at most 0.3 of its list
+        radius, it takes "fast"'s cells and iterations, and then the points near features
+        iterate on their own lists (the edges route; docs/ALGORITHM.md, "Routes"). ``"fast"``: the same
         pipeline, always on cell means (of at least 3 points), 2 iterations and a cheaper noise
         probe. For the baselines a preset sets ``k`` ("default" and "fast": from the noise
         probe; "fast" 48), ``iterations`` and ``rebuild_graph``.
@@ -212,10 +216,10 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             instead of the fit at ``k`` (docs/ALGORITHM.md, "A scale per point"). ``None``:
             on where preset "default" iterates on the points of a cloud of at most 50,000
             points (after ``remove_outliers``), where it wins the sparse clouds the fit at
-            ``k`` loses to CGAL (README, "Sparse clouds"); off otherwise. It costs a kNN query
-            and a fit over lists of ``4.5 k`` an iteration (about 9 times the fit at ``k`` at
-            30,000 points; with ``rebuild_graph=False`` the lists are queried once and
-            re-sorted later, 2 to 3 times faster). ``stats["params"]["select_scales"]`` says
+            ``k`` loses to CGAL (docs/benchmarks.md, "Sparse clouds"); off otherwise. It
+            costs a kNN query and a fit over lists of ``4.5 k`` an iteration (about 9 times
+            the fit at ``k`` at 30,000 points; with ``rebuild_graph=False`` the lists are
+            queried once and re-sorted later, 2 to 3 times faster). ``stats["params"]["select_scales"]`` says
             whether a run took it, ``stats["scales"]`` what the probe set, each iteration's
             record what the walks kept. The tiled runs of :mod:`pssd_fast.tiled` take it too.
 

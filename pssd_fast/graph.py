@@ -2,9 +2,8 @@
 from typing import NamedTuple
 
 import numpy as np
-from pykdtree.kdtree import KDTree
 
-from ._threads import threads
+from ._threads import kdtree, threads
 from ._validation import as_points, check_k
 from .kernels.graph import put_self_first, refresh_lists
 from .kernels.knn import grid_knn
@@ -157,7 +156,7 @@ def knn_graph(points, k, keep_distances=True):
 def _tree_query(points, k):
     """``query(start, stop, rows)``: pykdtree's lists of those points into ``rows``; returns
     their distances."""
-    tree = KDTree(points)
+    tree = kdtree(points)
 
     def query(start, stop, rows):
         chunk_dists, chunk_idx = tree.query(points[start:stop], k=k)
@@ -209,7 +208,7 @@ def _grid_cell(points, k, extent):
     m = sample.shape[0]
     cell = 0.0
     if m > k:
-        dists, _ = KDTree(sample).query(sample, k=k)
+        dists, _ = kdtree(sample).query(sample, k=k)
         cell = 1.1 * float(np.quantile(dists[:, -1], 0.9)) * np.sqrt(m / n)
     longest = float(extent.max())
     if not cell > 0.0:

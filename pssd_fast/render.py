@@ -260,14 +260,14 @@ def _spacing(points):
     by ``m / n``), and for random sampling the mean nearest-neighbour distance is half the
     spacing.
     """
-    from pykdtree.kdtree import KDTree
+    from ._threads import kdtree
 
     n = points.shape[0]
     if n < 2:
         return 0.0
     m = min(n, DENSITY_SAMPLE)
     sample = points[np.random.default_rng(0).choice(n, m, replace=False)] if m < n else points
-    distance, _ = KDTree(sample).query(sample, k=2)
+    distance, _ = kdtree(sample).query(sample, k=2)
     return 2.0 * float(np.mean(distance[:, 1])) * np.sqrt(m / n)
 
 

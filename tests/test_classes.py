@@ -73,6 +73,7 @@ def test_bad_classes_are_named(labelled, kwargs, error, match):
         pssd_fast.denoise(labelled[0], **kwargs)
 
 
+@pytest.mark.slow
 def test_pssd_denoise_classes_leaves_other_records_byte_for_byte(tmp_path):
     """The issue's check, on the shared airborne survey: ``--classes 2`` leaves every class-1
     record as it was, byte for byte (the records' own bytes; the added fields follow them)."""

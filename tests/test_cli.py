@@ -1,5 +1,6 @@
 """The ``pssd`` command end to end, in a subprocess, errors included."""
 import gzip
+import inspect
 import subprocess
 import sys
 
@@ -8,6 +9,7 @@ import pytest
 
 import pssd_fast
 from pssd_fast import cli, datasets
+from pssd_fast.denoise import METHOD_DEFAULTS
 
 plyfile = pytest.importorskip("plyfile")
 laspy = pytest.importorskip("laspy")
@@ -52,17 +54,18 @@ def ply_with_extras(tmp_path, cloud):
     return path, vertex
 
 
-def test_help_is_complete():
+def test_help_offers_every_parameter_of_the_library():
     status, out, _ = pssd("denoise", "--help")
     assert status == 0
-    for option in ["--method", "--iterations", "--preset", "--k", "--lam", "--n-jobs", "--threads",
-                   "--keep-normals", "--no-shift-normals", "--select-scales",
-                   "--no-select-scales",
-                   "--rebuild-graph",
-                   "--no-rebuild-graph",
-                   "--force", "--quiet", "--verbose"] + [
-                       "--" + d.replace("_", "-") for d in cli.METHOD_OPTIONS]:
-        assert option in out
+    # Every parameter of denoise and of its methods, but those a file gives (normals, classes
+    # of its points) or the terminal replaces (progress: the bar, --quiet).
+    names = set(inspect.signature(pssd_fast.denoise).parameters) - {
+        "points", "normals", "classification", "progress", "method_params"}
+    names |= {name for params in METHOD_DEFAULTS.values() for name in params}
+    options = {name: name.replace("_", "-").replace("n-jobs", "threads") for name in names}
+    missing = [name for name, option in sorted(options.items())
+               if f"--{option}" not in out and f"--no-{option}" not in out]
+    assert not missing, missing
     for command in ("demo", "info", "render"):
         status, out, _ = pssd(command, "--help")
         assert status == 0 and "usage: pssd " + command in out
@@ -398,7 +401,7 @@ def test_main_runs_outside_the_main_thread(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------------------------------------
-# Issue 14: formats, stdin/stdout, batches and the added fields
+# Formats, stdin/stdout, batches and the added fields
 
 
 @pytest.fixture(scope="module")
@@ -634,7 +637,7 @@ def test_tile_points_on_npy_and_las_run_out_of_core_with_the_in_core_file(tmp_pa
         pytest.importorskip("laspy")
     from pssd_fast import io
 
-    cloud = datasets.cad_part(n_points=20000, noise=0.002, seed=3)
+    cloud = datasets.cad_part(n_points=10000, noise=0.002, seed=3)
     path = tmp_path / f"in{ext}"
     io.write(path, io.PointCloud(cloud.points * 10, None, {}, "npy", None))
     fields = ("--fields", "likelihood,displacement,normals") if ext == ".las" else ()
@@ -642,9 +645,9 @@ def test_tile_points_on_npy_and_las_run_out_of_core_with_the_in_core_file(tmp_pa
     fields += ("--no-select-scales",)
     assert pssd("denoise", path, tmp_path / f"in_core{ext}", *fields)[0] == 0
     status, out, err = pssd("denoise", path, tmp_path / f"tiled{ext}", *fields,
-                            "--tile-points", "3000", "--scheduler", "sync")
+                            "--tile-points", "1500", "--scheduler", "sync")
     assert status == 0, err
-    assert "7 tiles of at most 2,944 points (halos), out of core" in out
+    assert "7 tiles of at most 1,472 points (halos), out of core" in out
     in_core, tiled = (io.read(tmp_path / f"{name}{ext}") for name in ("in_core", "tiled"))
     np.testing.assert_array_equal(tiled.points, in_core.points)
     assert sorted(tiled.fields) == sorted(in_core.fields)
@@ -658,11 +661,11 @@ def test_tile_points_on_npy_and_las_run_out_of_core_with_the_in_core_file(tmp_pa
 def test_tile_points_read_and_write_zarr(tmp_path):
     pytest.importorskip("dask")
     zarr = pytest.importorskip("zarr")
-    points = datasets.cad_part(n_points=20000, noise=0.002, seed=3).points
+    points = datasets.cad_part(n_points=10000, noise=0.002, seed=3).points
     zarr.open_array(str(tmp_path / "in.zarr"), mode="w", shape=points.shape,
                     dtype=points.dtype, chunks=(5000, 3))[:] = points
     status, out, err = pssd("denoise", tmp_path / "in.zarr", tmp_path / "out.zarr",
-                            "--tile-points", "3000", "--no-select-scales")
+                            "--tile-points", "1500", "--no-select-scales")
     assert status == 0 and "out of core" in out, err
     np.testing.assert_array_equal(zarr.open_array(str(tmp_path / "out.zarr"))[:],
                                   pssd_fast.denoise(points, select_scales=False).points)

@@ -1,4 +1,4 @@
-"""pssd_fast.io formats of issue 14: CSV and headers, integer columns, PTS, OBJ, gzip and
+"""pssd_fast.io formats: CSV and headers, integer columns, PTS, OBJ, gzip and
 stdin/stdout."""
 import gzip
 import io

@@ -1,27 +1,74 @@
-"""pssd_fast shortens libgomp's idle spin, which its two OpenMP thread pools (pykdtree's and
-numba's) would otherwise spend on each other's cores, unless the caller chose a wait policy."""
+"""The library's OpenMP pools (pykdtree's and numba's) load with a short idle spin, which they
+would otherwise spend on each other's cores, without the caller's environment being changed."""
+import json
 import os
 import subprocess
 import sys
 
 import pytest
 
-PRINT = ("import os, pssd_fast; "
-         "print(os.environ.get('GOMP_SPINCOUNT'), os.environ.get('OMP_WAIT_POLICY'))")
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
+                                reason="reads the loaded libraries from /proc/self/maps")
+
+# Records GOMP_SPINCOUNT as each pool loads (pykdtree's on import, numba's when its threading
+# layer starts), then imports pssd_fast and runs `code`.
+SCRIPT = """
+import importlib, json, os, sys
+import numba
+seen = {}
+real_import, real_start = importlib.import_module, numba.get_num_threads
+def spy_import(name, *args):
+    if name == "pykdtree.kdtree" and name not in sys.modules:
+        seen["pykdtree"] = os.environ.get("GOMP_SPINCOUNT")
+    return real_import(name, *args)
+def spy_start():
+    if not numba.np.ufunc.parallel._is_initialized:
+        seen["numba"] = os.environ.get("GOMP_SPINCOUNT")
+    return real_start()
+importlib.import_module, numba.get_num_threads = spy_import, spy_start
+def gomp():
+    return "libgomp" in open("/proc/self/maps").read()
+import numpy as np
+import pssd_fast
+after_import = {"env": "GOMP_SPINCOUNT" in os.environ, "gomp": gomp()}
+%s
+print(json.dumps({"after_import": after_import, "seen": seen, "gomp": gomp(),
+                  "env": os.environ.get("GOMP_SPINCOUNT"), "pools": pssd_fast.configure_threads()}))
+"""
+DENOISE = ("pssd_fast.denoise(np.random.default_rng(0).normal(size=(500, 3)) * [1, 1, 0.01], "
+           "preset='fast')")
 
 
-def _after_import(**env):
+def _run(code, **env):
     clean = {k: v for k, v in os.environ.items()
              if k not in ("GOMP_SPINCOUNT", "OMP_WAIT_POLICY")}
-    done = subprocess.run([sys.executable, "-c", PRINT], env={**clean, **env},
+    done = subprocess.run([sys.executable, "-c", SCRIPT % code], env={**clean, **env},
                           capture_output=True, text=True, check=True)
-    return done.stdout.split()
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("env, expected", [
-    ({}, ["10000", "None"]),
-    ({"GOMP_SPINCOUNT": "5"}, ["5", "None"]),
-    ({"OMP_WAIT_POLICY": "ACTIVE"}, ["None", "ACTIVE"]),
-])
-def test_the_spin_is_short_unless_the_caller_chose(env, expected):
-    assert _after_import(**env) == expected
+def test_import_starts_no_pool_and_leaves_the_environment_alone():
+    out = _run("")
+    assert out["after_import"] == {"env": False, "gomp": False}
+
+
+@pytest.mark.parametrize("code", [DENOISE, "pssd_fast.neighbors(np.random.rand(200, 3), k=10)"])
+def test_the_pools_load_with_the_short_spin_and_the_environment_is_put_back(code):
+    out = _run(code)
+    assert out["seen"] == {"pykdtree": "10000", "numba": "10000"}
+    assert out["gomp"] and out["env"] is None
+    assert out["pools"] == {"spin_count": 10000, "loaded_before": []}
+
+
+@pytest.mark.parametrize("env", [{"GOMP_SPINCOUNT": "5"}, {"OMP_WAIT_POLICY": "ACTIVE"}])
+def test_a_wait_policy_of_the_caller_is_left_to_act(env):
+    out = _run(DENOISE, **env)
+    assert out["env"] == env.get("GOMP_SPINCOUNT")
+    assert set(out["seen"].values()) == {env.get("GOMP_SPINCOUNT")}
+    assert out["pools"]["spin_count"] is None
+
+
+def test_a_pool_loaded_before_the_library_is_reported():
+    out = _run("import pykdtree.kdtree\n" + DENOISE)
+    assert out["pools"]["loaded_before"] == ["pykdtree"]
+    assert out["seen"]["numba"] == "10000"

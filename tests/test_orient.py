@@ -1,4 +1,4 @@
-"""Consistent normal orientation (issue 14): the propagation kernel against its reference, and
+"""Consistent normal orientation: the propagation kernel against its reference, and
 the orientations it gives on closed shapes, terrain and sheets."""
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""The outlier score (issue 14): kernel against the reference, and removal on generated shapes
+"""The outlier score: kernel against the reference, and removal on generated shapes
 with 2% uniform outliers (a small version of benchmarks/outliers.py)."""
 import numpy as np
 import pytest

@@ -5,7 +5,7 @@ import pytest
 
 import pssd_fast
 from benchmarks import sheets
-from pssd_fast import core, datasets, kernels
+from pssd_fast import core, datasets
 from pssd_fast.denoise import PRESETS
 from pssd_fast.graph import knn_graph
 from pssd_fast.kernels.linalg import orthonormal_basis
@@ -142,11 +142,6 @@ def test_walk_scales_agree_with_loops(first):
     kept = np.arange(2000), pick
     assert (height == fits["tapered"][kept]).any()
     assert ((height == fits["quad"][kept]) & ~flat).any()
-
-
-def test_the_constants_match_the_reference():
-    assert scales.SCALES == reference.SCALES
-    assert kernels.scales.QUARTILE_OF_UNIT == reference.QUARTILE_OF_UNIT
 
 
 def _two_sheets(n, gap, seed):

@@ -107,12 +107,6 @@ def test_list_planes_of_degenerate_lists_have_no_variation():
     np.testing.assert_array_equal(centres, 0.0)
 
 
-def test_shifted_normals_mirror_reference_constants():
-    from pssd_fast import inputs
-
-    assert inputs.SHIFT == reference.SHIFT
-
-
 def test_shifted_normals_take_each_side_of_a_crease():
     """A noisy 90-degree fold: beside the crease, PCA over lists that reach across it tilts the
     normals; the shifted ones come from lists on one face."""

@@ -59,6 +59,7 @@ def test_no_point_moves_far_on_real_files(lidar, run):
     assert result.stats["held_points"] == int(result.held.sum())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", ["default", "fast"])
 def test_tiled_runs_on_real_files_move_no_point_far(lidar, preset):
     pytest.importorskip("dask")

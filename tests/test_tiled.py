@@ -53,6 +53,7 @@ def light(monkeypatch):
     monkeypatch.setitem(PRESETS["default"], "light", True)
 
 
+@pytest.mark.slow
 def test_a_million_points_in_sixteen_tiles_give_the_in_core_result():
     """The issue's case, at the default's own threshold: the generated part at 0.5% noise."""
     from pssd_fast.pipelines import coarse
@@ -172,16 +173,17 @@ def test_progress_hears_of_every_tile(noisy):
 @pytest.fixture(scope="module")
 def sparse():
     """Noise well under the point spacing: the default iterates on the points."""
-    return datasets.cad_part(n_points=120_000, noise=0.002, seed=3).points
+    return datasets.cad_part(n_points=20_000, noise=0.002, seed=3).points
 
 
 @pytest.fixture(scope="module")
 def sparse_in_core(sparse):
-    return pssd_fast.denoise(sparse)
+    # At k as in the tiles (fit_at_k, which a module fixture's setup precedes).
+    return pssd_fast.denoise(sparse, select_scales=False)
 
 
 def test_a_cloud_iterated_on_its_points_tiles_with_halos(sparse, sparse_in_core):
-    got = tiled.denoise(sparse, tile_points=15_000)
+    got = tiled.denoise(sparse, tile_points=2_500)
     assert got.stats["tiles"]["route"] == "halo" and got.stats["tiles"]["count"] >= 8
     _assert_same(got, sparse_in_core)
     assert got.stats["iterations"][0]["fit_degree"] == \
@@ -194,22 +196,35 @@ def test_halos_too_thin_are_widened_until_exact(sparse, sparse_in_core, monkeypa
 
     monkeypatch.setattr(halo, "FIRST_WIDTH", 0.25)
     seen = []
-    got = tiled.denoise(sparse, tile_points=30_000, progress=lambda *a: seen.append(a[2]))
+    got = tiled.denoise(sparse, tile_points=5_000, progress=lambda *a: seen.append(a[2]))
     assert sum(s.startswith("tile_step") for s in seen) > 4 * got.stats["tiles"]["count"]
     _assert_same(got, sparse_in_core)
 
 
-@pytest.fixture
-def short_scales(monkeypatch):
+def _shorten_scales(patch):
     """The walks' long lists shortened to 1.5 k, and the first halo width to a quarter list
     radius, so that the tiles fail their checks, run again, and stay cheap."""
     from pssd_fast import halo
     from pssd_fast.pipelines import scales
 
-    monkeypatch.setitem(scales.SCALES, "factors", (0.5, 1.0, 1.5))
-    monkeypatch.setattr(halo, "FIRST_WIDTH", 0.25)
+    patch.setitem(scales.SCALES, "factors", (0.5, 1.0, 1.5))
+    patch.setattr(halo, "FIRST_WIDTH", 0.25)
+
+
+@pytest.fixture(scope="module")
+def short_scales_in_core():
     points = datasets.cad_part(n_points=30_000, noise=0.002, seed=3).points
-    return points, pssd_fast.denoise(points, select_scales=True, iterations=2)
+    with pytest.MonkeyPatch.context() as patch:
+        _shorten_scales(patch)
+        return points, pssd_fast.denoise(points, select_scales=True, iterations=2)
+
+
+@pytest.fixture
+def short_scales(monkeypatch, short_scales_in_core):
+    """The points and their in-core result with the walks of :func:`_shorten_scales`, which
+    hold during the test."""
+    _shorten_scales(monkeypatch)
+    return short_scales_in_core
 
 
 def _same_walks(stats, expected):
@@ -232,6 +247,7 @@ def test_halos_cover_the_lists_of_selected_scales(short_scales):
     _same_walks(got.stats, expected)
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("small_chunks")
 def test_a_file_tiled_out_of_core_selects_scales_as_in_core(tmp_path, short_scales):
     points, expected = short_scales
@@ -244,8 +260,7 @@ def test_a_file_tiled_out_of_core_selects_scales_as_in_core(tmp_path, short_scal
     _same_walks(stats, expected)
 
 
-
-
+@pytest.mark.slow
 def test_the_default_selects_scales_on_the_whole_cloud(short_scales, monkeypatch):
     """The size that turns the walks on is the cloud's, not a tile's."""
     points, expected = short_scales
@@ -260,9 +275,9 @@ def test_the_default_selects_scales_on_the_whole_cloud(short_scales, monkeypatch
 
 
 def test_halos_take_given_normals():
-    cloud = datasets.cad_part(n_points=30_000, noise=0.002, seed=6)
+    cloud = datasets.cad_part(n_points=20_000, noise=0.002, seed=6)
     expected = pssd_fast.denoise(cloud.points, -cloud.normals)
-    got = tiled.denoise(cloud.points, -cloud.normals, tile_points=4_000, client="sync")
+    got = tiled.denoise(cloud.points, -cloud.normals, tile_points=2_500, client="sync")
     assert got.stats["tiles"]["route"] == "halo"
     _assert_same(got, expected)
 
@@ -283,7 +298,7 @@ def test_the_edges_route_tiles_as_in_core(normals):
 
 
 def test_halos_orient_each_normal_alone(sparse, sparse_in_core):
-    got = tiled.denoise(sparse, tile_points=30_000, orient="up")
+    got = tiled.denoise(sparse, tile_points=5_000, orient="up")
     np.testing.assert_array_equal(got.points, sparse_in_core.points)
     assert (got.normals[:, 2] >= 0).all()
     np.testing.assert_array_equal(np.abs(got.normals), np.abs(sparse_in_core.normals))
@@ -330,7 +345,8 @@ def small_chunks(monkeypatch):
 @pytest.mark.usefixtures("small_chunks")
 @pytest.mark.parametrize("preset, dtype, noise", [("default", np.float64, 0.02),
                                                   ("fast", np.float32, 0.02),
-                                                  ("default", np.float32, 0.002)])
+                                                  pytest.param("default", np.float32, 0.002,
+                                                               marks=pytest.mark.slow)])
 def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dtype, noise):
     points = datasets.cad_part(n_points=60_000, noise=noise, seed=8).points.astype(dtype)
     source, out, scratch = tmp_path / "in.npy", tmp_path / "out.npy", tmp_path / "scratch"
@@ -357,7 +373,8 @@ def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dty
 @pytest.mark.usefixtures("small_chunks")
 @pytest.mark.parametrize("ext, noise, route, normals", [
     (".las", 0.02, "cells", False), (".laz", 0.02, "cells", False),
-    (".las", 0.001, "halo", False), (".las", 0.02, "cells", True),
+    pytest.param(".las", 0.001, "halo", False, marks=pytest.mark.slow),
+    (".las", 0.02, "cells", True),
     (".laz", 0.001, "halo", True), (".las", 0.0005, "edges", False),
     (".laz", 0.0005, "edges", True)])
 def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, request, ext, noise,
@@ -418,7 +435,7 @@ def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, request, ext
 @pytest.mark.usefixtures("small_chunks")
 def test_a_zarr_group_tiled_out_of_core_gives_the_in_core_points(tmp_path):
     zarr = pytest.importorskip("zarr")
-    points = datasets.cad_part(n_points=40_000, noise=0.002, seed=4).points.astype(np.float32)
+    points = datasets.cad_part(n_points=40_000, noise=0.02, seed=4).points.astype(np.float32)
     group = zarr.open_group(str(tmp_path / "in.zarr"), mode="w")
     group.create_array("points", shape=points.shape, dtype=points.dtype, chunks=(4_096, 3))
     group["points"][:] = points
@@ -434,7 +451,8 @@ def test_a_zarr_group_tiled_out_of_core_gives_the_in_core_points(tmp_path):
 
 
 @pytest.mark.parametrize("n, noise, stage", [(100_000, 0.02, "tile_update"),
-                                             (40_000, 0.002, "tile_step"),
+                                             pytest.param(40_000, 0.002, "tile_step",
+                                                          marks=pytest.mark.slow),
                                              (40_000, 0.0005, "tile_edges")])
 def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path, request, n, noise,
                                                             stage):

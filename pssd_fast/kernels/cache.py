@@ -140,6 +140,15 @@ def _resolve():
 
 _state_lock = threading.Lock()
 _state = {}
+#: Called before every kernel signature compiles or loads: numba starts its thread pool when it
+#: first loads parallel code, and the Python layer sets that pool up first
+#: (``pssd_fast._threads.configure_threads``, which acts once).
+_before_kernels = []
+
+
+def before_kernels(callback):
+    """Call ``callback()`` before each kernel signature of this process compiles or loads."""
+    _before_kernels.append(callback)
 
 
 def cache_folder():
@@ -244,6 +253,8 @@ class Kernel:
 
     def _prepare(self, types):
         """Compile or load the signature ``types``; record it, or warn that the cache missed."""
+        for callback in _before_kernels:
+            callback()
         folder = cache_folder()
         dispatcher = self.dispatcher
         if folder is not None and isinstance(dispatcher._cache, caching.NullCache):

@@ -10,9 +10,9 @@ the noise (the number of cells), not the number of points.
 from typing import NamedTuple, Optional
 
 import numpy as np
-from pykdtree.kdtree import KDTree
 
 from .. import core, kernels
+from .._threads import kdtree
 from ..graph import QUERY_ENTRIES, bounds, knn_graph
 from ..kernels.order import morton_codes
 from .aware import interpolated_k
@@ -251,7 +251,7 @@ def onto_fits(points, surface, normals, coef):
     onto the fits ``coef`` of :func:`fit_surface`, those held, the nearest mean of each."""
     n = points.shape[0]
     count = min(BLEND, surface.shape[0])
-    tree = KDTree(surface)
+    tree = kdtree(surface)
     moved = np.empty_like(points)
     held = np.empty(n, np.bool_)
     nearest = np.empty(n, np.int64)

@@ -12,9 +12,9 @@ reads only those points (the *zone*), in the cloud's order, so a tiled run gathe
 rows and gets the same bits.
 """
 import numpy as np
-from pykdtree.kdtree import KDTree
 
 from .. import inputs
+from .._threads import kdtree
 from ..graph import QUERY_ENTRIES, ListScales, morton_order
 from ..progress import Clock
 from . import aware
@@ -43,7 +43,7 @@ def zones(surface, feature, radius):
     # The top-ranked means, ties broken by row: no quantile interpolation to depend on.
     flagged = np.argsort(-feature, kind="stable")[:top]
     code = np.full(m, OUTSIDE, np.int8)
-    distance, _ = KDTree(np.ascontiguousarray(surface[flagged])).query(
+    distance, _ = kdtree(np.ascontiguousarray(surface[flagged])).query(
         surface, k=1, distance_upper_bound=radius)
     code[distance <= radius] = SUPPORT
     code[flagged] = FLAGGED
@@ -189,7 +189,7 @@ def zone_lists(points, rows, k):
     point alone for every other row, as a :class:`~pssd_fast.graph.ListScales`. The query
     runs in chunks of ``QUERY_ENTRIES // k`` rows, as :func:`pssd_fast.graph.knn_graph`'s."""
     n = points.shape[0]
-    tree = KDTree(points)
+    tree = kdtree(points)
     lengths = np.ones(n, np.int64)
     lengths[rows] = k
     indptr = np.concatenate(([0], np.cumsum(lengths)))
