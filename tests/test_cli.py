@@ -628,7 +628,7 @@ def test_tile_points_give_the_in_core_file(tmp_path):
         np.testing.assert_array_equal(tiled.fields[name], in_core.fields[name])
 
 
-@pytest.mark.parametrize("ext", [".npy", ".las"])
+@pytest.mark.parametrize("ext", [pytest.param(".npy", marks=pytest.mark.slow), ".las"])
 def test_tile_points_on_npy_and_las_run_out_of_core_with_the_in_core_file(tmp_path, ext):
     """Points, and for LAS the fields and normals asked for; the normals of LAS input face up
     (one by one on a cloud iterated on its points, which the default is here)."""
@@ -658,6 +658,7 @@ def test_tile_points_on_npy_and_las_run_out_of_core_with_the_in_core_file(tmp_pa
         np.testing.assert_array_equal(np.abs(tiled.normals), np.abs(in_core.normals))
 
 
+@pytest.mark.slow  # Zarr out of core: tests/test_tiled.py; the CLI's path: the .las case
 def test_tile_points_read_and_write_zarr(tmp_path):
     pytest.importorskip("dask")
     zarr = pytest.importorskip("zarr")

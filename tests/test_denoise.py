@@ -780,12 +780,13 @@ def coarse_default(monkeypatch):
 def test_the_default_keeps_the_input_below_its_ratio(thick):
     from pssd_fast.pipelines import coarse
 
-    result = pssd_fast.denoise(thick.points, iterations=1)
+    result = pssd_fast.denoise(thick.points, iterations=1, select_scales=False)
     ratio = result.stats["auto_k"]["ratio"]
     assert ratio < coarse.COARSE["default"]["min_ratio"]
     assert result.stats["auto_k"]["coarse"] is None
 
 
+@pytest.mark.slow  # its stages are compared with their references in tests/test_stages.py
 @pytest.mark.usefixtures("coarse_default")
 def test_coarse_to_fine_matches_the_reference(thick):
     from pssd_fast.pipelines import coarse

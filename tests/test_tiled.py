@@ -123,6 +123,7 @@ def test_tasks_at_once_share_the_cores(noisy, in_core, monkeypatch):
     _assert_same(alone, in_core["default"])
 
 
+@pytest.mark.slow  # a local cluster of processes: the killed-worker test below too
 def test_a_local_cluster_of_two_processes_gives_the_in_core_result(noisy, in_core):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
@@ -213,7 +214,7 @@ def _shorten_scales(patch):
 
 @pytest.fixture(scope="module")
 def short_scales_in_core():
-    points = datasets.cad_part(n_points=30_000, noise=0.002, seed=3).points
+    points = datasets.cad_part(n_points=16_000, noise=0.002, seed=3).points
     with pytest.MonkeyPatch.context() as patch:
         _shorten_scales(patch)
         return points, pssd_fast.denoise(points, select_scales=True, iterations=2)
@@ -239,7 +240,7 @@ def test_halos_cover_the_lists_of_selected_scales(short_scales):
     long lists."""
     points, expected = short_scales
     seen = []
-    got = tiled.denoise(points, tile_points=4_000, select_scales=True, iterations=2,
+    got = tiled.denoise(points, tile_points=2_000, select_scales=True, iterations=2,
                         client="sync", progress=lambda *a: seen.append(a[2]))
     assert got.stats["tiles"]["route"] == "halo"
     assert sum(s.startswith("tile_step") for s in seen) > 2 * 2 * got.stats["tiles"]["count"]
@@ -253,7 +254,7 @@ def test_a_file_tiled_out_of_core_selects_scales_as_in_core(tmp_path, short_scal
     points, expected = short_scales
     source, out = tmp_path / "in.npy", tmp_path / "out.npy"
     np.save(source, points)
-    stats = tiled.denoise_file(source, out, tile_points=4_000, select_scales=True,
+    stats = tiled.denoise_file(source, out, tile_points=2_000, select_scales=True,
                                iterations=2, client="sync")
     assert stats["tiles"]["route"] == "halo"
     np.testing.assert_array_equal(np.load(out), expected.points)
@@ -264,13 +265,13 @@ def test_a_file_tiled_out_of_core_selects_scales_as_in_core(tmp_path, short_scal
 def test_the_default_selects_scales_on_the_whole_cloud(short_scales, monkeypatch):
     """The size that turns the walks on is the cloud's, not a tile's."""
     points, expected = short_scales
-    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 30_000)
-    got = tiled.denoise(points, tile_points=4_000, iterations=2)
+    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 16_000)
+    got = tiled.denoise(points, tile_points=2_000, iterations=2)
     _assert_same(got, expected)
     _same_walks(got.stats, expected)
     # Each tile is below this limit, the cloud is not.
-    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 29_999)
-    off = tiled.denoise(points, tile_points=4_000, iterations=1)
+    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 15_999)
+    off = tiled.denoise(points, tile_points=2_000, iterations=1)
     assert off.stats["scales"] is None and off.stats["params"]["select_scales"] is False
 
 
@@ -450,7 +451,8 @@ def test_a_zarr_group_tiled_out_of_core_gives_the_in_core_points(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.zarr", "out.zarr"]
 
 
-@pytest.mark.parametrize("n, noise, stage", [(100_000, 0.02, "tile_update"),
+@pytest.mark.parametrize("n, noise, stage", [pytest.param(100_000, 0.02, "tile_update",
+                                                          marks=pytest.mark.slow),
                                              pytest.param(40_000, 0.002, "tile_step",
                                                           marks=pytest.mark.slow),
                                              (40_000, 0.0005, "tile_edges")])
