@@ -129,6 +129,7 @@ def test_a_copy_of_the_package_sharing_the_cache_gives_identical_bytes(cold, tmp
 GENERIC = "from pssd_fast.kernels import cache; print(cache.cache_key())"
 
 
+@pytest.mark.slow  # compiles for another CPU (the key's CPU: test_the_folder_name_changes...)
 def test_a_cache_copied_across_cpus_is_detected_and_gives_the_same_bytes(cold, tmp_path):
     """Numba keys each cached signature on the CPU. A cache copied to a folder that numba keys
     differently (here: the folder of a process compiling for a generic CPU) misses: the process

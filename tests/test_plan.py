@@ -100,7 +100,8 @@ def test_the_edges_route_leaves_the_callers_choices(monkeypatch, edgy, options, 
 
 
 @pytest.mark.parametrize("noise, route, light", [
-    (0.001, "points", False), (0.02, "cells", False), (0.0005, "edges", True)])
+    pytest.param(0.001, "points", False, marks=pytest.mark.slow),  # halos: tests/test_tiled.py
+    (0.02, "cells", False), (0.0005, "edges", True)])
 def test_tiled_runs_follow_the_same_plan(monkeypatch, tmp_path, noise, route, light):
     pytest.importorskip("dask")
     from pssd_fast import tiled

@@ -376,7 +376,8 @@ def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dty
     (".las", 0.02, "cells", False), (".laz", 0.02, "cells", False),
     pytest.param(".las", 0.001, "halo", False, marks=pytest.mark.slow),
     (".las", 0.02, "cells", True),
-    (".laz", 0.001, "halo", True), (".las", 0.0005, "edges", False),
+    pytest.param(".laz", 0.001, "halo", True, marks=pytest.mark.slow),
+    (".las", 0.0005, "edges", False),
     (".laz", 0.0005, "edges", True)])
 def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, request, ext, noise,
                                                           route, normals):
