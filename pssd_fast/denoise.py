@@ -150,9 +150,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         where the noise spans several point spacings it iterates on cell means (Notes).
         Above 50,000 points, where "fast"'s probe finds the noise at most 0.3 of its list
         radius, it takes "fast"'s cells and iterations, and then the points near features
-        iterate on their own lists (the edges route; docs/ALGORITHM.md, "Routes"). ``"fast"``: the same
-        pipeline, always on cell means (of at least 3 points), 2 iterations and a cheaper noise
-        probe. For the baselines a preset sets ``k`` ("default" and "fast": from the noise
+        iterate on their own lists (the edges route; docs/ALGORITHM.md, "Routes").
+        ``"fast"``: the same pipeline, always on cell means (of at least 3 points), 2
+        iterations and a cheaper noise probe. For the baselines a preset sets ``k`` ("default" and "fast": from the noise
         probe; "fast" 48), ``iterations`` and ``rebuild_graph``.
     rebuild_graph : bool, optional
         ``True``: query the k nearest neighbours anew in every iteration. ``False``: later
@@ -219,8 +219,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             ``k`` loses to CGAL (docs/benchmarks.md, "Sparse clouds"); off otherwise. It
             costs a kNN query and a fit over lists of ``4.5 k`` an iteration (about 9 times
             the fit at ``k`` at 30,000 points; with ``rebuild_graph=False`` the lists are
-            queried once and re-sorted later, 2 to 3 times faster). ``stats["params"]["select_scales"]`` says
-            whether a run took it, ``stats["scales"]`` what the probe set, each iteration's
+            queried once and re-sorted later, 2 to 3 times faster).
+            ``stats["params"]["select_scales"]`` says whether a run took it, ``stats["scales"]`` what the probe set, each iteration's
             record what the walks kept. The tiled runs of :mod:`pssd_fast.tiled` take it too.
 
         ``h``, ``radius_factor``, ``delta``, ``alpha``, ``beta`` and ``likelihood`` shape the

@@ -374,12 +374,13 @@ def _file_edges(setting, zones, parts, runner, centre, sigma_n, clock, iteration
     def joined(name):
         return np.concatenate([zone[name] for zone in zones])
 
-    fine = joined("fine")
+    rows, fine = joined("rows"), joined("fine")
     picked, moved, out, held_now = edges.gathered(
-        setting, joined("rows"), fine, joined("placed"), joined("normals"), joined("flagged"),
+        setting, rows, fine, joined("placed"), joined("normals"), joined("flagged"),
         None if zones[0]["given"] is None else joined("given"), False, sigma_n, clock)
-    rows = joined("rows")[picked]
-    part_of = np.repeat(np.arange(len(zones)), [zone["rows"].shape[0] for zone in zones])[picked]
+    rows = rows[picked]
+    part_of = np.repeat(np.arange(len(zones)), [zone["rows"].shape[0] for zone in zones])
+    part_of = part_of[picked]
     displacement = np.linalg.norm(moved - fine[picked], axis=1)
     runner.map("tile_edges", iterations, iterations, _file_patch, [
         (parts[i], rows[part_of == i], moved[part_of == i] + centre, out[part_of == i],

@@ -7,7 +7,8 @@ ROOT = Path(__file__).resolve().parent.parent
 # The docs, the package, the benchmarks and the tests: a reader cannot look an issue up.
 TEXTS = sorted(p for folder in ("docs", "pssd_fast", "benchmarks", "tests")
                for p in (ROOT / folder).rglob("*")
-               if p.suffix in (".md", ".py", ".toml", ".txt")) + [ROOT / "README.md", ROOT / "pyproject.toml"]
+               if p.suffix in (".md", ".py", ".toml", ".txt"))
+TEXTS += [ROOT / "README.md", ROOT / "pyproject.toml"]
 ISSUE = re.compile(r"\b[Ii]ssues? #?\d+")
 
 

@@ -32,8 +32,9 @@ import numpy as np
 import pssd_fast
 after_import = {"env": "GOMP_SPINCOUNT" in os.environ, "gomp": gomp()}
 %s
+pools = pssd_fast.configure_threads()
 print(json.dumps({"after_import": after_import, "seen": seen, "gomp": gomp(),
-                  "env": os.environ.get("GOMP_SPINCOUNT"), "pools": pssd_fast.configure_threads()}))
+                  "env": os.environ.get("GOMP_SPINCOUNT"), "pools": pools}))
 """
 DENOISE = ("pssd_fast.denoise(np.random.default_rng(0).normal(size=(500, 3)) * [1, 1, 0.01], "
            "preset='fast')")
