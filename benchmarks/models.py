@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pssd_fast import meshes
+from benchmarks import meshes
 
 #: Model name -> (file, points) as in the paper's Table 1.
 MODELS = {"fandisk": ("fandisk.obj.gz", 97_580), "dragon": ("dragon.obj.gz", 100_056),

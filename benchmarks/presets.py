@@ -65,7 +65,7 @@ JET = {"k": 48, "passes": 2}
 VARIANTS = {"scales": {"preset": "default", "select_scales": True},
             "at-k": {"preset": "default", "select_scales": False},
             "edges": {"preset": "default"}}
-#: Pseudo-presets that move the limits of the default's routes (``pssd_fast.plan``) in their
+#: Pseudo-presets that move the limits of the default's routes (``pssd_fast.routes.plan``) in their
 #: own process: ``edges`` takes the edges route wherever ``fast`` finds cells, whatever the
 #: cloud's size and noise (the cost and accuracy of that route beyond its limits).
 LIMITS = {"edges": {"up_to": math.inf, "scales_up_to": 0}}
@@ -132,7 +132,7 @@ def _denoise(points, preset, iterations, repeats):
 
     run = {"iterations": iterations, **VARIANTS.get(preset, {"preset": preset})}
     if preset in LIMITS:
-        from pssd_fast import plan
+        from pssd_fast.routes import plan
 
         plan.LIGHT["up_to"] = LIMITS[preset]["up_to"]
         plan.PRESETS["default"]["scales_up_to"] = LIMITS[preset]["scales_up_to"]

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 import pssd_fast
-from pssd_fast import meshes
+from benchmarks import meshes
 
 from . import metrics, models
 from .stages import machine, write_results

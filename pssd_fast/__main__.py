@@ -7,7 +7,7 @@ import numpy as np
 from . import __version__, datasets
 from .cli import truth_errors
 from .denoise import PRESETS, denoise
-from .kernels import cache
+from .jit import cache
 
 
 def main(argv=None):

@@ -9,7 +9,7 @@ import threading
 import numba
 
 from ._validation import check_int
-from .kernels import cache
+from .jit import cache
 
 #: The idle spin of the OpenMP pools the library loads (``GOMP_SPINCOUNT``): pykdtree and numba's
 #: kernels each bring their own OpenMP (libgomp) thread pool, and at libgomp's default of

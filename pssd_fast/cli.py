@@ -471,7 +471,7 @@ def _on_disk(args, inp, out):
     """Whether ``--tile-points`` runs out of core (:func:`pssd_fast.tiled.denoise_file`): an
     ``.npy`` (n, 3), Zarr or LAS/LAZ input into a file of its kind, with fields that such a
     run writes."""
-    from . import ondisk
+    from .tiled import ondisk
     from .tiled import FILE_KINDS
 
     if args.tile_points is None or _is_stdio(inp) or _is_stdio(out):
@@ -494,7 +494,8 @@ def _on_disk(args, inp, out):
 
 def _denoise_on_disk(args, params, inp, out, say):
     """``--tile-points`` out of core: :func:`pssd_fast.tiled.denoise_file`."""
-    from . import ondisk, tiled
+    from . import tiled
+    from .tiled import ondisk
     from .tiled import FILE_KINDS
 
     _check_tiled(args, params, args.remove_outliers)
@@ -604,7 +605,7 @@ def _denoise_file(args, params, inp, out, say):
 
 def _demo(args):
     from . import datasets
-    from .warmup import warmup
+    from .jit.warmup import warmup
 
     if args.out.exists() and not args.out.is_dir():
         raise CommandError(f"{args.out} exists and is not a folder")
@@ -619,7 +620,7 @@ def _demo(args):
     result, seconds = _run_denoise(cloud.points, None, args, {})
     written = _demo_files(args, cloud.points, result)
     try:
-        from . import render
+        from .pictures import render
     except ImportError:
         render = None
     pictures = []
@@ -717,8 +718,9 @@ def _vec(v, decimals):
 
 
 def _render(args):
-    from . import io, render
-    from .fields import field_values
+    from . import io
+    from .pictures import render
+    from .pictures.fields import field_values
     from .stages import estimate_normals
 
     _check_output(args.output, args.force)

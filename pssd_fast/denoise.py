@@ -1,24 +1,24 @@
 """`denoise`: resolves the parameters, then runs the iterations of the chosen pipeline."""
-import functools
 import numbers
 import time
-from dataclasses import dataclass, field
-from typing import Optional
 
 import numpy as np
 
-from . import core, duplicates, inputs, stages
-from . import plan as planning
+from . import core, duplicates
 from ._threads import threads
 from ._validation import (
-    MIN_K, as_normals, as_points, check_choice, check_float, check_int, check_k, check_orient,
+    as_normals, as_points, check_choice, check_float, check_int, check_k, check_orient,
     check_size,
 )
-from .graph import bounds, knn_graph, refresh_graph, truncate_graph
-from .kernels.order import gather_rows, scatter_rows
-from .pipelines import STEPS, coarse, edges, scales
-from .plan import PRESETS
+from .graph import bounds
+from .kernels.order import gather_rows
 from .progress import Clock, reporter
+from .routes import coarse, edges, scales
+from .routes import plan as planning
+from .routes.plan import PRESETS
+from .run import (
+    DenoiseResult, Input, Request, check_distinct, iterate, outlier_scores, result, stats,
+)
 
 #: Parameters of each method beyond the common ones, with their defaults.
 METHOD_DEFAULTS = {
@@ -33,79 +33,6 @@ METHODS = tuple(METHOD_DEFAULTS)
 #: feature-aware pipeline uses.
 PAPER_ONLY = ("h", "radius_factor", "delta", "alpha", "beta", "likelihood")
 AWARE_ONLY = ("sigma_n", "shift_normals", "select_scales")
-
-
-@dataclass(frozen=True, eq=False)
-class DenoiseResult:
-    """Output of :func:`denoise`; arrays are in the caller's point order and float dtype.
-
-    Results compare by identity; compare their arrays with :func:`numpy.array_equal`.
-
-    Attributes
-    ----------
-    points : (n, 3) ndarray
-        Denoised positions.
-    normals : (n, 3) ndarray
-        Robust method: the filtered unit normals ``n*_i`` of the last iteration. Baselines: the
-        normals the last iteration used.
-    likelihood : (n,) ndarray or None
-        Sampling likelihood ``l_i`` of the last iteration (robust method only; the
-        feature-aware presets compute it from the RMS residual of their fit).
-    feature_intensity : (n,) ndarray or None
-        Feature intensity ``s_i`` of the last iteration (robust method only).
-    displacement : (n,) ndarray
-        ``|p_noisy - p_denoised|``, the quantity of the paper's Table 1 and Fig. 8.
-    held : (n,) bool ndarray
-        Where a move of the point was refused and the point kept its place instead: a move
-        that was not finite, or longer than the radius of the neighbour list behind it (on the
-        points, in any iteration; on the cell means of the coarse-to-fine route, in the last
-        step onto their fits). ``stats["held_points"]`` counts them (docs/DECISIONS.md, "No
-        point flung").
-    outlier_score : (n,) ndarray
-        :func:`pssd_fast.outlier_score` of the input points (before any iteration, ``k = 64``);
-        above 1: flagged as an outlier. Computed on first access (a query of 64 neighbours,
-        about 2-4 times the run's cheapest kNN query), unless ``remove_outliers=True`` needed
-        it already.
-    kept : (n,) int64 ndarray
-        Rows of the input that the other arrays hold, in increasing order: every row, or with
-        ``remove_outliers=True`` those scoring at most 1 (so ``points[kept]`` is what was
-        denoised and ``outlier_score`` has one value per kept row).
-    stats : dict
-        ``"iterations"``: one dict per iteration with per-stage wall times in seconds
-        (``"times"``), the derived scales (``h``, ``mean_spacing``, ``region_radius``,
-        ``mean_residual``), fallback counts (``fit_degree`` counts of cubic, quadratic and
-        plane fits; ``degenerate_normals``; ``held_points``, points left in place because their
-        step was not finite or longer than its list's radius), region sizes and the mean step;
-        plus the run's settings (``"k"``; ``"pipeline"``: "paper" or "aware"; ``"plan"``: the
-        route ("cells", "points" or "walks"), ``k``, ``rebuild_graph`` and ``select_scales``
-        the run took, docs/ALGORITHM.md, "Routes"; ``"auto_k"``:
-        the noise probe behind a ``k`` chosen from the data, else None, with ``"coarse"``: the
-        cells of the coarse-to-fine route and its final fit, else None; ``"noise"``: the noise
-        it estimated, else None), ``"duplicates"`` (rows merged into another at their position,
-        :mod:`pssd_fast.duplicates`), ``"held_points"`` (the points of ``held``) and
-        ``"total_seconds"``. JSON-serialisable.
-    """
-
-    points: np.ndarray
-    normals: np.ndarray
-    likelihood: Optional[np.ndarray]
-    feature_intensity: Optional[np.ndarray]
-    displacement: np.ndarray
-    held: np.ndarray
-    kept: np.ndarray
-    stats: dict = field(repr=False)
-    # The score once known, else what computes it: the input rows the result holds and n_jobs,
-    # or a function.
-    _outliers: object = field(default=None, repr=False, compare=False)
-
-    @functools.cached_property
-    def outlier_score(self):
-        if isinstance(self._outliers, np.ndarray):
-            return self._outliers
-        if callable(self._outliers):
-            return self._outliers()
-        points, n_jobs = self._outliers
-        return stages.outlier_score(points, n_jobs=n_jobs)
 
 
 def denoise(points, normals=None, *, method="robust", iterations=None, k=None, lam=None,
@@ -329,17 +256,19 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     started = time.perf_counter()
     n_input = n
     kept = np.arange(n)
-    score = outlier_seconds = None
+    score = outliers = None
     if remove_outliers:
         # Before anything else, so that the result is exactly that of denoise(points[kept]).
         outlier_started = time.perf_counter()
-        score_all = stages.outlier_score(pts, n_jobs=n_jobs)
-        outlier_seconds = time.perf_counter() - outlier_started
+        score_all = outlier_scores(pts, n_jobs)
+        seconds = time.perf_counter() - outlier_started
         kept = np.flatnonzero(score_all <= 1.0)
         pts, given, score = pts[kept], None if given is None else given[kept], score_all[kept]
         if k is not None and pts.shape[0] < k + 1:
             raise ValueError(f"only {pts.shape[0]} of {n} points remain after removing "
                              f"outliers, too few for k = {k}; lower k or keep the outliers")
+        outliers = {"flagged": int((score_all > 1.0).sum()), "removed": n_input - kept.shape[0],
+                    "seconds": seconds}
         n = pts.shape[0]
     order, groups = duplicates.ordered(pts)
     distinct = check_distinct(order.shape[0], n, k)
@@ -349,8 +278,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     current = np.empty((distinct, 3))
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
-    step = STEPS[pipeline if method == "robust" else method]
-    cells = None
+    request = Request(method, preset, pipeline, lam, params, orient, centre, report, started)
     with threads(n_jobs) as n_threads:
         plan = planning.make(
             current, given, preset, distinct=distinct, k=None if auto else k,
@@ -358,151 +286,42 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             aware_pipeline="select_scales" in params, rebuild_graph=rebuild_graph,
             select_scales=params.get("select_scales"), sigma_n=params.get("sigma_n"),
             shift_normals=params.get("shift_normals"))
-        iterations = plan.iterations
         if "select_scales" in params:
             params["select_scales"] = plan.select_scales
-        if plan.cells is not None:
+        if plan.cells is None:
+            done = iterate(current, given, plan, request)
+        else:
             # Iterate on the cell means; the input points are projected onto them last.
-            cells = coarse.cells_of(current, given, plan.layout, plan.cells)
-            fine, fine_given = current, given
-            current, given = cells.points, cells.normals
-        current, out_normals, extra, records, held = iterate(
-            current, given, step, plan.k, iterations, plan.rebuild_graph, plan.lists, lam,
-            params, orient, centre, report, None if cells is None else cells.counts,
-            plan.walks)
-        if cells is not None:
-            clock = Clock(report, iterations - 1, iterations)
-            surface, surface_normals, extra = coarse.collapse(cells, current, out_normals, extra)
-            current, out_normals, nearest, fit, held = coarse.refine(
-                fine, surface, surface_normals, cells.surface_k, params["sigma_n"], clock)
-            if plan.edges is not None:
-                edges.finish(plan.edges, fine, current, out_normals, held, nearest,
-                             edges.zones(surface, extra[1], plan.edges["radius"]), order,
-                             fine_given, params["keep_normals"], params["sigma_n"], clock)
-            records[-1]["times"].update(clock.times)
-            extra = tuple(x[nearest] for x in extra)
-            plan.probe["coarse"] = coarse.describe(plan.noise, cells.edge, cells.counts,
-                                                   surface, cells.surface_k, fit)
-
-    stats = {
-        "method": method,
-        "n_points": n,
-        "duplicates": n - distinct,
-        "k": plan.k,
-        "lam": lam,
-        "preset": preset,
-        "pipeline": pipeline,
-        "plan": plan.describe(),
-        "auto_k": plan.probe,
-        "noise": None if plan.probe is None else plan.probe["noise"],
-        "scales": plan.walks_record(),
-        "rebuild_graph": plan.rebuild_graph,
-        "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
-        "outliers": None if score is None else {
-            "flagged": int((score_all > 1.0).sum()), "removed": n_input - n,
-            "seconds": outlier_seconds},
-        "n_iterations": iterations,
-        "held_points": int(held.sum()),
-        "params": dict(params),
-        "n_jobs": n_threads,
-        "iterations": records,
-        "total_seconds": time.perf_counter() - started,
-    }
+            done = _cells_route(current, given, plan, request, order)
     # A copy (in the input's dtype): the caller may change the input before the access.
-    outliers = (pts.astype(dtype), n_jobs) if score is None else score.astype(dtype, copy=False)
-    return result(pts, dtype, (order, groups), centre, current, out_normals, extra, held, kept,
-                  outliers, stats)
+    return result(Input(pts, dtype, order, groups), done, centre, kept,
+                  (pts.astype(dtype), n_jobs) if score is None
+                  else score.astype(dtype, copy=False),
+                  stats(request, plan, n, distinct, n_threads, done.records,
+                        int(done.held.sum()), outliers=outliers))
 
 
-def result(pts, dtype, order, centre, current, out_normals, extra, held, kept, outliers, stats):
-    """The :class:`DenoiseResult` of a run on ``pts`` (the input rows denoised, in the caller's
-    order) whose outputs ``current``, ``out_normals``, ``extra`` and ``held`` are in the order
-    of ``(order, groups)`` (:func:`pssd_fast.duplicates.ordered`), relative to ``centre``;
-    ``outliers``: the scores or what computes them."""
-    shift = _to_caller_order(current, *order)
-    points = shift + centre
-    displacement = np.linalg.norm(shift - (pts - centre), axis=1)
-    if order[1] is not None:
-        # A copy's move, from its own input position, as tiled.denoise_file computes it.
-        copy = np.ones(pts.shape[0], np.bool_)
-        copy[order[0]] = False
-        displacement[copy] = np.linalg.norm(points[copy] - pts[copy], axis=1)
-    lik, feat = (None, None) if extra is None else (
-        _to_caller_order(x, *order).astype(dtype, copy=False) for x in extra)
-    return DenoiseResult(
-        points=points.astype(dtype, copy=False),
-        normals=_to_caller_order(out_normals, *order).astype(dtype, copy=False),
-        likelihood=lik,
-        feature_intensity=feat,
-        displacement=displacement.astype(dtype, copy=False),
-        held=_to_caller_order(held, *order),
-        _outliers=outliers,
-        kept=kept,
-        stats=stats,
-    )
-
-
-def iterate(current, given, step, k, iterations, rebuild_graph, probe, lam, params, orient,
-            centre, report, counts=None, scale_plan=None):
-    """The ``iterations`` of a pipeline ``step`` on ``current`` (Morton order, relative to
-    ``centre``), as :func:`denoise` runs them once its parameters are resolved.
-
-    ``probe``: the noise probe's lists, which serve the first iteration (or None); ``counts``:
-    the points each of ``current`` stands for (the cell means of the coarse-to-fine route), a
-    factor on its weight in the fits, or None; ``scale_plan``: the
-    :class:`~pssd_fast.pipelines.scales.ScalePlan` of ``select_scales`` (with one, ``probe`` is
-    None or lists of its longest length), or None. Returns the moved points, the last
-    iteration's normals and ``(likelihood, feature intensity)`` (or None), one record per
-    iteration and the mask of the points held in place in at least one of them.
-    """
-    # A cell mean weighs as many points as it stands for in the fits.
-    weighting = {} if counts is None else {"mass": counts.astype(np.float64)}
-    records = []
-    out_normals = graph = extra = lists = held = None
-    for iteration in range(iterations):
-        clock = Clock(report, iteration, iterations)
-        walk = None
-        if scale_plan is not None:
-            # The walks' longest lists, cut to k, are the iteration's: one query for both.
-            if probe is not None:
-                lists = probe
-            elif lists is None or rebuild_graph:
-                graph = lists = None  # the last lists go before the new ones are built
-                lists = clock.run("neighbors", knn_graph, current, int(scale_plan.lengths[-1]),
-                                  False)
-            else:
-                lists = clock.run("neighbors", refresh_graph, lists, current)
-            graph = clock.run("truncate", truncate_graph, lists, current, k)
-            walk = {"scale_plan": scale_plan.at(iteration), "scale_lists": lists}
-        elif probe is not None:
-            # The probe's lists, cut to k, are this iteration's: no second query.
-            graph = clock.run("neighbors", truncate_graph, probe, current, k)
-        elif graph is None or rebuild_graph:
-            graph = None  # the last lists go before the new ones are built, not after
-            graph = clock.run("neighbors", knn_graph, current, k, False)
-        else:
-            graph = clock.run("neighbors", refresh_graph, graph, current)
-        probe = None  # its lists (4 bytes x 96 a point) are not kept past their use
-        if given is not None:
-            nrm, degenerate = clock.run("normals", _given_normals, given)
-        else:
-            first = orient if out_normals is None else None
-            # Shifted normals in the first iteration only: later ones follow the moved points.
-            shift_k = k if out_normals is None and params.get("shift_normals") else None
-            nrm, degenerate = clock.run("normals", inputs.estimated_normals, current, graph,
-                                        out_normals, first, centre, shift_k)
-        step_params = params if walk is None else {**params, **walk}
-        moved, out_normals, extra, record, held_now = step(
-            current, nrm, graph, lam, step_params, clock, iteration == iterations - 1,
-            **weighting)
-        held = held_now if held is None else held | held_now
-        record["degenerate_normals"] = int(degenerate.sum())
-        record["mean_step"] = float(np.linalg.norm(moved - current, axis=1).mean())
-        records.append(record)
-        current = moved
-        if not params["keep_normals"]:
-            given = None
-    return current, out_normals, extra, records, held
+def _cells_route(fine, fine_given, plan, request, order):
+    """The coarse-to-fine route (``plan.cells``) on the distinct positions ``fine`` (Morton
+    ``order`` of the input rows): the iterations on the cell means, then every point moved
+    onto their fits (and, on the edges route, the points near features on their own)."""
+    cells = coarse.cells_of(fine, fine_given, plan.layout, plan.cells)
+    done = iterate(cells.points, cells.normals, plan, request, cells.counts)
+    iterations, sigma_n = plan.iterations, request.params["sigma_n"]
+    clock = Clock(request.report, iterations - 1, iterations)
+    surface, surface_normals, extra = coarse.collapse(cells, done.points, done.normals,
+                                                      done.extra)
+    current, out_normals, nearest, fit, held = coarse.refine(
+        fine, surface, surface_normals, cells.surface_k, sigma_n, clock)
+    if plan.edges is not None:
+        edges.finish(plan.edges, fine, current, out_normals, held, nearest,
+                     edges.zones(surface, extra[1], plan.edges["radius"]), order,
+                     fine_given, request.params["keep_normals"], sigma_n, clock)
+    done.records[-1]["times"].update(clock.times)
+    plan.probe["coarse"] = coarse.describe(plan.noise, cells.edge, cells.counts, surface,
+                                           cells.surface_k, fit)
+    return done._replace(points=current, normals=out_normals,
+                         extra=tuple(x[nearest] for x in extra), held=held)
 
 
 def _only_classes(points, normals, classification, classes, options):
@@ -568,29 +387,6 @@ def check_classes(classification, classes, n):
     return chosen, wanted
 
 
-def check_distinct(distinct, n, k):
-    """``distinct``, the positions among ``n`` points, checked against ``k`` (None: the
-    preset chooses it)."""
-    if distinct < n and distinct < (MIN_K if k is None else k) + 1:
-        raise ValueError(f"the cloud has {n} points but only {distinct} distinct positions; "
-                         f"denoising needs at least {(MIN_K if k is None else k) + 1}"
-                         + ("" if k is None else f" for k = {k} (lower k)"))
-    return distinct
-
-
-def _to_caller_order(values, order, groups=None):
-    """``values`` (rows in Morton order ``order``; with ``groups``, those of the distinct
-    positions, :func:`pssd_fast.duplicates.ordered`) back in the caller's order."""
-    if groups is not None:
-        return values[groups]
-    out = np.empty_like(values)
-    if values.ndim == 1:
-        out[order] = values
-    else:
-        scatter_rows(values, order, np.zeros(values.shape[1]), out)
-    return out
-
-
 def _check_pipeline_params(method, preset, pipeline, explicit, lam):
     """Refuse parameters that the chosen method or pipeline would silently ignore."""
     if method != "robust":
@@ -636,8 +432,3 @@ def _method_params(method, method_params):
     if "select_scales" in params:
         params["select_scales"] = scales.check(params["select_scales"])
     return params
-
-
-def _given_normals(normals):
-    """The caller's normals, with no degenerate neighbourhood to report."""
-    return normals, np.zeros(normals.shape[0], np.bool_)

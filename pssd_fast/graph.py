@@ -9,7 +9,7 @@ from .kernels.graph import put_self_first, refresh_lists
 from .kernels.knn import grid_knn
 from .kernels.order import morton_codes
 
-_MORTON_BITS = 21  # per axis: 3 * 21 = 63 bits fit an unsigned 64-bit code
+MORTON_BITS = 21  # per axis: 3 * 21 = 63 bits fit an unsigned 64-bit code
 
 
 class NeighborGraph(NamedTuple):
@@ -76,7 +76,7 @@ def morton_cells(points):
     cells along the bounding box's longest side, on every axis."""
     low, high = bounds(points)
     extent = float((high - low).max())
-    scale = (2**_MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
+    scale = (2**MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
     code = np.empty(points.shape[0], np.uint64)
     morton_codes(np.ascontiguousarray(points, dtype=np.float64), low, scale, code)
     return code

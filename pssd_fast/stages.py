@@ -14,6 +14,7 @@ from ._threads import threads
 from ._validation import (as_normals, as_points, check_choice, check_float, check_k,
                           check_orient)
 from .graph import NeighborGraph, check_graph, knn_graph, morton_order
+from .run import outlier_scores
 
 class MLSFit(NamedTuple):
     """Result of :func:`mls_fit`.
@@ -178,6 +179,9 @@ def outlier_score(points, *, k=core.OUTLIER_K, graph=None, n_jobs=None):
     uniform outliers: at most 0.5% of surface points flagged at noise up to 1% of the
     diagonal; outliers within a few noise widths of the surface are not told apart).
     """
+    if graph is None:
+        pts, dtype = as_points(points)
+        return outlier_scores(pts, n_jobs, k).astype(dtype, copy=False)
     run = _prepare(points, None, k, graph, n_jobs, estimate=False)
     with threads(n_jobs):
         return run.unsort(core.outlier_score(run.points, run.graph))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import pssd_fast
-from pssd_fast import meshes
+from benchmarks import meshes
 from pssd_fast.kernels import feature
 
 #: Where the tests look for the reference meshes when ``PSSD_DATA`` is unset: the folder

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 import pssd_fast
-from pssd_fast import atomic, ondisk
+from pssd_fast import atomic
+from pssd_fast.tiled import ondisk
 
 
 def leftovers(folder):

@@ -10,7 +10,8 @@ import time
 
 import pytest
 
-from pssd_fast.kernels import cache
+from pssd_fast.jit import cache
+from pssd_fast.kernels.config import Kernel, _type_key
 
 from .conftest import PACKAGE_PARENT
 
@@ -21,7 +22,7 @@ CHILD = """
 import sys, warnings, numpy as np, pssd_fast
 from pathlib import Path
 from pssd_fast import datasets
-from pssd_fast.kernels import cache
+from pssd_fast.jit import cache
 points = datasets.cad_part(n_points=3000, noise=0.005, seed=3).points
 runs = {"default": dict(iterations=2), "paper": dict(preset="paper"),
         "bilateral": dict(method="bilateral", k=20, iterations=1),
@@ -126,7 +127,7 @@ def test_a_copy_of_the_package_sharing_the_cache_gives_identical_bytes(cold, tmp
 
 
 #: Print the cache key of a process whose numba compiles for a generic x86-64 CPU.
-GENERIC = "from pssd_fast.kernels import cache; print(cache.cache_key())"
+GENERIC = "from pssd_fast.jit import cache; print(cache.cache_key())"
 
 
 @pytest.mark.slow  # compiles for another CPU (the key's CPU: test_the_folder_name_changes...)
@@ -222,12 +223,12 @@ def test_the_type_key_tells_apart_what_numba_types_tell_apart():
     readonly.flags.writeable = False
     values = [np.zeros((4, 3)), np.zeros((4, 3), order="F"), np.zeros((4, 6))[:, ::2],
               np.zeros((4, 3), np.float32), np.zeros(4), readonly, 1, 1.0, True, np.int64(1)]
-    keys = [cache._type_key(v) for v in values]
+    keys = [_type_key(v) for v in values]
     types = [numba.typeof(v) for v in values]
     # Each key stands for one type (a key may be finer: 1 and np.int64(1) are both int64).
     assert len(set(zip(keys, types))) == len(set(keys)) == len(values)
     assert len(set(types)) == len(values) - 1
-    assert cache._type_key(np.ones((9, 3))) == keys[0] and cache._type_key(7) == keys[6]
+    assert _type_key(np.ones((9, 3))) == keys[0] and _type_key(7) == keys[6]
 
 
 def _twice(x):
@@ -247,7 +248,7 @@ def own_folder(tmp_path, monkeypatch):
 def _kernel():
     """A new dispatcher of ``_twice``, as a fresh process would make it."""
     import numba
-    return cache.Kernel(numba.njit(_twice))
+    return Kernel(numba.njit(_twice))
 
 
 def test_a_kernel_loads_what_another_compiled_and_warns_once_when_the_cache_misses(own_folder):
@@ -262,6 +263,14 @@ def test_a_kernel_loads_what_another_compiled_and_warns_once_when_the_cache_miss
         assert _kernel()(1.0) == 2.0 and _kernel()(1.0) == 2.0
     assert len(caught) == 1 and str(own_folder) in str(caught[0].message)
     assert cache.stats()["compiled"] == 2
+
+
+def test_without_the_package_loader_a_kernel_compiles_in_memory(own_folder, monkeypatch):
+    """The kernels stand on numba alone: with no loader nothing is cached or counted."""
+    monkeypatch.setattr(Kernel, "loader", None)
+    assert _kernel()(2.0) == 4.0
+    assert cache.stats()["compiled"] == cache.stats()["loaded"] == 0
+    assert not (own_folder / "built").exists()
 
 
 def test_threads_calling_a_new_kernel_at_once_compile_it_once(own_folder):
@@ -292,7 +301,7 @@ def test_stale_folders_of_other_keys_are_removed(tmp_path):
 
 
 def test_a_process_marks_its_folder_used(tmp_path):
-    done = _child("from pssd_fast.kernels import cache; print(cache.cache_folder())", tmp_path)
+    done = _child("from pssd_fast.jit import cache; print(cache.cache_folder())", tmp_path)
     folder = tmp_path / done.stdout.strip().rsplit("/", 1)[1]
     assert folder.is_dir() and time.time() - folder.stat().st_mtime < 600
 
@@ -300,7 +309,7 @@ def test_a_process_marks_its_folder_used(tmp_path):
 def test_no_kernel_or_function_they_call_uses_fast_math():
     """Fresh and cached code agree because LLVM may not reorder floating-point operations; with
     fast-math flags the two copies of a ``prange`` body numba makes can sum in other orders
-    (see ``pssd_fast/kernels/cache.py``)."""
+    (see ``pssd_fast/jit/cache.py``)."""
     import importlib
     import pkgutil
 
@@ -312,7 +321,7 @@ def test_no_kernel_or_function_they_call_uses_fast_math():
     for info in pkgutil.iter_modules(pssd_fast.kernels.__path__):
         module = importlib.import_module(f"pssd_fast.kernels.{info.name}")
         for name, obj in vars(module).items():
-            dispatcher = obj.dispatcher if isinstance(obj, cache.Kernel) else obj
+            dispatcher = obj.dispatcher if isinstance(obj, Kernel) else obj
             if isinstance(dispatcher, CPUDispatcher) and obj.__module__ == module.__name__:
                 assert not dispatcher.targetoptions.get("fastmath"), f"{info.name}.{name}"
                 checked.append(name)

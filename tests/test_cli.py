@@ -155,7 +155,7 @@ def test_info_and_render(tmp_path, ply_with_extras):
 
 def test_render_computes_the_fields_pssd_denoise_stores(tmp_path, ply_with_extras):
     from pssd_fast import io
-    from pssd_fast.fields import field_values
+    from pssd_fast.pictures.fields import field_values
 
     path, _ = ply_with_extras
     status, _, err = pssd("denoise", path, tmp_path / "out.ply", "--iterations", "2", "--quiet")

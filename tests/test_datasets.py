@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pssd_fast import datasets
-from pssd_fast.meshes import segment_distance
+from benchmarks.meshes import segment_distance
 
 NAMES = sorted(datasets.GENERATORS)
 GAUSS_ABS_MEAN = np.sqrt(2.0 / np.pi)  # E|N(0, 1)|

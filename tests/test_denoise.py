@@ -369,7 +369,7 @@ import importlib, json, pkgutil
 import numpy as np
 import pssd_fast
 import pssd_fast.kernels
-from pssd_fast.kernels.cache import Kernel
+from pssd_fast.kernels.config import Kernel
 
 kernels = {}
 for info in pkgutil.iter_modules(pssd_fast.kernels.__path__):
@@ -718,16 +718,16 @@ def test_float32_with_large_offsets_is_as_accurate_as_float64(preset):
 def test_the_probe_graph_serves_the_first_iteration(monkeypatch):
     """k chosen at most the probe's k: one kNN query (the probe's) for one iteration, and the
     same result as querying k neighbours anew."""
-    denoise_module = sys.modules["pssd_fast.denoise"]
+    run_module = sys.modules["pssd_fast.run"]
     points = wavy(3000, noise=0.002, seed=5)
     calls = []
-    real = denoise_module.knn_graph
+    real = run_module.knn_graph
 
     def counted(*args):
         calls.append(args[1])
         return real(*args)
 
-    monkeypatch.setattr(denoise_module, "knn_graph", counted)
+    monkeypatch.setattr(run_module, "knn_graph", counted)
     monkeypatch.setattr("pssd_fast.pipelines.aware.knn_graph", counted)
     auto = pssd_fast.denoise(points, iterations=1, select_scales=False)
     k = auto.stats["k"]
@@ -772,13 +772,13 @@ def thick():
 def coarse_default(monkeypatch):
     """The default's coarse-to-fine route from the probe ratio of ``thick`` (0.33) on: it takes
     that route from 0.5 on, which a probe of 100,000 points or fewer hardly reaches."""
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
 
     monkeypatch.setitem(coarse.COARSE["default"], "min_ratio", 0.3)
 
 
 def test_the_default_keeps_the_input_below_its_ratio(thick):
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
 
     result = pssd_fast.denoise(thick.points, iterations=1, select_scales=False)
     ratio = result.stats["auto_k"]["ratio"]
@@ -789,7 +789,7 @@ def test_the_default_keeps_the_input_below_its_ratio(thick):
 @pytest.mark.slow  # its stages are compared with their references in tests/test_stages.py
 @pytest.mark.usefixtures("coarse_default")
 def test_coarse_to_fine_matches_the_reference(thick):
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
 
     points = thick.points
     result = pssd_fast.denoise(points, iterations=2, rebuild_graph=True)

@@ -128,8 +128,9 @@ def test_copies_stay_together_out_of_core(tmp_path, monkeypatch, ext, n, noise, 
     row's result as it writes the output: the in-core file, bit for bit, on both routes, with
     blocks of rows so small that copies and their first rows fall in different blocks."""
     pytest.importorskip("dask")
-    from pssd_fast import io, ondisk, tiled
-    from pssd_fast.pipelines import coarse
+    from pssd_fast import io, tiled
+    from pssd_fast.tiled import ondisk
+    from pssd_fast.routes import coarse
 
     monkeypatch.setattr(ondisk, "CHUNK_POINTS", 6_000)
     monkeypatch.setitem(coarse.COARSE["default"], "min_ratio", 0.3)

@@ -1,10 +1,10 @@
-"""The edges route's pass (pssd_fast.pipelines.edges) against the references."""
+"""The edges route's pass (pssd_fast.routes.edges) against the references."""
 import numpy as np
 import pytest
 
 import pssd_fast
 from pssd_fast import datasets
-from pssd_fast.pipelines import edges
+from pssd_fast.routes import edges
 from pssd_fast.progress import Clock
 
 from . import reference
@@ -114,7 +114,7 @@ def test_the_lists_grow_with_the_noise(ratio, k):
 
 def test_unflagged_points_stay_where_the_cells_put_them(monkeypatch):
     """And the default's edges route moves its flagged points within their lists."""
-    from pssd_fast import plan
+    from pssd_fast.routes import plan
 
     monkeypatch.setitem(plan.PRESETS["default"], "scales_up_to", 0)
     cloud = datasets.cad_part(n_points=30_000, noise=0.0005, seed=7)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import pssd_fast
-from pssd_fast import meshes
+from benchmarks import meshes
 
 from .conftest import mesh_file
 

@@ -5,9 +5,9 @@ from pathlib import Path
 import pssd_fast
 
 PACKAGE = Path(pssd_fast.__file__).resolve().parent
-#: What kernel modules may import: the standard library pieces they use, numpy and numba.
-KERNEL_IMPORTS = {"atexit", "contextlib", "hashlib", "math", "os", "pathlib", "shutil", "sys", "tempfile",
-                  "threading", "time", "warnings", "llvmlite", "numba", "numpy"}
+#: What kernel modules may import: numpy, numba and two modules of the standard library.
+#: Where compiled code is cached (files, hashes, warnings) is ``pssd_fast.jit``'s business.
+KERNEL_IMPORTS = {"math", "threading", "numba", "numpy"}
 
 
 def _imports(path):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from pykdtree.kdtree import KDTree
 
-from pssd_fast import meshes
+from benchmarks import meshes
 
 from .conftest import DEFAULT_MESH_DIR, mesh_file
 

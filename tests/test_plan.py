@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 import pssd_fast
-from pssd_fast import datasets, plan
-from pssd_fast.pipelines import coarse
+from pssd_fast import datasets
+from pssd_fast.routes import plan
+from pssd_fast.routes import coarse
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pssd_fast import datasets
-from pssd_fast import render as rn
+from pssd_fast.pictures import render as rn
 
 colormaps = pytest.importorskip("matplotlib").colormaps
 imread = pytest.importorskip("matplotlib.image").imread

@@ -9,7 +9,7 @@ from pssd_fast import core, datasets
 from pssd_fast.denoise import PRESETS
 from pssd_fast.graph import knn_graph
 from pssd_fast.kernels.linalg import orthonormal_basis
-from pssd_fast.pipelines import scales
+from pssd_fast.routes import scales
 
 from . import reference
 

@@ -670,7 +670,7 @@ def test_a_point_on_the_fitted_patch_stays():
 @pytest.mark.parametrize("with_normals", [False, True])
 @pytest.mark.parametrize("name", ["wavy", "sphere", "duplicates", "plane", "tiny"])
 def test_cell_means(name, with_normals):
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
 
     points = {"wavy": wavy, "sphere": sphere, "plane": plane}.get(name, wavy)(400)
     if name == "duplicates":
@@ -704,7 +704,7 @@ def test_cell_means(name, with_normals):
 
 
 def test_cell_grid_too_fine_for_the_codes():
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
 
     assert coarse.group_cells(wavy(50), 1e-9) is None
     assert coarse.group_cells(wavy(50), 0.0) is None
@@ -713,7 +713,7 @@ def test_cell_grid_too_fine_for_the_codes():
 @pytest.mark.parametrize("name", ["wavy", "sphere", "duplicates"])
 def test_collapse(name):
     """The denoised cell means averaged over the grid again, weighted by their counts."""
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
 
     points = {"wavy": wavy, "sphere": sphere}.get(name, wavy)(600)
     if name == "duplicates":
@@ -741,7 +741,7 @@ def test_collapse(name):
 
 @pytest.mark.parametrize("name", ["wavy", "sphere", "plane"])
 def test_refine(name):
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
     from pssd_fast.progress import Clock
 
     surface = {"wavy": wavy, "sphere": sphere, "plane": plane}[name](300)

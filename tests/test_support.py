@@ -131,7 +131,7 @@ def test_one_move_never_leaves_its_list(case):
     options = {**RUNS[run], "iterations": 1, "k": k}
     reach = k
     if run == "default":
-        reach = int(pssd_fast.pipelines.scales.lengths(k, len(points))[-1])
+        reach = int(pssd_fast.routes.scales.lengths(k, len(points))[-1])
         options["select_scales"] = True  # the walks too: their lists reach 4.5 k
     try:
         result = pssd_fast.denoise(points, **options)
@@ -186,7 +186,7 @@ def test_the_guard_holds_a_broken_fit(monkeypatch, run, stage):
 def test_the_guard_holds_a_broken_fit_of_the_cells_route(monkeypatch):
     """The coarse-to-fine route: cell means' fits broken on purpose are not followed; a point
     whose fits are all broken stays where it was, held."""
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
 
     points = np.array(datasets.make("cad_part", n_points=20_000, noise=0.005, seed=1).points)
     sound = pssd_fast.denoise(points, preset="fast")

@@ -19,7 +19,7 @@ def coarse_default():
     takes it from 0.5, which a probe of 200,000 points hardly reaches; only the calling
     process reads the setting), and its own routes, not the light one, unless a test asks
     for it (:func:`light`)."""
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setitem(coarse.COARSE["default"], "min_ratio", 0.3)
@@ -56,7 +56,7 @@ def light(monkeypatch):
 @pytest.mark.slow
 def test_a_million_points_in_sixteen_tiles_give_the_in_core_result():
     """The issue's case, at the default's own threshold: the generated part at 0.5% noise."""
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setitem(coarse.COARSE["default"], "min_ratio", 0.5)
@@ -96,7 +96,7 @@ def test_tasks_at_once_share_the_cores(noisy, in_core, monkeypatch):
 
     cores = resolve_n_jobs(2)
     lock, busy, most = threading.Lock(), [0], [0]
-    real = tiled.threads
+    real = tiled.runner.threads
 
     @contextlib.contextmanager
     def counted(n_jobs):
@@ -113,7 +113,7 @@ def test_tasks_at_once_share_the_cores(noisy, in_core, monkeypatch):
                 with lock:
                     busy[0] -= n
 
-    monkeypatch.setattr(tiled, "threads", counted)
+    monkeypatch.setattr(tiled.runner, "threads", counted)
     got = tiled.denoise(noisy.points, tile_points=20_000, n_jobs=2)
     assert 0 < most[0] <= cores
     assert got.stats["tiles"]["threads"] == {"tasks_at_once": cores, "threads_per_task": 1}
@@ -134,7 +134,7 @@ def test_a_local_cluster_of_two_processes_gives_the_in_core_result(noisy, in_cor
         assert got.stats["tiles"]["count"] >= 8
         _assert_same(got, in_core["default"])
         # Each worker runs one task at a time: it gives that task all its cores.
-        shares = client.run(tiled._worker_threads)
+        shares = client.run(tiled.runner._worker_threads)
         assert set(shares.values()) == {len(os.sched_getaffinity(0))}
         assert got.stats["tiles"]["threads"] == {
             "tasks_at_once": 2, "threads_per_task": len(os.sched_getaffinity(0))}
@@ -193,7 +193,7 @@ def test_a_cloud_iterated_on_its_points_tiles_with_halos(sparse, sparse_in_core)
 
 def test_halos_too_thin_are_widened_until_exact(sparse, sparse_in_core, monkeypatch):
     """A first width of a quarter list radius: every tile fails its check and runs again."""
-    from pssd_fast import halo
+    from pssd_fast.tiled import halo
 
     monkeypatch.setattr(halo, "FIRST_WIDTH", 0.25)
     seen = []
@@ -205,8 +205,8 @@ def test_halos_too_thin_are_widened_until_exact(sparse, sparse_in_core, monkeypa
 def _shorten_scales(patch):
     """The walks' long lists shortened to 1.5 k, and the first halo width to a quarter list
     radius, so that the tiles fail their checks, run again, and stay cheap."""
-    from pssd_fast import halo
-    from pssd_fast.pipelines import scales
+    from pssd_fast.tiled import halo
+    from pssd_fast.routes import scales
 
     patch.setitem(scales.SCALES, "factors", (0.5, 1.0, 1.5))
     patch.setattr(halo, "FIRST_WIDTH", 0.25)
@@ -306,7 +306,7 @@ def test_halos_orient_each_normal_alone(sparse, sparse_in_core):
 
 
 def test_fast_without_cells_is_refused(monkeypatch):
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
 
     monkeypatch.setattr(coarse, "layout", lambda *args: None)
     with pytest.raises(ValueError, match="use preset 'default'"):
@@ -317,7 +317,7 @@ def test_fast_without_cells_is_refused(monkeypatch):
 @pytest.mark.parametrize("n", [1, 7, 128, 129, 1000, 123_457])
 @pytest.mark.parametrize("block", [1, 100, 4096])
 def test_the_mean_read_by_ranges_is_numpys(n, block):
-    from pssd_fast.halo import pairwise_mean
+    from pssd_fast.tiled.halo import pairwise_mean
 
     values = np.random.default_rng(n).random(n) ** 3 * 1e3
     assert pairwise_mean(lambda a, b: values[a:b], n, block) == float(np.mean(values))
@@ -338,7 +338,7 @@ def test_bad_arguments_are_named(kwargs, error, match):
 @pytest.fixture
 def small_chunks(monkeypatch):
     """Chunks, buckets and tiles of a few thousand points: every pass crosses boundaries."""
-    from pssd_fast import ondisk
+    from pssd_fast.tiled import ondisk
 
     monkeypatch.setattr(ondisk, "CHUNK_POINTS", 6_000)
 
@@ -487,7 +487,7 @@ def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path, request, n
 
 
 def test_a_failing_tile_leaves_no_output_and_no_scratch(tmp_path, monkeypatch):
-    from pssd_fast.pipelines import coarse
+    from pssd_fast.routes import coarse
 
     np.save(tmp_path / "in.npy", datasets.cad_part(n_points=30_000, noise=0.02, seed=8).points)
 

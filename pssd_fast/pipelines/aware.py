@@ -7,7 +7,7 @@ import numpy as np
 from .. import core
 from .._validation import check_k
 from ..graph import knn_graph
-from . import scales
+from ..routes import scales
 
 #: The noise-driven choice of ``k`` (preset "default"). A probe fit with ``probe_k``
 #: neighbours measures the noise ``sigma`` (median RMS residual of the unweighted quadratic
@@ -66,9 +66,9 @@ def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None, walk=None, lists
     """The move of :func:`step`: the moved points, the filtered normals, the fit's RMS
     residual and degree, the points held in place (their step was not finite, or longer than
     the radius of the list it was fitted over) and, with a
-    ``walk`` (the iteration's :class:`~pssd_fast.pipelines.scales.ScalePlan`, and ``lists``
+    ``walk`` (the iteration's :class:`~pssd_fast.routes.scales.ScalePlan`, and ``lists``
     of its longest length), what the walks kept: each point's column and whether it took the
-    plane (:func:`~pssd_fast.pipelines.scales.fit`; else None)."""
+    plane (:func:`~pssd_fast.routes.scales.fit`; else None)."""
     filtered = clock.run("filter", core.filter_normals, points, nrm, graph)
     kept = None
     if walk is None:

@@ -5,7 +5,7 @@
 The routes of the feature-aware pipeline: ``"cells"`` (the iterations run on the means of grid
 cells sized by the noise, the points are moved onto their fits last; where the noise spans
 several point spacings), ``"edges"`` (the cells, then the points near features iterate on
-their own lists: :mod:`pssd_fast.pipelines.edges`), ``"points"`` (the iterations run on the
+their own lists: :mod:`pssd_fast.routes.edges`), ``"points"`` (the iterations run on the
 points, each fitted over its ``k`` nearest) and ``"walks"`` (on the points, each fitted over
 its own number of neighbours, ``select_scales``). The paper's pipeline and the baselines always
 run on the points.
@@ -15,13 +15,14 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Optional
 
-from .pipelines import aware, coarse, edges, scales
+from ..pipelines import aware
+from . import coarse, edges, scales
 
 #: Presets: the pipeline of the robust method and where ``k``, ``lam``, ``iterations`` and
-#: ``rebuild_graph`` (on the input; on cell means see ``pssd_fast.pipelines.coarse.COARSE``)
+#: ``rebuild_graph`` (on the input; on cell means see ``pssd_fast.routes.coarse.COARSE``)
 #: come from when not given, and the most points and the neighbours of the noise probe
 #: (``k=None``: chosen from the estimated noise, see ``pssd_fast.pipelines.aware.AUTO_K``, or
-#: the coarse-to-fine route of ``pssd_fast.pipelines.coarse``; ``without_cells_k``: the ``k``
+#: the coarse-to-fine route of ``pssd_fast.routes.coarse``; ``without_cells_k``: the ``k``
 #: where that route finds no cells; ``scales_up_to``: the largest cloud whose points the
 #: walks of ``select_scales=None`` take; ``light``: whether the light route of :data:`LIGHT`
 #: is tried first). "default" and "fast" run the feature-aware pipeline
@@ -41,7 +42,7 @@ PRESETS = {
 #: The light route of a preset with ``"light": True`` (the default), on clouds of more than
 #: its ``scales_up_to`` points: ``fast``'s probe first; up to ``up_to`` (its ``sigma / r``,
 #: the noise against the lists of 32) the run takes ``fast``'s cells and iterations and then
-#: the edges pass (:mod:`pssd_fast.pipelines.edges`): the ``"edges"`` route. Elsewhere, or
+#: the edges pass (:mod:`pssd_fast.routes.edges`): the ``"edges"`` route. Elsewhere, or
 #: where ``fast`` finds no cells, the preset's own plan. Chosen on the CAD part at 100,000
 #: to 1,000,000 points (docs/DECISIONS.md, "One default on every cloud: the edges route").
 LIGHT = {"up_to": 0.3}
@@ -65,9 +66,9 @@ class Plan:
         The noise the cells are sized by (cells route).
     layout : tuple or None
         The cells (cells route): the grouping of the caller's ``layout``, the cells' edge,
-        ``k`` and ``rebuild_graph`` (:func:`pssd_fast.pipelines.coarse.layout`).
+        ``k`` and ``rebuild_graph`` (:func:`pssd_fast.routes.coarse.layout`).
     walks : ScalePlan or None
-        What the walks share (walks route; :func:`pssd_fast.pipelines.scales.plan`).
+        What the walks share (walks route; :func:`pssd_fast.routes.scales.plan`).
     lists : ListScales or None
         Lists the first iteration can take over (the probe's or the walks' plan's).
     walks_seconds : float or None
@@ -75,11 +76,11 @@ class Plan:
     iterations : int
         The iterations (on the cell means on the cells and edges routes).
     cells : str or None
-        The key of :data:`pssd_fast.pipelines.coarse.COARSE` whose cells the run takes.
+        The key of :data:`pssd_fast.routes.coarse.COARSE` whose cells the run takes.
     edges : dict or None
         The edges route's pass: the flagged points' ``k``
-        (:func:`pssd_fast.pipelines.edges.list_length`) and the zone's ``radius`` around a
-        flagged cell mean (:func:`pssd_fast.pipelines.edges.reach`), then what the run did
+        (:func:`pssd_fast.routes.edges.list_length`) and the zone's ``radius`` around a
+        flagged cell mean (:func:`pssd_fast.routes.edges.reach`), then what the run did
         (``flagged``, ``zone``, ``held``).
     """
 
@@ -123,7 +124,7 @@ def make(points, given, preset, *, distinct, layout: Callable, k=None, iteration
          aware_pipeline=True, rebuild_graph=None, select_scales=None, sigma_n=None,
          shift_normals=True):
     """The :class:`Plan` of a run on ``points`` (Morton order; a ``(n, 3)`` array or what
-    offers ``shape`` and ``[::step]`` as one, :class:`pssd_fast.ondisk.Buckets`).
+    offers ``shape`` and ``[::step]`` as one, :class:`pssd_fast.tiled.ondisk.Buckets`).
 
     Parameters
     ----------
@@ -134,7 +135,7 @@ def make(points, given, preset, *, distinct, layout: Callable, k=None, iteration
     distinct : int
         The number of distinct positions.
     layout : callable
-        ``layout(noise, cells)``: :func:`pssd_fast.pipelines.coarse.layout` of the cloud at
+        ``layout(noise, cells)``: :func:`pssd_fast.routes.coarse.layout` of the cloud at
         that noise for the ``cells`` key of ``COARSE`` (its grouping first), or None.
     k, iterations : int or None
         The caller's (None: from the noise probe where the preset has none; the preset's or

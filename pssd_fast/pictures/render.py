@@ -24,8 +24,8 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
-from . import atomic
-from ._validation import as_normals, as_points, check_float, check_int
+from .. import atomic
+from .._validation import as_normals, as_points, check_float, check_int
 
 __all__ = ["COLOR_FIELDS", "DEFAULT_VIEW", "IMAGE_FORMATS", "STYLES", "UP_AXES", "Style",
            "bounding_frame", "choose_up", "figure_set", "height", "render"]
@@ -43,7 +43,7 @@ class Style(NamedTuple):
     label: str
 
 
-#: Style of each field, in the units of :func:`pssd_fast.fields.field_values`. Feature
+#: Style of each field, in the units of :func:`pssd_fast.pictures.fields.field_values`. Feature
 #: intensity and likelihood lie in [0, 1] by definition. Curvature times the diagonal: +-50
 #: shows the noise of a raw scan (median |H| d is 28 on the CAD part at 0.25% noise, 8 on
 #: Igea's vertices) and how much denoising removes (4 on the denoised part) while sharp edges
@@ -105,7 +105,7 @@ def _matplotlib():
         from matplotlib.figure import Figure
         from matplotlib.image import imsave
     except ImportError as exc:
-        raise ImportError(f"pssd_fast.render needs matplotlib (the optional 'viz' extra): "
+        raise ImportError(f"pssd_fast.pictures.render needs matplotlib (the optional 'viz' extra): "
                           f"{VIZ_HINT}") from exc
     return SimpleNamespace(colormaps=colormaps, FigureCanvasAgg=FigureCanvasAgg,
                            ScalarMappable=ScalarMappable, Normalize=Normalize, to_rgba=to_rgba,
@@ -260,7 +260,7 @@ def _spacing(points):
     by ``m / n``), and for random sampling the mean nearest-neighbour distance is half the
     spacing.
     """
-    from ._threads import kdtree
+    from .._threads import kdtree
 
     n = points.shape[0]
     if n < 2:
@@ -418,7 +418,7 @@ def render(points, values=None, path=None, *, field=None, view=DEFAULT_VIEW, up=
         A key of :data:`STYLES` (``"feature"``, ``"curvature"``...): its colour map, limits and
         label are the defaults of ``cmap``, ``vmin``, ``vmax`` and ``label``, so pictures of a
         field share one scale. ``values`` must then be in the units of
-        :func:`pssd_fast.fields.field_values`.
+        :func:`pssd_fast.pictures.fields.field_values`.
     view : (float, float), default (30, -60)
         ``(elevation, azimuth)`` in degrees (see the module docstring).
     up : {"x", "y", "z"}, default "z"
@@ -624,11 +624,11 @@ def figure_set(folder, noisy, denoised, *, likelihood, feature, displacement,
     -----
     Every picture uses the input's :func:`bounding_frame`, so all six line up, and the field's
     :data:`STYLES`, as ``pssd render`` does: the curvature pictures of the input and the
-    output (:func:`pssd_fast.fields.curvature` of each) share one scale, and each picture
+    output (:func:`pssd_fast.pictures.fields.curvature` of each) share one scale, and each picture
     equals what ``pssd render`` draws for the same field of the same points.
     """
     from .fields import curvature, diagonal
-    from .stages import estimate_normals
+    from ..stages import estimate_normals
 
     _matplotlib()  # fail before any work when matplotlib is missing
     noisy_pts, _ = as_points(noisy, "noisy")

@@ -10,7 +10,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import core, inputs
+from .. import core
+from ..pipelines.normals import estimated_normals
 from ..graph import knn_graph, truncate_graph
 
 #: Prefix lengths are these factors of ``k`` (at least ``smallest``, below the cloud's size);
@@ -89,7 +90,7 @@ def plan(points, given, k, sigma_n, stride, shift):
     k_sample = int(wanted[np.searchsorted(scales, k)])
     graph = truncate_graph(lists, sample, k_sample)
     if given is None:
-        nrm, _ = inputs.estimated_normals(sample, graph, None, None, None,
+        nrm, _ = estimated_normals(sample, graph, None, None, None,
                                           k_sample if shift else None)
     else:
         nrm = np.ascontiguousarray(given[::stride])

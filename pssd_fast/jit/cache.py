@@ -8,7 +8,7 @@ for: any change gives a new, empty folder, and machines with different CPUs that
 folder (a cluster) each fill their own. Numba's files inside are stamped with the sources'
 hash alone, not with a source file's path, so every copy of the same package shares them.
 
-Every kernel is compiled without fast-math flags (``config.py``), so LLVM may not reorder,
+Every kernel is compiled without fast-math flags (``pssd_fast/kernels/config.py``), so LLVM may not reorder,
 contract or approximate any floating-point operation: whichever copy of a ``prange`` body a
 process runs (the one it just compiled, or the one loaded from the cache) computes the same
 bits. Kernels therefore compile in the calling process, only when first called with new
@@ -33,14 +33,13 @@ from pathlib import Path
 
 import llvmlite
 import numba
-import numpy as np
 from numba.core import caching, registry
 
 #: Environment variable naming the folder under which compiled kernels are cached.
 CACHE_ENV = "PSSD_FAST_CACHE_DIR"
 #: Days after its last use that another key's ``kernels-*`` folder is removed.
 STALE_DAYS = 30
-_KERNEL_DIR = Path(__file__).resolve().parent
+_KERNEL_DIR = Path(__file__).resolve().parent.parent / "kernels"
 
 
 def cpu_key():
@@ -211,71 +210,33 @@ class _Cache(caching.FunctionCache):
     _impl_class = _Impl
 
 
-def _type_key(value):
-    """What decides the numba type of a kernel argument: an array's dtype, dimensions, layout
-    and writability; any other value's Python type (the kernels take int, float and bool)."""
-    if isinstance(value, np.ndarray):
-        flags = value.flags
-        return (value.dtype.str, value.ndim, flags.c_contiguous, flags.f_contiguous,
-                flags.writeable, flags.aligned)
-    return type(value)
-
-
-class Kernel:
-    """A numba dispatcher that compiles or loads each signature on its first call, in the
-    folder of :func:`cache_folder`, and checks which of the two happened.
-
-    Attributes such as ``py_func`` and ``signatures`` are the dispatcher's.
-    """
-
-    def __init__(self, dispatcher):
-        self.dispatcher = dispatcher
-        self._ready = set()
-        self._lock = threading.Lock()
-        self.__doc__ = dispatcher.__doc__
-        self.__name__ = dispatcher.__name__
-        self.__module__ = dispatcher.__module__
-        self.__wrapped__ = dispatcher.py_func
-
-    def __getattr__(self, name):
-        return getattr(self.dispatcher, name)
-
-    def __call__(self, *args):
-        # A cheap key first: numba.typeof of every argument costs about 15 us each, a few
-        # milliseconds a run on a small cloud.
-        key = tuple(_type_key(a) for a in args)
-        if key not in self._ready:
-            with self._lock:
-                if key not in self._ready:
-                    self._prepare(tuple(numba.typeof(a) for a in args))
-                    self._ready.add(key)
-        return self.dispatcher(*args)
-
-    def _prepare(self, types):
-        """Compile or load the signature ``types``; record it, or warn that the cache missed."""
-        for callback in _before_kernels:
-            callback()
-        folder = cache_folder()
-        dispatcher = self.dispatcher
-        if folder is not None and isinstance(dispatcher._cache, caching.NullCache):
-            dispatcher._cache = _Cache(dispatcher.py_func)
-        misses = sum(dispatcher.stats.cache_misses.values())
-        started = time.perf_counter()
-        dispatcher.compile(types)
-        compiled = sum(dispatcher.stats.cache_misses.values()) > misses
-        with _state_lock:
-            _state["seconds"] += time.perf_counter() - started
-            _state["compiled" if compiled else "loaded"] += 1
-        if folder is None or not compiled:
-            return
-        name = f"{self.__module__}.{self.__name__}{types}"
-        marker = folder / "built" / hashlib.sha1(name.encode()).hexdigest()
-        if marker.exists():
-            _warn_missed(folder)
-        else:
-            with contextlib.suppress(OSError):  # a cache that cannot record costs only time
-                marker.parent.mkdir(parents=True, exist_ok=True)
-                marker.touch()
+def prepare(kernel, types):
+    """Compile or load the signature ``types`` of ``kernel`` (a
+    :class:`pssd_fast.kernels.config.Kernel`) in :func:`cache_folder`; record it, or warn that
+    the cache missed. Installed as the kernels' loader by ``pssd_fast.jit``."""
+    for callback in _before_kernels:
+        callback()
+    folder = cache_folder()
+    dispatcher = kernel.dispatcher
+    if folder is not None and isinstance(dispatcher._cache, caching.NullCache):
+        dispatcher._cache = _Cache(dispatcher.py_func)
+    misses = sum(dispatcher.stats.cache_misses.values())
+    started = time.perf_counter()
+    dispatcher.compile(types)
+    compiled = sum(dispatcher.stats.cache_misses.values()) > misses
+    with _state_lock:
+        _state["seconds"] += time.perf_counter() - started
+        _state["compiled" if compiled else "loaded"] += 1
+    if folder is None or not compiled:
+        return
+    name = f"{kernel.__module__}.{kernel.__name__}{types}"
+    marker = folder / "built" / hashlib.sha1(name.encode()).hexdigest()
+    if marker.exists():
+        _warn_missed(folder)
+    else:
+        with contextlib.suppress(OSError):  # a cache that cannot record costs only time
+            marker.parent.mkdir(parents=True, exist_ok=True)
+            marker.touch()
 
 
 def _warn_missed(folder):

@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import atomic
-from ._validation import check_size
-from .graph import _MORTON_BITS, bounds
-from .kernels.order import morton_codes
-from .pipelines import coarse
+from .. import atomic
+from .._validation import check_size
+from ..graph import MORTON_BITS, bounds
+from ..kernels.order import morton_codes
+from ..routes import coarse
 
 #: Points read from the input at a time.
 CHUNK_POINTS = 1 << 20
@@ -83,8 +83,8 @@ class LasFile:
     them), read by rows through laspy."""
 
     def __init__(self, path):
-        from .io._common import NORMALS
-        from .io.las import _need_laspy
+        from ..io._common import NORMALS
+        from ..io.las import _need_laspy
 
         self.path = path
         self.laspy = _need_laspy(Path(path).suffix.lower(), "Reading")
@@ -99,7 +99,7 @@ class LasFile:
 
     def chunk(self, start, stop):
         """The coordinates of rows ``start..stop-1``, and their normals or None."""
-        from .io._common import NORMALS
+        from ..io._common import NORMALS
 
         stop = min(stop, self.shape[0])
         with self.laspy.open(self.path) as reader:
@@ -127,8 +127,8 @@ class LasFile:
         them; every other byte of
         the records, the header, the VLRs and the EVLRs as read (the point count, the bounds
         and the extra-bytes VLR as laspy writes them)."""
-        from .io._common import NORMALS
-        from .io.las import _quantise, new_dims, put_values
+        from ..io._common import NORMALS
+        from ..io.las import _quantise, new_dims, put_values
 
         compress = Path(path).suffix.lower() == ".laz"
         backend = self.laspy.LazBackend.LazrsParallel if compress else None
@@ -250,8 +250,8 @@ class Buckets:
             low, high = np.minimum(low, lo), np.maximum(high, hi)
         self.centre = 0.5 * (low + high)
         extent = float((high - low).max())
-        scale = (2**_MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
-        shift = np.uint64(3 * _MORTON_BITS - _PREFIX_BITS)
+        scale = (2**MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
+        shift = np.uint64(3 * MORTON_BITS - _PREFIX_BITS)
         histogram = np.zeros(1 << _PREFIX_BITS, np.int64)
         for _, points, _ in chunks(array):
             prefix = (_codes(points, low, scale) >> shift).astype(np.int64)
@@ -348,7 +348,7 @@ class Buckets:
         return Normals()
 
     def layout(self, noise, preset):
-        """:func:`pssd_fast.pipelines.coarse.layout` of the whole cloud: ``(codes, counts,
+        """:func:`pssd_fast.routes.coarse.layout` of the whole cloud: ``(codes, counts,
         edge, k, rebuild_graph)``, the occupied cells' codes in Morton order and their points;
         or None."""
         def group(edge):
@@ -390,7 +390,7 @@ class Buckets:
     def states(self, paths, spans):
         """The points cut into the rank ranges ``spans``, a :data:`STATE` file each (at
         ``paths``; the file's normals, else zeros); returns each tile's
-        :func:`pssd_fast.halo.boxes` and the points' sum, row after row in rank order (the sum
+        :func:`pssd_fast.tiled.halo.boxes` and the points' sum, row after row in rank order (the sum
         of ``mean(axis=0)``)."""
         from .halo import boxes
 

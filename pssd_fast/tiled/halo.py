@@ -18,14 +18,17 @@ behind ``R`` and the mean residual behind the likelihood) are taken over all poi
 order, as :func:`pssd_fast.denoise` takes them, so the result is bit-identical to it.
 """
 import time
+from typing import NamedTuple, Optional
 
 import numpy as np
 
-from . import core, inputs
-from ._threads import threads
-from .graph import bounds, knn_graph, truncate_graph
-from .pipelines import aware, scales
-from .progress import Clock
+from .. import core
+from .._threads import threads
+from ..graph import bounds, knn_graph, truncate_graph
+from ..pipelines import aware
+from ..pipelines.normals import pca, shifted
+from ..progress import Clock
+from ..routes import scales
 
 #: Tiles start at multiples of this rank: the feature kernel grows its regions for blocks of
 #: 64 consecutive points, and a block's regions are summed in the order they were grown.
@@ -105,11 +108,33 @@ def _closure(lists, rows):
     return reach
 
 
-def spacing(points, n_own, n, k, region, n_jobs):
-    """Distance from each of the first ``n_own`` ``points`` (the tile's own; the rest are its
-    halo, every point in the boxes ``region``; all ``n`` points of the cloud, or ``region``
-    None: no halo to check) to its nearest neighbour in the ``k``-lists of the iteration;
-    None when the halo is too thin."""
+class Tile(NamedTuple):
+    """A tile's points in one iteration: its own ``n_own`` first, then its halo, every point
+    of the cloud of ``n`` in the boxes ``region`` (``(p, 2, 3)``, lows and highs; None, or
+    all ``n`` points: no halo to check)."""
+
+    points: np.ndarray
+    n_own: int
+    n: int
+    region: Optional[np.ndarray]
+
+
+class Fit(NamedTuple):
+    """What an iteration fits a tile with: the lists' ``k`` and ``sigma_n`` (as in
+    :func:`pssd_fast.pipelines.aware.step`), ``radius``, ``R`` of the feature intensity on the
+    last iteration (else None), and ``walk``, the iteration's plan of ``select_scales``
+    (:class:`pssd_fast.routes.scales.ScalePlan`, else None)."""
+
+    k: int
+    sigma_n: float
+    radius: Optional[float]
+    walk: object
+
+
+def spacing(tile, k, n_jobs):
+    """Distance from each of the ``tile``'s own points to its nearest neighbour in the
+    ``k``-lists of the iteration; None when the halo is too thin."""
+    points, n_own, n, region = tile
     region = None if points.shape[0] == n else region
     if region is not None and points.shape[0] <= k:
         return None
@@ -127,26 +152,19 @@ def _own(points, n_own):
     return mask
 
 
-def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius, walk, n_jobs):
-    """One feature-aware iteration of a tile's own points, the first ``n_own`` of ``points``.
+def step(tile, normals, given, centroid, fit, n_jobs):
+    """One feature-aware iteration of a tile's own points.
 
     Parameters
     ----------
-    points : (m, 3) float64
-        The tile's own points, then its halo: every point of the cloud inside the boxes
-        ``region`` (``(p, 2, 3)``, lows and highs; None, or all ``n`` points of the cloud: no
-        halo to check), at this iteration's positions.
+    tile : Tile
+        The tile's own points, then its halo, at this iteration's positions (float64).
     normals : (m, 3) float64 or None
         The normals of the iteration before (the hints of the PCA), the caller's normals
         (``given``: used as they are), or None (the PCA's hints point away from
         ``centroid``, the whole cloud's).
-    k, sigma_n
-        As in :func:`pssd_fast.pipelines.aware.step`.
-    radius : float or None
-        ``R`` of the feature intensity, on the last iteration; else None.
-    walk : ScalePlan or None
-        The iteration's plan of ``select_scales``
-        (:class:`pssd_fast.pipelines.scales.ScalePlan`), or None.
+    fit : Fit
+        The iteration's ``k``, ``sigma_n``, ``radius`` and ``walk``.
 
     Returns
     -------
@@ -156,8 +174,10 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
         mask of those held in place); and the counts of the iteration's record: ``rms_sum``,
         ``degree`` counts, ``degenerate``,
         ``step_sum``, and ``scales``: with a ``walk``, how many own points kept each length
-        and took the plane (:func:`pssd_fast.pipelines.scales.kept_counts`), else None.
+        and took the plane (:func:`pssd_fast.routes.scales.kept_counts`), else None.
     """
+    points, n_own, n, region = tile
+    k, sigma_n, radius, walk = fit
     region = None if points.shape[0] == n else region
     longest = k if walk is None else int(walk.lengths[-1])
     if region is not None and points.shape[0] <= longest:
@@ -191,9 +211,9 @@ def step(points, normals, given, centroid, n_own, n, k, sigma_n, region, radius,
         else:
             hints = points - centroid if normals is None else normals
             first = normals is None  # shifted (docs/ALGORITHM.md, "Shifted normals")
-            nrm, degenerate, planes = inputs.pca(points, lists, hints, first)
+            nrm, degenerate, planes = pca(points, lists, hints, first)
             if first:
-                nrm = inputs.shifted(points, nrm, lists, planes, k)
+                nrm = shifted(points, nrm, lists, planes, k)
         clock = Clock(None, 0, 1)
         moved, filtered, rms, degree, held, kept = aware.fit_and_move(
             points, nrm, lists, sigma_n, clock, None, walk, long_lists)
@@ -246,7 +266,7 @@ def orient_pointwise(points, normals, orient, centroid):
 def iterate(current, given, k, iterations, sigma_n, spans, width, runner, scale_plan=None):
     """The ``iterations`` of the feature-aware pipeline on ``current`` (Morton order), tile by
     tile over the rank ranges ``spans``, each iteration's tiles run by ``runner`` (see
-    :class:`pssd_fast.tiled._Runner`); ``given``: the caller's normals or None, ``width``: the
+    :class:`pssd_fast.tiled.runner._Runner`); ``given``: the caller's normals or None, ``width``: the
     first halo width, ``scale_plan``: the plan of ``select_scales`` or None. As
     :func:`pssd_fast.denoise.iterate` returns them: the moved points, the last normals,
     ``(likelihood, feature intensity)``, one record per iteration and the points held."""
@@ -262,13 +282,14 @@ def iterate(current, given, k, iterations, sigma_n, spans, width, runner, scale_
 
         def spacing_args(i, width):
             (a, b), (rows, region) = spans[i], _candidates(current, *spans[i], width, cloud)
-            return current[rows], b - a, n, k, region
+            return Tile(current[rows], b - a, n, region), k
 
         def step_args(i, width):
             (a, b), (rows, region) = spans[i], _candidates(current, *spans[i], width, cloud)
-            return (current[rows], None if normals is None else normals[rows],
-                    t == 0 and given is not None, centroid, b - a, n, k, sigma_n, region,
-                    radius, None if scale_plan is None else scale_plan.at(t))
+            return (Tile(current[rows], b - a, n, region),
+                    None if normals is None else normals[rows], t == 0 and given is not None,
+                    centroid, Fit(k, sigma_n, radius,
+                                  None if scale_plan is None else scale_plan.at(t)))
 
         radius = None
         if t == iterations - 1:

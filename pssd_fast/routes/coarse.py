@@ -15,7 +15,7 @@ from .. import core, kernels
 from .._threads import kdtree
 from ..graph import QUERY_ENTRIES, bounds, knn_graph
 from ..kernels.order import morton_codes
-from .aware import interpolated_k
+from ..pipelines.aware import interpolated_k
 
 #: Settings of each preset. ``cell``: cell edge over the noise's standard deviation
 #: (:func:`.aware.noise_sigma`); ``k``: neighbours of the iterations on the cell means,

@@ -9,7 +9,7 @@ share a scale whatever its size.
 """
 import numpy as np
 
-from ._validation import as_points
+from .._validation import as_points
 
 __all__ = ["CURVATURE_K", "FIELDS", "STORED", "curvature", "diagonal", "field_values"]
 
@@ -52,8 +52,8 @@ def curvature(points, *, n_jobs=None):
     without normals), never a file's stored normals: those differ between a raw scan and its
     denoised copy, and the measure must not.
     """
-    from .graph import neighbors
-    from .stages import mls_fit
+    from ..graph import neighbors
+    from ..stages import mls_fit
 
     pts, _ = as_points(points)
     graph = neighbors(pts, k=CURVATURE_K, n_jobs=n_jobs)
@@ -99,7 +99,7 @@ def field_values(name, points, normals=None, stored=None, *, progress=None, **de
         For an unknown ``name``, a ``displacement`` the cloud does not hold, a stored field of
         the wrong length, or bad denoise options.
     """
-    from .denoise import denoise
+    from ..denoise import denoise
 
     if name not in FIELDS:
         raise ValueError(f"unknown field {name!r}; choose one of {', '.join(FIELDS)}")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validation import check_int, seeded_rng
+from pssd_fast._validation import check_int, seeded_rng
 
 __all__ = [
     "data_dir",

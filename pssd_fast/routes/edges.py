@@ -13,11 +13,11 @@ rows and gets the same bits.
 """
 import numpy as np
 
-from .. import inputs
 from .._threads import kdtree
 from ..graph import QUERY_ENTRIES, ListScales, morton_order
+from ..pipelines import aware
+from ..pipelines.normals import estimated_normals
 from ..progress import Clock
-from . import aware
 
 #: ``fraction``: the share of the cell means flagged (highest feature intensity first);
 #: ``k``: list length of the flagged points, interpolated linearly in ``log`` of the noise
@@ -171,7 +171,7 @@ def sharpen(start, normals, flagged, given, keep_normals, k, sigma_n, clock):
             nrm = given.copy()
         else:
             # Shifted normals in the first iteration, as on the points route.
-            nrm, _ = clock.run("edge_normals", inputs.estimated_normals, current, graph,
+            nrm, _ = clock.run("edge_normals", estimated_normals, current, graph,
                                normals, None, None, k if iteration == 0 else None)
         nrm[~flagged] = normals[~flagged]
         # Its stages, timed as one: the iteration's own filter, fit and update keep theirs.

@@ -21,18 +21,20 @@ from pathlib import Path
 
 import numpy as np
 
-from . import atomic, core, duplicates, halo, ondisk
-from . import plan as planning
-from ._threads import threads
-from ._validation import (
+from .. import atomic, core, duplicates
+from .._threads import threads
+from .._validation import (
     as_normals, as_points, check_choice, check_float, check_int, check_orient, check_size,
 )
-from .denoise import check_distinct, iterate, result
-from .graph import bounds
-from .kernels.order import gather_rows
-from .pipelines import STEPS, aware, coarse, edges, scales
-from .plan import PRESETS
-from .progress import Clock, reporter
+from ..graph import bounds
+from ..kernels.order import gather_rows
+from ..pipelines import aware
+from ..progress import Clock, reporter
+from ..routes import coarse, edges, scales
+from ..routes import plan as planning
+from ..routes.plan import PRESETS
+from ..run import Input, Iterated, Request, check_distinct, iterate, result, stats
+from . import halo, ondisk
 
 #: Dask's local schedulers, by the names ``client`` takes for them.
 LOCAL_SCHEDULERS = ("threads", "processes", "sync")
@@ -109,91 +111,89 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     current = np.empty((n, 3))
     gather_rows(pts, order, centre, current)
     given = None if given is None else given[order]
-    params = {**PARAMS, "sigma_n": sigma_n}
+    request = Request("robust", preset, "aware", None, {**PARAMS, "sigma_n": sigma_n}, orient,
+                      centre, report, started)
     with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
         plan = planning.make(current, given, preset, distinct=n, iterations=iterations,
                              layout=lambda noise, key: coarse.layout(current, noise, key),
                              select_scales=select_scales, sigma_n=sigma_n,
                              shift_normals=PARAMS["shift_normals"])
-        params["select_scales"] = plan.select_scales
-        k, scale, iterations = plan.k, plan.probe, plan.iterations
+        request.params["select_scales"] = plan.select_scales
         if plan.cells is None:
             _check_points_route(preset)
-            spans = halo.tiles(n, tile_points)
-            centroid = current.mean(axis=0)
-            reach = k if plan.walks is None else int(plan.walks.lengths[-1])
-            current, out_normals, extra, records, held = halo.iterate(
-                current, given, k, iterations, sigma_n, spans,
-                halo.first_width(scale["probe_radius"], scale["probe_k"], reach), runner,
-                plan.walks)
-            if orient is not None:
-                # Propagation over the whole cloud's lists does not tile: one by one.
-                halo.orient_pointwise(current, out_normals, _relative(orient, centre), centroid)
+            done, spans = _points(current, given, plan, request, runner, tile_points)
             tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
-                     "scheduler": runner.name, "threads": runner.threads, "route": "halo"}
-            return result(pts, dtype, (order, groups), centre, current, out_normals, extra,
-                          held, np.arange(n_input), (pts.astype(dtype), n_jobs),
-                          _stats(n_input, n, plan, preset, orient, iterations, params,
-                                 n_threads, records, tiled, int(held.sum()), started))
-        (rows, starts), edge, rebuild_graph = plan.layout[:2], plan.layout[2], plan.rebuild_graph
-        tiles = _tiles(starts, tile_points)
-        parts = [rows[starts[c0]:starts[c1]] for c0, c1 in tiles]
-        sums = runner.map("tile_cells", 1, iterations, _tile_cells, [
-            (current[part], None if given is None else given[part],
-             starts[c0:c1 + 1] - starts[c0]) for part, (c0, c1) in zip(parts, tiles)])
-        cells = coarse.Cells(np.concatenate([s[0] for s in sums]),
-                             None if given is None else np.concatenate([s[1] for s in sums]),
-                             np.diff(starts), edge, k, coarse.COARSE[plan.cells]["surface_k"],
-                             rebuild_graph)
-        means, out_normals, extra, records, _ = iterate(
-            cells.points, cells.normals, STEPS["aware"], k, iterations, rebuild_graph, None,
-            None, params, orient, centre, report, cells.counts)
-        surface, surface_normals, extra = coarse.collapse(cells, means, out_normals, extra)
-        clock = Clock(report, iterations - 1, iterations)
-        coef, rms, degree = coarse.fit_surface(surface, surface_normals, cells.surface_k,
-                                               sigma_n, clock)
-        moved = runner.map("tile_update", iterations, iterations, _tile_update, [
-            (current[part], surface, surface_normals, coef) for part in parts])
-        every = np.concatenate(parts)
-        fine = current.copy() if plan.edges is not None else None
-        current[every] = np.concatenate([m[0] for m in moved])
-        held = np.empty(n, np.bool_)
-        held[every] = np.concatenate([m[1] for m in moved])
-        nearest = np.empty(n, np.int64)
-        nearest[every] = np.concatenate([m[2] for m in moved])
-        out_normals = surface_normals[nearest]
-        if plan.edges is not None:
-            # In memory, as denoise runs it: the same rows in, the same bits out.
-            edges.finish(plan.edges, fine, current, out_normals, held, nearest,
-                         edges.zones(surface, extra[1], plan.edges["radius"]), order, given,
-                         False, sigma_n, clock)
-    records[-1]["times"].update(clock.times)
-    scale["coarse"] = coarse.describe(plan.noise, edge, cells.counts, surface,
-                                      cells.surface_k, coarse.fit_record(held, nearest, rms,
-                                                                         degree))
-    tiled = {"count": len(tiles), "most_points": int(max(len(p) for p in parts)),
-             "scheduler": runner.name, "threads": runner.threads, "route": "cells"}
-    return result(pts, dtype, (order, groups), centre, current, out_normals,
-                  tuple(x[nearest] for x in extra), held, np.arange(n_input),
+                     "route": "halo"}
+        else:
+            done, tiled = _cells(current, given, plan, request, runner, tile_points, order)
+    tiled.update(scheduler=runner.name, threads=runner.threads)
+    return result(Input(pts, dtype, order, groups), done, centre, np.arange(n_input),
                   (pts.astype(dtype), n_jobs),
-                  _stats(n_input, n, plan, preset, orient, iterations, params, n_threads,
-                         records, tiled, int(held.sum()), started))
+                  stats(request, plan, n_input, n, n_threads, done.records,
+                        int(done.held.sum()), tiles=tiled))
 
 
-def _stats(n, distinct, plan, preset, orient, iterations, params, n_threads, records, tiled,
-           held, started):
-    """A tiled run's ``stats`` for ``n`` points at ``distinct`` positions, ``held`` of them
-    held in place, as :func:`pssd_fast.denoise` gives them for its ``plan``, with
-    ``"tiles"``."""
-    return {
-        "method": "robust", "n_points": n, "duplicates": n - distinct, "k": plan.k, "lam": None,
-        "preset": preset, "held_points": held, "pipeline": "aware", "plan": plan.describe(),
-        "auto_k": plan.probe, "noise": plan.probe["noise"], "scales": plan.walks_record(),
-        "rebuild_graph": plan.rebuild_graph,
-        "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
-        "outliers": None, "n_iterations": iterations, "params": params, "n_jobs": n_threads,
-        "iterations": records, "tiles": tiled, "total_seconds": time.perf_counter() - started,
-    }
+def _points(current, given, plan, request, runner, tile_points):
+    """:func:`denoise` on the points (tiles with halos): an
+    :class:`~pssd_fast.run.Iterated` and the tiles' rank ranges."""
+    spans = halo.tiles(current.shape[0], tile_points)
+    centroid = current.mean(axis=0)
+    reach = plan.k if plan.walks is None else int(plan.walks.lengths[-1])
+    done = Iterated(*halo.iterate(
+        current, given, plan.k, plan.iterations, request.params["sigma_n"], spans,
+        halo.first_width(plan.probe["probe_radius"], plan.probe["probe_k"], reach), runner,
+        plan.walks))
+    if request.orient is not None:
+        # Propagation over the whole cloud's lists does not tile: one by one.
+        halo.orient_pointwise(done.points, done.normals,
+                              _relative(request.orient, request.centre), centroid)
+    return done, spans
+
+
+def _cells(current, given, plan, request, runner, tile_points, order):
+    """:func:`denoise` on the coarse-to-fine route (tiles of whole cells): an
+    :class:`~pssd_fast.run.Iterated` of every point (moved in ``current``, in place) and the
+    tiles' description."""
+    (rows, starts), edge = plan.layout[:2], plan.layout[2]
+    iterations, sigma_n = plan.iterations, request.params["sigma_n"]
+    tiles = _tiles(starts, tile_points)
+    parts = [rows[starts[c0]:starts[c1]] for c0, c1 in tiles]
+    sums = runner.map("tile_cells", 1, iterations, _tile_cells, [
+        (current[part], None if given is None else given[part],
+         starts[c0:c1 + 1] - starts[c0]) for part, (c0, c1) in zip(parts, tiles)])
+    cells = coarse.Cells(np.concatenate([s[0] for s in sums]),
+                         None if given is None else np.concatenate([s[1] for s in sums]),
+                         np.diff(starts), edge, plan.k, coarse.COARSE[plan.cells]["surface_k"],
+                         plan.rebuild_graph)
+    means = iterate(cells.points, cells.normals, plan, request, cells.counts)
+    surface, surface_normals, extra = coarse.collapse(cells, means.points, means.normals,
+                                                      means.extra)
+    clock = Clock(request.report, iterations - 1, iterations)
+    coef, rms, degree = coarse.fit_surface(surface, surface_normals, cells.surface_k,
+                                           sigma_n, clock)
+    moved = runner.map("tile_update", iterations, iterations, _tile_update, [
+        (current[part], surface, surface_normals, coef) for part in parts])
+    every = np.concatenate(parts)
+    fine = current.copy() if plan.edges is not None else None
+    current[every] = np.concatenate([m[0] for m in moved])
+    held = np.empty(current.shape[0], np.bool_)
+    held[every] = np.concatenate([m[1] for m in moved])
+    nearest = np.empty(current.shape[0], np.int64)
+    nearest[every] = np.concatenate([m[2] for m in moved])
+    out_normals = surface_normals[nearest]
+    if plan.edges is not None:
+        # In memory, as denoise runs it: the same rows in, the same bits out.
+        edges.finish(plan.edges, fine, current, out_normals, held, nearest,
+                     edges.zones(surface, extra[1], plan.edges["radius"]), order, given,
+                     False, sigma_n, clock)
+    means.records[-1]["times"].update(clock.times)
+    plan.probe["coarse"] = coarse.describe(plan.noise, edge, cells.counts, surface,
+                                           cells.surface_k,
+                                           coarse.fit_record(held, nearest, rms, degree))
+    tiled = {"count": len(tiles), "most_points": int(max(len(p) for p in parts)),
+             "route": "cells"}
+    return Iterated(current, out_normals, tuple(x[nearest] for x in extra), means.records,
+                    held), tiled
 
 
 def denoise_file(source, destination, *, tile_points=2_000_000, client=None, preset="default",
@@ -276,7 +276,6 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     folder = Path(tempfile.mkdtemp(prefix="pssd_tiles_", dir=scratch or destination.parent))
     # Beside the destination, so that the last rename stays on one file system.
     output = atomic.temporary(destination)
-    params = {**PARAMS, "sigma_n": sigma_n}
     try:
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
             # The plan may change the preset's iterations; the buckets come before it.
@@ -290,22 +289,21 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
             plan = planning.make(cloud, given, preset, distinct=n, iterations=iterations,
                                  layout=cloud.layout, select_scales=select_scales,
                                  sigma_n=sigma_n, shift_normals=PARAMS["shift_normals"])
-            params["select_scales"] = plan.select_scales
+            request = Request("robust", preset, "aware", None,
+                              {**PARAMS, "sigma_n": sigma_n,
+                               "select_scales": plan.select_scales},
+                              orient, cloud.centre, report, started)
             iterations = first.iterations = plan.iterations
             if plan.cells is None:
                 _check_points_route(preset)
                 spans = halo.tiles(n, tile_points)
-                reach = plan.k if plan.walks is None else int(plan.walks.lengths[-1])
-                parts, records, held = _file_points(
-                    cloud, spans, folder, runner, first, plan.k, iterations, sigma_n,
-                    halo.first_width(plan.probe["probe_radius"], plan.probe["probe_k"], reach),
-                    orient, plan.walks)
+                parts, records, held = _file_points(cloud, spans, plan, request, folder,
+                                                    runner, first)
                 tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
                          "route": "halo"}
             else:
-                parts, records, tiled, held = _file_cells(
-                    cloud, plan, folder, runner, first, report, iterations, sigma_n,
-                    tile_points, params, orient)
+                parts, records, tiled, held = _file_cells(cloud, plan, request, folder, runner,
+                                                          first, tile_points)
             tiled.update(scheduler=runner.name, threads=runner.threads)
             clock = Clock(report, iterations - 1, iterations)
             clock.run("write", _write, array, output, parts, cloud.rows, dtype, folder, fields,
@@ -319,16 +317,14 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         if output.is_dir():
             shutil.rmtree(output, ignore_errors=True)
         output.unlink(missing_ok=True)
-    return _stats(cloud.rows, n, plan, preset, orient, iterations, params, n_threads, records,
-                  tiled, held, started)
+    return stats(request, plan, cloud.rows, n, n_threads, records, held, tiles=tiled)
 
 
-def _file_cells(cloud, plan, folder, runner, first, report, iterations, sigma_n, tile_points,
-                params, orient):
+def _file_cells(cloud, plan, request, folder, runner, first, tile_points):
     """The coarse-to-fine route of :func:`denoise_file` (``plan``'s cells): the part files,
     the iterations' records, the tiles' description and the number of points held."""
     (codes, counts), edge = plan.layout[:2], plan.layout[2]
-    k, rebuild_graph = plan.k, plan.rebuild_graph
+    iterations, sigma_n = plan.iterations, request.params["sigma_n"]
     starts = np.concatenate(([0], np.cumsum(counts)))
     tiles = _tiles(starts, tile_points)
     paths = first.run("tiles", cloud.tiles, folder, codes[[c0 for c0, _ in tiles]], edge)
@@ -337,12 +333,12 @@ def _file_cells(cloud, plan, folder, runner, first, report, iterations, sigma_n,
     given = cloud.normals is not None
     cells = coarse.Cells(np.concatenate([s[0] for s in sums]),
                          np.concatenate([s[1] for s in sums]) if given else None, counts, edge,
-                         k, coarse.COARSE[plan.cells]["surface_k"], rebuild_graph)
-    means, out_normals, extra, records, _ = iterate(
-        cells.points, cells.normals, STEPS["aware"], k, iterations, rebuild_graph, None, None,
-        params, orient, cloud.centre, report, cells.counts)
-    surface, surface_normals, extra = coarse.collapse(cells, means, out_normals, extra)
-    clock = Clock(report, iterations - 1, iterations)
+                         plan.k, coarse.COARSE[plan.cells]["surface_k"], plan.rebuild_graph)
+    means = iterate(cells.points, cells.normals, plan, request, cells.counts)
+    records = means.records
+    surface, surface_normals, extra = coarse.collapse(cells, means.points, means.normals,
+                                                      means.extra)
+    clock = Clock(request.report, iterations - 1, iterations)
     coef, rms, degree = coarse.fit_surface(surface, surface_normals, cells.surface_k, sigma_n,
                                            clock)
     code = (None if plan.edges is None
@@ -368,7 +364,7 @@ def _file_cells(cloud, plan, folder, runner, first, report, iterations, sigma_n,
 
 def _file_edges(setting, zones, parts, runner, centre, sigma_n, clock, iterations):
     """The edges route's pass of :func:`denoise_file`: the zones the tiles gathered, passed
-    as in core (:func:`pssd_fast.pipelines.edges.gathered`), and the flagged points' records
+    as in core (:func:`pssd_fast.routes.edges.gathered`), and the flagged points' records
     replaced in their parts. Returns the points it held that the cells had not (the pass's
     counts go into ``setting``)."""
     def joined(name):
@@ -400,12 +396,15 @@ def _file_patch(part, rows, points, normals, displacement, n_jobs):
     ondisk.save(records, part)
 
 
-def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, width, orient,
-                 plan):
+def _file_points(cloud, spans, plan, request, folder, runner, first):
     """The iterations of :func:`denoise_file` on the points, tiles with halos
-    (:mod:`pssd_fast.halo`), each tile's points in a state file between iterations (``plan``:
-    that of ``select_scales`` or None): the part files, the iterations' records and the
-    number of points held in any iteration."""
+    (:mod:`pssd_fast.tiled.halo`) over the rank ranges ``spans``, each tile's points in a state
+    file between iterations: the part files, the iterations' records and the number of points
+    held in any iteration."""
+    k, iterations, walks = plan.k, plan.iterations, plan.walks
+    sigma_n = request.params["sigma_n"]
+    reach = k if walks is None else int(walks.lengths[-1])
+    width = halo.first_width(plan.probe["probe_radius"], plan.probe["probe_k"], reach)
     n = cloud.shape[0]
     paths = [folder / f"state_0_{i}.bin" for i in range(len(spans))]
     pieces, total = first.run("tiles", cloud.states, paths, spans)
@@ -428,20 +427,22 @@ def _file_points(cloud, spans, folder, runner, first, k, iterations, sigma_n, wi
         if last:
             nearest = [folder / f"nearest_{i}.bin" for i in range(len(spans))]
             halo.each_tile(runner, "tile_spacing", t, iterations, _file_spacing, widths,
-                           lambda i, width: (paths[i], *sources(i, width), n, k, nearest[i]))
+                           lambda i, width: ((paths[i], *sources(i, width)), n, k, nearest[i]))
             radius = aware.region_radius(halo.pairwise_mean(
                 ondisk.ranked(nearest, spans, np.dtype(np.float64)), n))
         out = halo.each_tile(runner, "tile_step", t, iterations, _file_step, widths,
-                             lambda i, width: (paths[i], *sources(i, width), t == 0, given,
-                                               centroid, n, k, sigma_n, radius,
-                                               None if plan is None else plan.at(t),
+                             lambda i, width: ((paths[i], *sources(i, width)), t == 0, given,
+                                               centroid, n, halo.Fit(
+                                                   k, sigma_n, radius,
+                                                   None if walks is None else walks.at(t)),
                                                outputs[i], cloud.centre))
         pieces = [o.pop("boxes") for o in out]
         records.append(halo.record(out, n, widths, started))
         paths = outputs
     dbar = halo.pairwise_mean(ondisk.ranked(paths, spans, ondisk.PART, "likelihood"), n)
     runner.map("finish", iterations, iterations, _file_finish, [
-        (path, dbar, cloud.centre, _relative(orient, cloud.centre), centroid) for path in paths])
+        (path, dbar, cloud.centre, _relative(request.orient, cloud.centre), centroid)
+        for path in paths])
     return paths, records, sum(o["held_points"] for o in out)
 
 
@@ -472,39 +473,41 @@ def _sources(i, region, pieces, paths, spans):
     return found
 
 
-def _file_spacing(own_path, sources, region, n, k, output, n_jobs):
-    """:func:`pssd_fast.halo.spacing` of a tile in its state file, saved to ``output``;
-    None when the halo is too thin."""
+def _file_spacing(reads, n, k, output, n_jobs):
+    """:func:`pssd_fast.tiled.halo.spacing` of a tile in its state file, saved to ``output``;
+    None when the halo is too thin. ``reads``: the tile's state file, what it reads of the
+    others' (:func:`_sources`) and its halo's boxes."""
+    own_path, sources, region = reads
     own = np.fromfile(own_path, ondisk.STATE)
     points = ondisk.gather(own, sources, region)
-    nearest = halo.spacing(np.ascontiguousarray(points["xyz"]), own.shape[0], n, k, region,
-                           n_jobs)
+    nearest = halo.spacing(halo.Tile(np.ascontiguousarray(points["xyz"]), own.shape[0], n,
+                                     region), k, n_jobs)
     if nearest is None:
         return None
     ondisk.save(nearest, output)
     return True
 
 
-def _file_step(own_path, sources, region, first, given, centroid, n, k, sigma_n, radius, walk,
-               output, centre, n_jobs):
-    """:func:`pssd_fast.halo.step` of a tile in its state file; the moved points saved to
-    ``output``, a state file, or on the last iteration (``radius`` given) a part file whose
+def _file_step(reads, first, given, centroid, n, fit, output, centre, n_jobs):
+    """:func:`pssd_fast.tiled.halo.step` of a tile in its state file (``reads``, as
+    :func:`_file_spacing` takes it); the moved points saved to ``output``, a state file, or on
+    the last iteration (``fit.radius`` given) a part file whose
     likelihood column holds the residual for now. Returns the step's counts and the
-    :func:`~pssd_fast.halo.boxes` of the moved points (on the last iteration also the count
+    :func:`~pssd_fast.tiled.halo.boxes` of the moved points (on the last iteration also the count
     of its points held in any iteration), or None when the halo is too thin."""
+    own_path, sources, region = reads
     own = np.fromfile(own_path, ondisk.STATE)
     points = ondisk.gather(own, sources, region)
     # The first iteration's normals: the file's (given), else PCA's hinted by the centroid.
-    found = halo.step(np.ascontiguousarray(points["xyz"]),
+    found = halo.step(halo.Tile(np.ascontiguousarray(points["xyz"]), own.shape[0], n, region),
                       None if first and not given else np.ascontiguousarray(points["nrm"]),
-                      first and given, centroid, own.shape[0], n, k, sigma_n, region, radius,
-                      walk, n_jobs)
+                      first and given, centroid, fit, n_jobs)
     if found is None:
         return None
     moved, normals = found.pop("moved"), found.pop("normals")
     rms, feature = found.pop("rms"), found.pop("feature")
     held = own["held"] | found["held"]
-    if radius is None:
+    if fit.radius is None:
         state = own.copy()
         state["xyz"], state["nrm"], state["held"] = moved, normals, held
         ondisk.save(state, output)
@@ -534,7 +537,7 @@ def _relative(orient, centre):
 
 def _write(array, output, parts, n, dtype, folder, fields, copies):
     """The parts' points in the input's rows (``copies``: the rows that take their first
-    row's, :func:`pssd_fast.ondisk.write_rows`): an ``.npy`` or Zarr array, or a copy of the
+    row's, :func:`pssd_fast.tiled.ondisk.write_rows`): an ``.npy`` or Zarr array, or a copy of the
     LAS/LAZ input with those coordinates and the ``fields`` asked for."""
     if isinstance(array, ondisk.NpyFile):
         ondisk.write_rows(output, parts, n, dtype, copies=copies)
@@ -582,7 +585,7 @@ def _file_update(path, part, centre, dtype, surface, normals, coef, extra, rms, 
     """A tile file's points moved onto the fits, saved to ``part`` with the normal, the
     likelihood and the feature intensity of their nearest denoised mean; returns the held
     points, the sum of the nearest fits' residuals, their degrees and, with the zone ``code``
-    of the edges route (:func:`pssd_fast.pipelines.edges.zones`, else None), the tile's zone:
+    of the edges route (:func:`pssd_fast.routes.edges.zones`, else None), the tile's zone:
     its points' input ``rows``, ``fine`` and ``placed`` positions, ``normals``, whether
     ``flagged`` and whether ``held``, and their ``given`` normals (or None)."""
     with threads(n_jobs):

@@ -1,5 +1,5 @@
 """The normals each iteration of :func:`pssd_fast.denoise` estimates, and their signs."""
-from . import core
+from .. import core
 
 #: The shifted normals of the feature-aware pipeline's first iteration (docs/ALGORITHM.md,
 #: "Shifted normals"): the candidates are the first ``candidates`` times ``k`` entries of each

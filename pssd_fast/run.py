@@ -1,0 +1,318 @@
+"""A run once its parameters are resolved: the iterations of a pipeline's step, and what it
+returns in the caller's order. :func:`pssd_fast.denoise` and the tiled runs
+(:mod:`pssd_fast.tiled`) share it, so that both give the same bits and the same ``stats``."""
+import functools
+import time
+from dataclasses import dataclass, field
+from typing import Callable, NamedTuple, Optional
+
+import numpy as np
+
+from . import core
+from ._threads import threads
+from ._validation import MIN_K, check_k
+from .graph import knn_graph, morton_order, refresh_graph, truncate_graph
+from .kernels.order import scatter_rows
+from .pipelines import STEPS
+from .pipelines.normals import estimated_normals
+from .progress import Clock
+
+
+@dataclass(frozen=True, eq=False)
+class DenoiseResult:
+    """Output of :func:`pssd_fast.denoise`; arrays are in the caller's point order and float
+    dtype.
+
+    Results compare by identity; compare their arrays with :func:`numpy.array_equal`.
+
+    Attributes
+    ----------
+    points : (n, 3) ndarray
+        Denoised positions.
+    normals : (n, 3) ndarray
+        Robust method: the filtered unit normals ``n*_i`` of the last iteration. Baselines: the
+        normals the last iteration used.
+    likelihood : (n,) ndarray or None
+        Sampling likelihood ``l_i`` of the last iteration (robust method only; the
+        feature-aware presets compute it from the RMS residual of their fit).
+    feature_intensity : (n,) ndarray or None
+        Feature intensity ``s_i`` of the last iteration (robust method only).
+    displacement : (n,) ndarray
+        ``|p_noisy - p_denoised|``, the quantity of the paper's Table 1 and Fig. 8.
+    held : (n,) bool ndarray
+        Where a move of the point was refused and the point kept its place instead: a move
+        that was not finite, or longer than the radius of the neighbour list behind it (on the
+        points, in any iteration; on the cell means of the coarse-to-fine route, in the last
+        step onto their fits). ``stats["held_points"]`` counts them (docs/DECISIONS.md, "No
+        point flung").
+    outlier_score : (n,) ndarray
+        :func:`pssd_fast.outlier_score` of the input points (before any iteration, ``k = 64``);
+        above 1: flagged as an outlier. Computed on first access (a query of 64 neighbours,
+        about 2-4 times the run's cheapest kNN query), unless ``remove_outliers=True`` needed
+        it already.
+    kept : (n,) int64 ndarray
+        Rows of the input that the other arrays hold, in increasing order: every row, or with
+        ``remove_outliers=True`` those scoring at most 1 (so ``points[kept]`` is what was
+        denoised and ``outlier_score`` has one value per kept row).
+    stats : dict
+        ``"iterations"``: one dict per iteration with per-stage wall times in seconds
+        (``"times"``), the derived scales (``h``, ``mean_spacing``, ``region_radius``,
+        ``mean_residual``), fallback counts (``fit_degree`` counts of cubic, quadratic and
+        plane fits; ``degenerate_normals``; ``held_points``, points left in place because their
+        step was not finite or longer than its list's radius), region sizes and the mean step;
+        plus the run's settings (``"k"``; ``"pipeline"``: "paper" or "aware"; ``"plan"``: the
+        route ("cells", "points" or "walks"), ``k``, ``rebuild_graph`` and ``select_scales``
+        the run took, docs/ALGORITHM.md, "Routes"; ``"auto_k"``:
+        the noise probe behind a ``k`` chosen from the data, else None, with ``"coarse"``: the
+        cells of the coarse-to-fine route and its final fit, else None; ``"noise"``: the noise
+        it estimated, else None), ``"duplicates"`` (rows merged into another at their position,
+        :mod:`pssd_fast.duplicates`), ``"held_points"`` (the points of ``held``) and
+        ``"total_seconds"``. JSON-serialisable.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    likelihood: Optional[np.ndarray]
+    feature_intensity: Optional[np.ndarray]
+    displacement: np.ndarray
+    held: np.ndarray
+    kept: np.ndarray
+    stats: dict = field(repr=False)
+    # The score once known, else what computes it: the input rows the result holds and n_jobs,
+    # or a function.
+    _outliers: object = field(default=None, repr=False, compare=False)
+
+    @functools.cached_property
+    def outlier_score(self):
+        if isinstance(self._outliers, np.ndarray):
+            return self._outliers
+        if callable(self._outliers):
+            return self._outliers()
+        points, n_jobs = self._outliers
+        return outlier_scores(points, n_jobs)
+
+
+def outlier_scores(points, n_jobs, k=core.OUTLIER_K):
+    """:func:`pssd_fast.outlier_score` of valid ``points`` (float32 or float64), in their
+    dtype; ValueError where ``k`` is too large for them."""
+    k = check_k(k, points.shape[0])
+    with threads(n_jobs):
+        pts = points.astype(np.float64, copy=False)
+        order = morton_order(pts)
+        pts = pts[order]
+        score = np.empty(pts.shape[0])
+        score[order] = core.outlier_score(pts, knn_graph(pts, k))
+    return score.astype(points.dtype, copy=False)
+
+
+@dataclass
+class Request:
+    """What a run was asked, once resolved: the settings its iterations, its result and its
+    ``stats`` read.
+
+    Attributes
+    ----------
+    method, preset, pipeline : str
+        The method, the preset and the pipeline the two choose (``"paper"`` or ``"aware"``).
+    lam : float or None
+        The paper's pipeline's ``lambda`` (else None).
+    params : dict
+        The method's parameters (:data:`pssd_fast.denoise.METHOD_DEFAULTS`), checked; the
+        plan sets ``select_scales``.
+    orient : str, (3,) ndarray or None
+        The first iteration's sign of the normals.
+    centre : (3,) ndarray
+        What the run's positions are relative to (the input's bounding-box centre).
+    report : callable or None
+        The progress callback (:func:`pssd_fast.progress.reporter`).
+    started : float
+        ``time.perf_counter()`` when the run started.
+    """
+
+    method: str
+    preset: str
+    pipeline: str
+    lam: Optional[float]
+    params: dict
+    orient: object
+    centre: np.ndarray
+    report: Optional[Callable]
+    started: float
+
+    @property
+    def step(self):
+        """The pipeline's step (:data:`pssd_fast.pipelines.STEPS`)."""
+        return STEPS[self.pipeline if self.method == "robust" else self.method]
+
+
+class Iterated(NamedTuple):
+    """The outputs of :func:`iterate`, in its points' order: the moved ``points``, the last
+    iteration's ``normals`` and ``(likelihood, feature intensity)`` (or None), one record per
+    iteration, and the mask of the points ``held`` in place in at least one of them."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    extra: Optional[tuple]
+    records: list
+    held: np.ndarray
+
+
+def iterate(current, given, plan, request, counts=None):
+    """The ``plan.iterations`` of ``request``'s pipeline step on ``current`` (Morton order,
+    relative to ``request.centre``): an :class:`Iterated`.
+
+    ``given``: the caller's normals in that order, or None; ``counts``: the points each of
+    ``current`` stands for (the cell means of the coarse-to-fine route), a factor on its
+    weight in the fits, or None. The plan gives ``k``, ``rebuild_graph``, the lists the first
+    iteration takes over (``plan.lists``, handed over: the plan keeps no reference) and the
+    walks' :class:`~pssd_fast.routes.scales.ScalePlan` (``plan.walks``).
+    """
+    k, iterations, rebuild_graph, scale_plan = (plan.k, plan.iterations, plan.rebuild_graph,
+                                                plan.walks)
+    params, step, centre = request.params, request.step, request.centre
+    probe, plan.lists = plan.lists, None
+    # A cell mean weighs as many points as it stands for in the fits.
+    weighting = {} if counts is None else {"mass": counts.astype(np.float64)}
+    records = []
+    out_normals = graph = extra = lists = held = None
+    for iteration in range(iterations):
+        clock = Clock(request.report, iteration, iterations)
+        walk = None
+        if scale_plan is not None:
+            # The walks' longest lists, cut to k, are the iteration's: one query for both.
+            if probe is not None:
+                lists = probe
+            elif lists is None or rebuild_graph:
+                graph = lists = None  # the last lists go before the new ones are built
+                lists = clock.run("neighbors", knn_graph, current, int(scale_plan.lengths[-1]),
+                                  False)
+            else:
+                lists = clock.run("neighbors", refresh_graph, lists, current)
+            graph = clock.run("truncate", truncate_graph, lists, current, k)
+            walk = {"scale_plan": scale_plan.at(iteration), "scale_lists": lists}
+        elif probe is not None:
+            # The probe's lists, cut to k, are this iteration's: no second query.
+            graph = clock.run("neighbors", truncate_graph, probe, current, k)
+        elif graph is None or rebuild_graph:
+            graph = None  # the last lists go before the new ones are built, not after
+            graph = clock.run("neighbors", knn_graph, current, k, False)
+        else:
+            graph = clock.run("neighbors", refresh_graph, graph, current)
+        probe = None  # its lists (4 bytes x 96 a point) are not kept past their use
+        if given is not None:
+            nrm, degenerate = clock.run("normals", _given_normals, given)
+        else:
+            first = request.orient if out_normals is None else None
+            # Shifted normals in the first iteration only: later ones follow the moved points.
+            shift_k = k if out_normals is None and params.get("shift_normals") else None
+            nrm, degenerate = clock.run("normals", estimated_normals, current, graph,
+                                        out_normals, first, centre, shift_k)
+        step_params = params if walk is None else {**params, **walk}
+        moved, out_normals, extra, record, held_now = step(
+            current, nrm, graph, request.lam, step_params, clock,
+            iteration == iterations - 1, **weighting)
+        held = held_now if held is None else held | held_now
+        record["degenerate_normals"] = int(degenerate.sum())
+        record["mean_step"] = float(np.linalg.norm(moved - current, axis=1).mean())
+        records.append(record)
+        current = moved
+        if not params["keep_normals"]:
+            given = None
+    return Iterated(current, out_normals, extra, records, held)
+
+
+class Input(NamedTuple):
+    """The input rows a run denoised: ``points`` (float64), the caller's ``dtype``, and their
+    Morton order with the rows of their distinct positions (``order``, ``groups``:
+    :func:`pssd_fast.duplicates.ordered`)."""
+
+    points: np.ndarray
+    dtype: np.dtype
+    order: np.ndarray
+    groups: Optional[np.ndarray]
+
+
+def result(rows, done, centre, kept, outliers, stats):
+    """The :class:`DenoiseResult` of a run on the input ``rows`` (:class:`Input`), whose
+    outputs ``done`` (:class:`Iterated`) are in the order of ``rows.order`` and
+    ``rows.groups``, relative to ``centre``; ``outliers``: the scores or what computes them."""
+    pts, dtype, order, groups = rows
+    shift = _to_caller_order(done.points, order, groups)
+    points = shift + centre
+    displacement = np.linalg.norm(shift - (pts - centre), axis=1)
+    if groups is not None:
+        # A copy's move, from its own input position, as tiled.denoise_file computes it.
+        copy = np.ones(pts.shape[0], np.bool_)
+        copy[order] = False
+        displacement[copy] = np.linalg.norm(points[copy] - pts[copy], axis=1)
+    lik, feat = (None, None) if done.extra is None else (
+        _to_caller_order(x, order, groups).astype(dtype, copy=False) for x in done.extra)
+    return DenoiseResult(
+        points=points.astype(dtype, copy=False),
+        normals=_to_caller_order(done.normals, order, groups).astype(dtype, copy=False),
+        likelihood=lik,
+        feature_intensity=feat,
+        displacement=displacement.astype(dtype, copy=False),
+        held=_to_caller_order(done.held, order, groups),
+        _outliers=outliers,
+        kept=kept,
+        stats=stats,
+    )
+
+
+def stats(request, plan, n, distinct, n_threads, records, held, **more):
+    """A run's ``stats`` (see :class:`DenoiseResult`) for ``n`` points at ``distinct``
+    positions, ``held`` of them held in place, with the entries of ``more`` (``outliers``
+    and, for a tiled run, ``tiles``)."""
+    orient = request.orient
+    return {
+        "method": request.method,
+        "n_points": n,
+        "duplicates": n - distinct,
+        "k": plan.k,
+        "lam": request.lam,
+        "preset": request.preset,
+        "pipeline": request.pipeline,
+        "plan": plan.describe(),
+        "auto_k": plan.probe,
+        "noise": None if plan.probe is None else plan.probe["noise"],
+        "scales": plan.walks_record(),
+        "rebuild_graph": plan.rebuild_graph,
+        "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
+        "outliers": None,
+        "n_iterations": plan.iterations,
+        "held_points": held,
+        "params": dict(request.params),
+        "n_jobs": n_threads,
+        "iterations": records,
+        **more,
+        "total_seconds": time.perf_counter() - request.started,
+    }
+
+
+def check_distinct(distinct, n, k):
+    """``distinct``, the positions among ``n`` points, checked against ``k`` (None: the
+    preset chooses it)."""
+    if distinct < n and distinct < (MIN_K if k is None else k) + 1:
+        raise ValueError(f"the cloud has {n} points but only {distinct} distinct positions; "
+                         f"denoising needs at least {(MIN_K if k is None else k) + 1}"
+                         + ("" if k is None else f" for k = {k} (lower k)"))
+    return distinct
+
+
+def _to_caller_order(values, order, groups=None):
+    """``values`` (rows in Morton order ``order``; with ``groups``, those of the distinct
+    positions, :func:`pssd_fast.duplicates.ordered`) back in the caller's order."""
+    if groups is not None:
+        return values[groups]
+    out = np.empty_like(values)
+    if values.ndim == 1:
+        out[order] = values
+    else:
+        scatter_rows(values, order, np.zeros(values.shape[1]), out)
+    return out
+
+
+def _given_normals(normals):
+    """The caller's normals, with no degenerate neighbourhood to report."""
+    return normals, np.zeros(normals.shape[0], np.bool_)
