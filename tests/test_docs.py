@@ -18,3 +18,61 @@ def test_no_text_cites_an_issue_number():
              for n, line in enumerate(path.read_text(errors="replace").splitlines(), 1)
              if ISSUE.search(line)]
     assert len(TEXTS) > 50 and not cited, cited
+
+
+# Citations of docs/DECISIONS.md: the file name, then one or more quoted record titles
+# (a title may be the start of a heading), as in ``(DECISIONS.md, "Thin walls")``, ``docs/
+# DECISIONS.md ("Numerics")`` or a Markdown link to the file followed by the titles.
+DECISIONS = ROOT / "docs" / "DECISIONS.md"
+CITATION = re.compile(r'DECISIONS(?:\.md)?`?(?:\]\([^)\s]*\))?(?:\s*,\s*|\s*\(\s*)'
+                      r'((?:"[^"]+"(?:\s*(?:,|and)\s*(?=")|\s*(?:,\s*)?and\s+(?="))?)+)')
+CITING = sorted(p for folder in ("docs", "pssd_fast", "benchmarks", "tests")
+                for p in (ROOT / folder).rglob("*") if p.suffix in (".md", ".py", ".rst"))
+CITING += [ROOT / "README.md"]
+
+
+def joined(text):
+    """The text as one line: each line stripped of its indent and comment marks (``#``,
+    ``#:``), so that a title wrapped across lines of a docstring or comment reads whole."""
+    return " ".join(re.sub(r"^\s*(?:#+:?\s*)?", "", line).strip()
+                    for line in text.splitlines())
+
+
+def citations(text):
+    return [title for match in CITATION.finditer(joined(text))
+            for title in re.findall(r'"([^"]+)"', match.group(1))]
+
+
+def headings():
+    return [line.lstrip("#").strip() for line in DECISIONS.read_text().splitlines()
+            if re.match(r"#{2,3} ", line)]
+
+
+def test_citations_are_found_across_lines_and_in_lists():
+    d = "DECISIONS" + ".md"  # not a citation of this file itself
+    text = (f'x = 1  # kept (docs/{d}, "One default on every\n'
+            f'    # cloud: the edges route"); {d} ("Numerics")\n'
+            f'"""... ({d}, "Stages", "Regions of 64\n    points at once") and'
+            f' docs/{d}, "Beyond the paper" and "Scan sizes"; [docs/{d}]'
+            f'({d}), "Scan sizes: coarse to fine"; {d} says so, "not this"')
+    assert citations(text) == ["One default on every cloud: the edges route", "Numerics",
+                               "Stages", "Regions of 64 points at once", "Beyond the paper",
+                               "Scan sizes", "Scan sizes: coarse to fine"]
+
+
+def test_every_citation_of_decisions_names_a_heading():
+    titles = headings()
+    found = [(path.relative_to(ROOT), title) for path in CITING if path.is_file()
+             for title in citations(path.read_text(errors="replace"))]
+    missing = [f"{path}: {title!r}" for path, title in found
+               if not any(heading.startswith(title) for heading in titles)]
+    assert len(found) > 40 and not missing, missing
+
+
+def test_the_links_of_decisions_and_its_notes_lead_to_files():
+    pages = [DECISIONS] + sorted((ROOT / "docs" / "notes").glob("*.md"))
+    broken = [f"{page.relative_to(ROOT)}: {target}" for page in pages
+              for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text())
+              if not re.match(r"[a-z]+:|#", target)
+              and not (page.parent / target.split("#")[0]).exists()]
+    assert len(pages) > 5 and not broken, broken
