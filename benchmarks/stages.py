@@ -25,6 +25,8 @@ from pykdtree.kdtree import KDTree
 import pssd_fast
 from pssd_fast import datasets
 
+from . import report
+
 RESULTS = Path(__file__).resolve().parent / "results"
 STAGES = ("neighbors", "normals", "mls", "likelihood", "feature", "filter", "update")
 
@@ -113,11 +115,14 @@ def main(argv=None):
 
 def write_results(folder, stem, text, data, indent=2):
     """``stem.md`` (``text``) and ``stem.json`` (``data`` with the machine first) in
-    ``folder``, each written atomically."""
+    ``folder``, each written atomically; in ``benchmarks/results/``, docs/benchmarks.md's
+    tables are then rebuilt (:func:`benchmarks.report.update`)."""
     folder.mkdir(parents=True, exist_ok=True)
     write_atomic(folder / f"{stem}.md", text)
     write_atomic(folder / f"{stem}.json",
                  json.dumps({"machine": machine(), **data}, indent=indent))
+    if folder.resolve() == report.RESULTS:
+        report.update()
 
 
 def write_atomic(path, text):
