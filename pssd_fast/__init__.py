@@ -19,7 +19,7 @@ from .stages import (
     MLSFit, estimate_normals, feature_intensity, filter_normals, mls_fit, outlier_score,
     sampling_likelihood,
 )
-from .jit.warmup import warmup
+from .warmup import warmup
 
 __version__ = "0.1.0"
 

@@ -605,7 +605,7 @@ def _denoise_file(args, params, inp, out, say):
 
 def _demo(args):
     from . import datasets
-    from .jit.warmup import warmup
+    from .warmup import warmup
 
     if args.out.exists() and not args.out.is_dir():
         raise CommandError(f"{args.out} exists and is not a folder")

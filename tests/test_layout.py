@@ -31,6 +31,53 @@ def test_kernels_import_nothing_from_the_python_layer():
                 assert name in KERNEL_IMPORTS, f"{path.name} imports {name}"
 
 
+#: The package's layers, bottom first, as README's "How it works" lists them: a module imports
+#: only from its own layer and the layers before it.
+LAYERS = (("kernels",), ("jit", "_threads", "_validation", "progress", "atomic"),
+          ("graph", "core", "duplicates", "io"), ("pipelines",), ("routes",), ("run",),
+          ("denoise", "stages", "warmup"), ("tiled",),
+          ("pictures", "datasets", "cli", "__main__", "__init__"))
+
+
+def _upward_imports(package):
+    """``(module, imported unit)`` of every relative import in ``package`` that reaches a
+    later layer than the importing module's (a unit: a top-level module or subpackage)."""
+    rank = {unit: i for i, units in enumerate(LAYERS) for unit in units}
+    found = []
+    for path in sorted(package.rglob("*.py")):
+        where = list(path.relative_to(package).parts[:-1])
+        unit = (where or [path.stem])[0]
+        for level, module, names in _relative_imports(path):
+            base = where[:len(where) - (level - 1)]
+            parts = base + (module.split(".") if module else [])
+            for target in ([parts[0]] if parts else names):
+                if target != unit and target != "__version__" and rank[target] > rank[unit]:
+                    found.append((str(path.relative_to(package)), target))
+    return found
+
+
+def _relative_imports(path):
+    """(level, module, names) of every relative import in ``path``."""
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            yield node.level, node.module, [alias.name for alias in node.names]
+
+
+def test_each_layer_imports_only_the_layers_below_it():
+    units = {p.stem for p in PACKAGE.glob("*.py")} | {
+        p.parent.name for p in PACKAGE.glob("*/__init__.py")}
+    assert units == {unit for layer in LAYERS for unit in layer}, "a module without a layer"
+    assert _upward_imports(PACKAGE) == []
+
+
+def test_the_layer_check_catches_an_upward_import(tmp_path):
+    package = tmp_path / "pkg"
+    (package / "pipelines").mkdir(parents=True)
+    (package / "pipelines" / "aware.py").write_text("from ..routes import scales\n")
+    (package / "core.py").write_text("from . import denoise\nfrom .kernels import mls\n")
+    assert _upward_imports(package) == [("core.py", "denoise"), ("pipelines/aware.py", "routes")]
+
+
 def test_the_layout_check_catches_an_import_of_the_python_layer(tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("from ..stages import mls_fit\nimport pssd_fast\n")

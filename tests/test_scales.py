@@ -9,6 +9,7 @@ from pssd_fast import core, datasets
 from pssd_fast.denoise import PRESETS
 from pssd_fast.graph import knn_graph
 from pssd_fast.kernels.linalg import orthonormal_basis
+from pssd_fast.pipelines import walks
 from pssd_fast.routes import scales
 
 from . import reference
@@ -163,9 +164,9 @@ def test_the_iteration_fit_matches_the_reference(cloud):
     lengths = scales.lengths(k, points.shape[0])
     lists = knn_graph(points, int(lengths[-1]), False)
     walk = scales.ScalePlan(lengths, 1, 2e-5)
-    height, rms, degree, support, pick_got, flat_got = scales.fit(points, filtered, graph,
+    height, rms, degree, support, pick_got, flat_got = walks.fit(points, filtered, graph,
                                                                    lists, 0.05, walk)
-    kept = scales.kept_counts(lengths, pick_got, flat_got)
+    kept = walks.kept_counts(lengths, pick_got, flat_got)
     want_height, want_rms, pick, flat, walked = reference.scale_iteration_fit(
         points, filtered, _lists(graph), _lists(lists), lengths, 1, 2e-5)
     np.testing.assert_allclose(height, want_height, rtol=1e-6, atol=1e-9)

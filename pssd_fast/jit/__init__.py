@@ -1,5 +1,4 @@
-"""Compiling the kernels: where numba's machine code is cached (:mod:`.cache`) and compiling
-every kernel ahead of time (:mod:`.warmup`).
+"""Where numba's machine code of the kernels is cached (:mod:`.cache`).
 
 Importing this package makes the kernel cache the kernels' loader (see
 :class:`pssd_fast.kernels.config.Kernel`); it creates no folder until the first kernel call.

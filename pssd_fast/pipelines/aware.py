@@ -7,7 +7,7 @@ import numpy as np
 from .. import core
 from .._validation import check_k
 from ..graph import knn_graph
-from ..routes import scales
+from . import walks
 
 #: The noise-driven choice of ``k`` (preset "default"). A probe fit with ``probe_k``
 #: neighbours measures the noise ``sigma`` (median RMS residual of the unweighted quadratic
@@ -58,7 +58,7 @@ def step(points, nrm, graph, lam, params, clock, last=True, mass=None):
     record = step_record(clock.times, held.sum(), rms.sum(), rms.shape[0],
                          np.bincount(degree, minlength=7))
     if kept is not None:
-        record["scales"] = scales.kept_counts(walk.lengths, *kept)
+        record["scales"] = walks.kept_counts(walk.lengths, *kept)
     return moved, filtered, extra, record, held
 
 
@@ -68,7 +68,7 @@ def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None, walk=None, lists
     the radius of the list it was fitted over) and, with a
     ``walk`` (the iteration's :class:`~pssd_fast.routes.scales.ScalePlan`, and ``lists``
     of its longest length), what the walks kept: each point's column and whether it took the
-    plane (:func:`~pssd_fast.routes.scales.fit`; else None)."""
+    plane (:func:`~pssd_fast.pipelines.walks.fit`; else None)."""
     filtered = clock.run("filter", core.filter_normals, points, nrm, graph)
     kept = None
     if walk is None:
@@ -78,7 +78,7 @@ def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None, walk=None, lists
                                         mass, mass is None)
         support = graph.list_radius()
     else:
-        height, rms, degree, support, *kept = clock.run("mls", scales.fit, points, filtered,
+        height, rms, degree, support, *kept = clock.run("mls", walks.fit, points, filtered,
                                                         graph, lists, sigma_n, walk)
     moved, held = clock.run("update", core.project, points, filtered, height, support)
     return moved, filtered, rms, degree, held, kept

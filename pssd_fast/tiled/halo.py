@@ -28,7 +28,7 @@ from ..graph import bounds, knn_graph, truncate_graph
 from ..pipelines import aware
 from ..pipelines.normals import pca, shifted
 from ..progress import Clock
-from ..routes import scales
+from ..pipelines import walks
 
 #: Tiles start at multiples of this rank: the feature kernel grows its regions for blocks of
 #: 64 consecutive points, and a block's regions are summed in the order they were grown.
@@ -174,7 +174,7 @@ def step(tile, normals, given, centroid, fit, n_jobs):
         mask of those held in place); and the counts of the iteration's record: ``rms_sum``,
         ``degree`` counts, ``degenerate``,
         ``step_sum``, and ``scales``: with a ``walk``, how many own points kept each length
-        and took the plane (:func:`pssd_fast.routes.scales.kept_counts`), else None.
+        and took the plane (:func:`pssd_fast.pipelines.walks.kept_counts`), else None.
     """
     points, n_own, n, region = tile
     k, sigma_n, radius, walk = fit
@@ -227,7 +227,7 @@ def step(tile, normals, given, centroid, fit, n_jobs):
             "degree": np.bincount(degree[:n_own], minlength=7),
             "degenerate": int(degenerate[:n_own].sum()),
             "step_sum": float(np.linalg.norm(moved[:n_own] - points[:n_own], axis=1).sum()),
-            "scales": None if kept is None else scales.kept_counts(
+            "scales": None if kept is None else walks.kept_counts(
                 walk.lengths, kept[0][:n_own], kept[1][:n_own]),
         }
 

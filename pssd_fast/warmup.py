@@ -3,11 +3,11 @@ import time
 
 import numpy as np
 
-from ..denoise import METHODS, denoise
-from ..graph import GRID_K, knn_graph
-from ..progress import Clock
-from ..routes import coarse
-from ..stages import outlier_score
+from .denoise import METHODS, denoise
+from .graph import GRID_K, knn_graph
+from .progress import Clock
+from .routes import coarse
+from .stages import outlier_score
 
 
 def warmup():
