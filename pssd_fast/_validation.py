@@ -127,6 +127,22 @@ def check_choice(value, name, choices):
     return value
 
 
+def auto(value, check=None):
+    """None where ``value`` leaves the choice to the library (``"auto"``, or None as calls
+    written before ``"auto"`` pass it), else ``check(value)`` (or ``value``)."""
+    if value is None or (isinstance(value, str) and value == "auto"):
+        return None
+    return value if check is None else check(value)
+
+
+def check_flag(value, name):
+    """``value`` as a bool, or None for ``"auto"``; TypeError otherwise."""
+    value = auto(value)
+    if value is not None and not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True, False or 'auto'; got {value!r}")
+    return None if value is None else bool(value)
+
+
 def seeded_rng(seed):
     """``np.random.default_rng(seed)`` for a non-negative integer seed only (reproducibility)."""
     return np.random.default_rng(check_int(seed, "seed", minimum=0))

@@ -7,13 +7,13 @@ import numpy as np
 from . import core, duplicates
 from ._threads import threads
 from ._validation import (
-    as_normals, as_points, check_choice, check_float, check_int, check_k, check_orient,
-    check_size,
+    as_normals, as_points, auto, check_choice, check_flag, check_float, check_int, check_k,
+    check_orient, check_size,
 )
 from .graph import bounds
 from .kernels.order import gather_rows
 from .progress import Clock, reporter
-from .routes import coarse, edges, scales
+from .routes import coarse, edges
 from .routes import plan as planning
 from .routes.plan import PRESETS
 from .run import (
@@ -22,10 +22,10 @@ from .run import (
 
 #: Parameters of each method beyond the common ones, with their defaults.
 METHOD_DEFAULTS = {
-    "robust": {"h": None, **core.FEATURE_DEFAULTS, "likelihood": "exp", "sigma_n": 0.05,
-               "shift_normals": True, "select_scales": None, "keep_normals": False},
-    "bilateral": {"sigma_c": None, "sigma_s": None, "keep_normals": False},
-    "mls": {"h": None, "keep_normals": False},
+    "robust": {"h": "auto", **core.FEATURE_DEFAULTS, "likelihood": "exp", "sigma_n": 0.05,
+               "shift_normals": True, "select_scales": "auto", "keep_normals": False},
+    "bilateral": {"sigma_c": "auto", "sigma_s": "auto", "keep_normals": False},
+    "mls": {"h": "auto", "keep_normals": False},
 }
 #: Methods :func:`denoise` offers.
 METHODS = tuple(METHOD_DEFAULTS)
@@ -35,8 +35,8 @@ PAPER_ONLY = ("h", "radius_factor", "delta", "alpha", "beta", "likelihood")
 AWARE_ONLY = ("sigma_n", "shift_normals", "select_scales")
 
 
-def denoise(points, normals=None, *, method="robust", iterations=None, k=None, lam=None,
-            preset="default", rebuild_graph=None, orient=None, remove_outliers=False,
+def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto", lam=None,
+            preset="default", rebuild_graph="auto", orient=None, remove_outliers=False,
             classification=None, classes=None, n_jobs=None, progress=None, **method_params):
     """Denoise a point-sampled surface while keeping its sharp features.
 
@@ -55,16 +55,17 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         refinement of it (the other presets, see Notes). The paper's two baselines (Section 5,
         docs/ALGORITHM.md): ``"bilateral"`` (BIL) moves each point along its normal by the bilateral
         mean of its neighbours' heights; ``"mls"`` moves it to its MLS projection ``q_i``.
-    iterations : int, optional
-        Number of passes; each recomputes everything from the current positions. Default from
-        ``preset``: 4 ("default"; 2 on "fast"'s cells, see ``preset``), 2 ("fast", "paper";
-        the paper uses 1 to 3).
-    k : int, optional
+    iterations : int or "auto", default "auto"
+        Number of passes; each recomputes everything from the current positions. ``"auto"``:
+        from ``preset``, 4 ("default"; 2 on "fast"'s cells, see ``preset``), 2 ("fast",
+        "paper"; the paper uses 1 to 3).
+    k : int or "auto", default "auto"
         Neighbourhood size including the point itself (paper Section 2.2: ``k in [20, 35]``);
-        at least 10 and at most ``n - 1``. Default from ``preset``: chosen from the estimated
-        noise ("default": 64 to 160 on the input, see ``pssd_fast.pipelines.aware.AUTO_K``, or
-        96 to 128 on cell means; "fast": 64 to 96 on cell means), 25 ("paper"). Given, the
-        iterations run on the input points with that ``k``.
+        at least 10 and at most ``n - 1``. ``"auto"``: from ``preset``, chosen from the
+        estimated noise ("default": 64 to 160 on the input, or 96 to 128 on cell means;
+        "fast": 48 to 96 on cell means), 25 ("paper"); the same noise decides the route (the
+        cell means or the points). Given, the iterations run on the input points with that
+        ``k``. Every ``"auto"`` and its thresholds: README, "Automatic choices".
     lam : float, optional
         ``lambda`` in [0, 1] of Section 4.2: weight of the likelihood term against the feature
         term in the step ``m_i``. Paper's pipeline only (default 0.5); the other presets and
@@ -81,11 +82,11 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
         ``"fast"``: the same pipeline, always on cell means (of at least 3 points), 2
         iterations and a cheaper noise probe. For the baselines a preset sets ``k`` ("default" and "fast": from the noise
         probe; "fast" 48), ``iterations`` and ``rebuild_graph``.
-    rebuild_graph : bool, optional
+    rebuild_graph : bool or "auto", default "auto"
         ``True``: query the k nearest neighbours anew in every iteration. ``False``: later
         iterations keep the first iteration's lists, re-sorted by the current distances (one
-        kNN query in all; see docs/DECISIONS.md for what it changes). Default from
-        ``preset``: on the input points True ("default", "paper") or False ("fast"); on cell
+        kNN query in all; see docs/DECISIONS.md for what it changes). ``"auto"``: from
+        ``preset``, on the input points True ("default", "paper") or False ("fast"); on cell
         means False, except "fast" from 13 points a cell.
     orient : {"outward", "up"} or array_like of shape (3,), optional
         Sign of the first iteration's PCA normals (later iterations follow it):
@@ -116,8 +117,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     **method_params
         Parameters of the chosen method (docs/ALGORITHM.md). ``"robust"``:
 
-        h : float, optional
-            MLS Gaussian width (Section 2.1); default: mean distance to the k-th neighbour.
+        h : float or "auto", default "auto"
+            MLS Gaussian width (Section 2.1); ``"auto"``: mean distance to the k-th neighbour.
         radius_factor : float, default 10
             ``R = radius_factor * |E|`` for the region-grown ``N_R`` (Section 3).
         delta, alpha, beta : float, default 0.2, 0.3, 0.3
@@ -136,11 +137,11 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
             its nearest quarter of ``k``, whose plane passes near it, instead of its own list's:
             beside a sharp edge, a list that does not reach across it (docs/ALGORITHM.md,
             "Shifted normals"). No effect where ``normals`` are given.
-        select_scales : bool or None, default None
+        select_scales : bool or "auto", default "auto"
             Feature-aware pipeline, on the points (not on the cell means of the
             coarse-to-fine route): each point fits nested quadratics over prefixes of a list
             of ``4.5 k`` and keeps the widest that still fits its neighbours within the noise,
-            instead of the fit at ``k`` (docs/ALGORITHM.md, "A scale per point"). ``None``:
+            instead of the fit at ``k`` (docs/ALGORITHM.md, "A scale per point"). ``"auto"``:
             on where preset "default" iterates on the points of a cloud of at most 50,000
             points (after ``remove_outliers``), where it wins the sparse clouds the fit at
             ``k`` loses to CGAL (docs/benchmarks.md, "Sparse clouds"); off otherwise. It
@@ -156,9 +157,9 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
 
         ``"mls"``: ``h`` and ``keep_normals`` as above. ``"bilateral"``: ``keep_normals`` and
 
-        sigma_c, sigma_s : float, optional
-            Spatial and height widths of the bilateral weights; default, per point: half the
-            list radius and the standard deviation of the neighbours' heights.
+        sigma_c, sigma_s : float or "auto", default "auto"
+            Spatial and height widths of the bilateral weights; ``"auto"``, per point: half
+            the list radius and the standard deviation of the neighbours' heights.
 
     Returns
     -------
@@ -187,12 +188,12 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     normals; bilateral filtering to ``n*_i``; a quadratic fitted in the frame of ``p_i`` and
     ``n*_i`` with each neighbour weighted by distance and by normal agreement (so a point near a
     crease is fitted to its own face); and the projection ``p*_i = p_i + g_i(0, 0) n*_i`` along
-    the filtered normal. With ``k=None``, a probe fit on (a subsample of) the input measures the
+    the filtered normal. With ``k="auto"``, a probe fit on (a subsample of) the input measures the
     noise and sets ``k`` (``stats["auto_k"]``). The last iteration also computes ``l_i`` (from
     the fit's RMS residual) and ``s_i`` (the paper's voting) for the result; the moves use
     neither.
 
-    Coarse to fine (``k=None``; "default" where the probe's noise is at least half its list
+    Coarse to fine (``k="auto"``; "default" where the probe's noise is at least half its list
     radius and grid cells of 1.5 times the noise hold at least 3 points on average, or on
     "fast"'s cells (see ``preset``), "fast" always, its cells widened to 3 points): the
     iterations run on
@@ -217,9 +218,8 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     check_choice(preset, "preset", tuple(PRESETS))
     setting = PRESETS[preset]
     pipeline = setting["pipeline"] if method == "robust" else "paper"
-    explicit = set(method_params)
-    if rebuild_graph is not None and not isinstance(rebuild_graph, (bool, np.bool_)):
-        raise TypeError(f"rebuild_graph must be True or False; got {rebuild_graph!r}")
+    explicit = {name for name, value in method_params.items() if auto(value) is not None}
+    rebuild_graph = check_flag(rebuild_graph, "rebuild_graph")
     params = _method_params(method, method_params)
     _check_pipeline_params(method, preset, pipeline, explicit, lam)
     if pipeline != "aware":
@@ -229,17 +229,17 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     report = reporter(progress)
     pts, dtype = as_points(points)
     n = pts.shape[0]
-    if iterations is not None:
-        iterations = check_int(iterations, "iterations", minimum=1)
-    auto = k is None and setting["k"] is None
+    iterations = auto(iterations, lambda v: check_int(v, "iterations", minimum=1))
+    k = auto(k)
+    from_noise = k is None and setting["k"] is None
     if k is None:
         # The caller chose no k: the message is about the cloud's size, not about k.
         check_size(n)
         k = setting["k"]
-        if not auto and n < k + 1:
+        if not from_noise and n < k + 1:
             raise ValueError(f"the cloud has {n} points; preset {preset!r} uses k = {k} "
                              f"neighbours and needs at least {k + 1}; pass a smaller k")
-    k = None if auto else check_k(k, n)
+    k = None if from_noise else check_k(k, n)
     lam = setting["lam"] if lam is None else lam
     lam = None if lam is None else check_float(lam, "lam", low=0.0, high=1.0)
     given = None if normals is None else as_normals(normals, n)
@@ -281,7 +281,7 @@ def denoise(points, normals=None, *, method="robust", iterations=None, k=None, l
     request = Request(method, preset, pipeline, lam, params, orient, centre, report, started)
     with threads(n_jobs) as n_threads:
         plan = planning.make(
-            current, given, preset, distinct=distinct, k=None if auto else k,
+            current, given, preset, distinct=distinct, k=None if from_noise else k,
             iterations=iterations, layout=lambda noise, key: coarse.layout(current, noise, key),
             aware_pipeline="select_scales" in params, rebuild_graph=rebuild_graph,
             select_scales=params.get("select_scales"), sigma_n=params.get("sigma_n"),
@@ -417,8 +417,8 @@ def _method_params(method, method_params):
                         f"valid: {', '.join(defaults)}")
     params = {**defaults, **method_params}
     for name in ("h", "sigma_c", "sigma_s"):
-        if params.get(name) is not None:
-            params[name] = check_float(params[name], name, positive=True)
+        if name in params:
+            params[name] = auto(params[name], lambda v: check_float(v, name, positive=True))
     for name in ("radius_factor", "delta", "alpha", "beta", "sigma_n"):
         if name in params:
             params[name] = check_float(params[name], name, positive=True)
@@ -430,5 +430,5 @@ def _method_params(method, method_params):
                 raise TypeError(f"{name} must be True or False; got {params[name]!r}")
             params[name] = bool(params[name])
     if "select_scales" in params:
-        params["select_scales"] = scales.check(params["select_scales"])
+        params["select_scales"] = check_flag(params["select_scales"], "select_scales")
     return params

@@ -282,7 +282,9 @@ def stats(request, plan, n, distinct, n_threads, records, held, **more):
         "outliers": None,
         "n_iterations": plan.iterations,
         "held_points": held,
-        "params": dict(request.params),
+        # None in the checked parameters is a choice left to the library.
+        "params": {name: "auto" if value is None else value
+                   for name, value in request.params.items()},
         "n_jobs": n_threads,
         "iterations": records,
         **more,

@@ -11,7 +11,7 @@ import numpy as np
 
 from . import core
 from ._threads import threads
-from ._validation import (as_normals, as_points, check_choice, check_float, check_k,
+from ._validation import (as_normals, as_points, auto, check_choice, check_float, check_k,
                           check_orient)
 from .graph import NeighborGraph, check_graph, knn_graph, morton_order
 from .run import outlier_scores
@@ -98,7 +98,7 @@ def _prepare(points, normals_, k, graph, n_jobs, orient=None, estimate=True):
 
 def _fit(points, normals_, k, h, graph, n_jobs):
     """The MLS stage for the public functions, in Morton order: a float64 :class:`MLSFit`."""
-    h = None if h is None else check_float(h, "h", positive=True)
+    h = auto(h, lambda v: check_float(v, "h", positive=True))
     run = _prepare(points, normals_, k, graph, n_jobs)
     h = core.default_h(run.graph, h)
     with threads(n_jobs):
@@ -187,7 +187,7 @@ def outlier_score(points, *, k=core.OUTLIER_K, graph=None, n_jobs=None):
         return run.unsort(core.outlier_score(run.points, run.graph))
 
 
-def mls_fit(points, normals=None, *, k=25, h=None, graph=None, n_jobs=None):
+def mls_fit(points, normals=None, *, k=25, h="auto", graph=None, n_jobs=None):
     """Fit the local MLS cubic of every point and project the point onto it.
 
     Parameters
@@ -198,9 +198,9 @@ def mls_fit(points, normals=None, *, k=25, h=None, graph=None, n_jobs=None):
         Normals orienting the reference planes; estimated by PCA when omitted.
     k : int, default 25
         Neighbourhood size including the point itself (the paper's ``k in [20, 35]``).
-    h : float, optional
-        Gaussian width of ``theta(d) = exp(-d^2 / h^2)``; default: the mean over all points of
-        the distance to the farthest of the ``k`` neighbours.
+    h : float or "auto", default "auto"
+        Gaussian width of ``theta(d) = exp(-d^2 / h^2)``; ``"auto"``: the mean over all points
+        of the distance to the farthest of the ``k`` neighbours.
     graph : NeighborGraph, optional
         Precomputed graph from :func:`pssd_fast.neighbors`.
     n_jobs : int or None
@@ -223,7 +223,7 @@ def mls_fit(points, normals=None, *, k=25, h=None, graph=None, n_jobs=None):
     return MLSFit(*(run.unsort(a) for a in fit[:4]), fit.h)
 
 
-def sampling_likelihood(points, normals=None, *, k=25, h=None, likelihood="exp", graph=None,
+def sampling_likelihood(points, normals=None, *, k=25, h="auto", likelihood="exp", graph=None,
                         n_jobs=None):
     """Sampling likelihood ``l_i`` of each point (how likely it lies on the sampled surface).
 

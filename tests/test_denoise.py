@@ -313,7 +313,7 @@ def test_keep_normals_needs_normals(noisy):
     ({"radius_factor": 0}, ValueError, "radius_factor must be positive"),
     ({"n_jobs": -3}, ValueError, "n_jobs"),
     ({"smoothness": 1}, TypeError, "unknown parameter"),
-    ({"rebuild_graph": "yes"}, TypeError, "rebuild_graph must be True or False"),
+    ({"rebuild_graph": "yes"}, TypeError, "rebuild_graph must be True, False or 'auto'"),
 ])
 def test_bad_parameters_are_named(noisy, kwargs, error, match):
     with pytest.raises(error, match=match):

@@ -76,3 +76,39 @@ def test_the_links_of_decisions_and_its_notes_lead_to_files():
               if not re.match(r"[a-z]+:|#", target)
               and not (page.parent / target.split("#")[0]).exists()]
     assert len(pages) > 5 and not broken, broken
+
+
+def _readme_section(title):
+    text = (ROOT / "README.md").read_text()
+    start = text.index(title)
+    return text[start:text.index("\n#", start + len(title))]
+
+
+def test_the_readme_table_of_automatic_choices_holds_the_code_s_thresholds():
+    import ast
+
+    from pssd_fast.pipelines.aware import AUTO_K
+    from pssd_fast.routes.coarse import COARSE
+    from pssd_fast.routes.edges import EDGES
+    from pssd_fast.routes.plan import LIGHT, PRESETS
+
+    names = {"AUTO_K": AUTO_K, "COARSE": COARSE, "EDGES": EDGES, "LIGHT": LIGHT,
+             "PRESETS": PRESETS}
+    rows = [[cell.strip().strip("`") for cell in line.strip("|").split("|")]
+            for line in _readme_section("### Automatic choices").splitlines()
+            if line.startswith("| ") and "constant |" not in line]
+    checked = [(constant, value) for *_, value, constant in rows if constant]
+    assert len(checked) >= 12
+    for constant, value in checked:
+        assert eval(constant, {}, names) == ast.literal_eval(value), constant
+
+
+def test_the_readme_shows_denoise_s_signature():
+    import inspect
+
+    import pssd_fast
+
+    shown = re.search(r"^denoise\(points.*?\*\*method_params\)",
+                      (ROOT / "README.md").read_text(), re.S | re.M).group(0)
+    assert re.sub(r"\s+", "", shown) == re.sub(
+        r"\s+", "", f"denoise{inspect.signature(pssd_fast.denoise)}").replace("'", '"')

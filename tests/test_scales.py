@@ -329,7 +329,7 @@ def test_the_coarse_route_does_not_select_scales(sphere):
 
 
 @pytest.mark.parametrize("kwargs, error, message", [
-    ({"select_scales": "yes"}, TypeError, "select_scales must be True, False or None"),
+    ({"select_scales": "yes"}, TypeError, "select_scales must be True, False or 'auto'"),
     ({"select_scales": True, "preset": "paper"}, ValueError,
      "select_scales only applies to the feature-aware"),
 ])

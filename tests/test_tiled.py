@@ -328,11 +328,40 @@ def test_the_mean_read_by_ranges_is_numpys(n, block):
     ({"client": 3}, TypeError, "client"),
     ({"preset": "paper"}, ValueError, "preset"),
     ({"sigma_n": -1.0}, ValueError, "sigma_n"),
-    ({"select_scales": "yes"}, TypeError, "select_scales must be True, False or None"),
+    ({"select_scales": "yes"}, TypeError, "select_scales must be True, False or 'auto'"),
+    ({"k": 30}, ValueError, "do not take k=30"),
+    ({"method": "mls", "lam": 0.5}, ValueError, r"method='mls', lam=0\.5 \(use"),
+    ({"rebuild_graph": True, "remove_outliers": True}, ValueError,
+     "rebuild_graph=True, remove_outliers=True"),
+    ({"classes": [2]}, ValueError, r"classes=\[2\]"),
+    ({"keep_normals": True}, ValueError, "keep_normals=True"),
+    ({"shift_normals": False}, ValueError, "shift_normals=False"),
+    ({"h": 0.1}, ValueError, "h=0.1"),
+    ({"sigma": 0.1}, TypeError, "unknown parameter"),
 ])
 def test_bad_arguments_are_named(kwargs, error, match):
     with pytest.raises(error, match=match):
         tiled.denoise(np.zeros((100, 3)), **kwargs)
+
+
+def test_tiled_runs_take_denoise_s_parameters_at_their_defaults():
+    """Every parameter of pssd_fast.denoise is one of the tiled runs', and its default (or
+    "auto", as None) runs: the refusals above are the only ones."""
+    import inspect
+
+    ours = inspect.signature(pssd_fast.denoise).parameters
+    # A file's points and normals are the file's.
+    for func, own in ((tiled.denoise, {"points"}), (tiled.denoise_file, {"points", "normals"})):
+        theirs = inspect.signature(func).parameters
+        assert set(ours) - own <= set(theirs)
+        assert all(theirs[name].default == p.default for name, p in ours.items()
+                   if name not in own)
+    points = datasets.cad_part(n_points=4000, noise=0.01, seed=1).points
+    defaults = dict(method="robust", k="auto", lam=None, rebuild_graph=None,
+                    remove_outliers=False, classification=None, classes=None, h="auto",
+                    keep_normals=False, shift_normals=True, likelihood="exp", iterations=1)
+    got = tiled.denoise(points, tile_points=2_000, client="sync", **defaults)
+    assert np.array_equal(got.points, pssd_fast.denoise(points, iterations=1).points)
 
 
 @pytest.fixture
@@ -546,7 +575,8 @@ def test_an_existing_output_is_kept_unless_overwritten(tmp_path):
     ({"client": 3}, TypeError, "client"),
     ({"preset": "paper"}, ValueError, "preset"),
     ({"iterations": 0}, ValueError, "iterations"),
-    ({"select_scales": 1}, TypeError, "select_scales must be True, False or None"),
+    ({"select_scales": 1}, TypeError, "select_scales must be True, False or 'auto'"),
+    ({"k": 30, "classification": np.zeros(50, int)}, ValueError, "k=30, classification="),
 ])
 def test_bad_file_arguments_are_named(tmp_path, kwargs, error, match):
     np.save(tmp_path / "in.npy", np.zeros((50, 3)))

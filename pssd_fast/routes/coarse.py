@@ -26,7 +26,7 @@ from ..pipelines.aware import interpolated_k
 #: (the input is iterated on), True widens them until they hold that many; ``min_ratio``: the
 #: noise probe's ``sigma / r`` from which the cells are used at all (:func:`.aware.choose_k`;
 #: its ``k`` is capped at 160 from 0.304 on); ``rebuild_from``: from this many points per cell
-#: on, the cell means' neighbours are queried anew in every iteration (``rebuild_graph=None``),
+#: on, the cell means' neighbours are queried anew in every iteration (``rebuild_graph="auto"``),
 #: else the first iteration's are refreshed. Chosen on the CAD part at 30,000 to 10 million
 #: points and 0.25% to 1% noise (docs/DECISIONS.md, "Scan sizes").
 COARSE = {

@@ -21,10 +21,10 @@ from . import coarse, edges, scales
 #: Presets: the pipeline of the robust method and where ``k``, ``lam``, ``iterations`` and
 #: ``rebuild_graph`` (on the input; on cell means see ``pssd_fast.routes.coarse.COARSE``)
 #: come from when not given, and the most points and the neighbours of the noise probe
-#: (``k=None``: chosen from the estimated noise, see ``pssd_fast.pipelines.aware.AUTO_K``, or
+#: (``k="auto"``: chosen from the estimated noise, see ``pssd_fast.pipelines.aware.AUTO_K``, or
 #: the coarse-to-fine route of ``pssd_fast.routes.coarse``; ``without_cells_k``: the ``k``
 #: where that route finds no cells; ``scales_up_to``: the largest cloud whose points the
-#: walks of ``select_scales=None`` take; ``light``: whether the light route of :data:`LIGHT`
+#: walks of ``select_scales="auto"`` take; ``light``: whether the light route of :data:`LIGHT`
 #: is tried first). "default" and "fast" run the feature-aware pipeline
 #: (docs/DECISIONS.md, "Beyond the paper" and "Scan sizes"); "paper" is the paper's
 #: formulation.

@@ -15,18 +15,9 @@ from ..graph import knn_graph, truncate_graph
 from ..pipelines.normals import estimated_normals
 from ..pipelines.walks import SCALES
 
-def check(select_scales):
-    """``select_scales`` as given: True, False or None (the preset decides, :func:`resolve`)."""
-    if select_scales is None:
-        return None
-    if not isinstance(select_scales, (bool, np.bool_)):
-        raise TypeError(f"select_scales must be True, False or None; got {select_scales!r}")
-    return bool(select_scales)
-
-
 def resolve(select_scales, up_to, n, on_points):
-    """Whether a run of ``n`` points selects scales: as given, or where ``select_scales`` is
-    None, on the points (``on_points``; not on cell means) of a cloud of at most ``up_to``
+    """Whether a run of ``n`` points selects scales: as given (True or False), or where
+    ``select_scales`` is None (``"auto"``), on the points (``on_points``; not on cell means) of a cloud of at most ``up_to``
     points (the preset's ``scales_up_to``; docs/DECISIONS.md, "A scale per point by
     default")."""
     if select_scales is None:

@@ -24,13 +24,15 @@ import numpy as np
 from .. import atomic, core, duplicates
 from .._threads import threads
 from .._validation import (
-    as_normals, as_points, check_choice, check_float, check_int, check_orient, check_size,
+    as_normals, as_points, auto, check_choice, check_flag, check_float, check_int, check_orient,
+    check_size,
 )
+from ..denoise import METHOD_DEFAULTS
 from ..graph import bounds
 from ..kernels.order import gather_rows
 from ..pipelines import aware
 from ..progress import Clock, reporter
-from ..routes import coarse, edges, scales
+from ..routes import coarse, edges
 from ..routes import plan as planning
 from ..routes.plan import PRESETS
 from ..run import Input, Iterated, Request, check_distinct, iterate, result, stats
@@ -43,11 +45,16 @@ FILE_KINDS = {".npy": "npy", ".zarr": "zarr", ".las": "las", ".laz": "las"}
 #: The feature-aware pipeline's parameters other than ``sigma_n`` and ``select_scales``, at
 #: their defaults.
 PARAMS = {"keep_normals": False, "shift_normals": True}
+#: :func:`pssd_fast.denoise`'s parameters that tiled runs take at their default only (and,
+#: at theirs, the method parameters of the paper's pipeline).
+AT_DEFAULT = {"method": "robust", "k": "auto", "lam": None, "rebuild_graph": "auto",
+              "remove_outliers": False, "classification": None, "classes": None, **PARAMS}
 
 
-def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset="default",
-            iterations=None, orient=None, sigma_n=0.05, select_scales=None, n_jobs=None,
-            progress=None):
+def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method="robust",
+            iterations="auto", k="auto", lam=None, preset="default", rebuild_graph="auto",
+            orient=None, remove_outliers=False, classification=None, classes=None, n_jobs=None,
+            progress=None, **method_params):
     """Denoise ``points`` tile by tile on Dask; the result of :func:`pssd_fast.denoise`.
 
     Parameters
@@ -64,14 +71,20 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     preset : {"default", "fast"}
         The preset of :func:`pssd_fast.denoise`; its coarse-to-fine route is the one that
         tiles.
-    iterations, orient, sigma_n, select_scales, n_jobs, progress
-        As in :func:`pssd_fast.denoise` (``select_scales`` on the points only, as there; the
-        plan of its walks is made before the tiles, and each task's halo covers the lists of
-        ``4.5 k``). ``n_jobs`` is the threads of this machine that the tasks share: the local
-        schedulers run at most that many tasks at once, with ``n_jobs // tasks`` threads
-        each (``"sync"``: one task with all of them); on ``distributed`` each worker shares
-        its own cores between the tasks it runs at once (its threads). ``progress`` also
-        hears of each finished tile (stages ``tile_cells`` and ``tile_update``).
+    iterations, orient, n_jobs, progress, **method_params
+        As in :func:`pssd_fast.denoise`; of its method parameters ``sigma_n`` and
+        ``select_scales`` (on the points only, as there; the plan of its walks is made before
+        the tiles, and each task's halo covers the lists of ``4.5 k``). ``n_jobs`` is the
+        threads of this machine that the tasks share: the local schedulers run at most that
+        many tasks at once, with ``n_jobs // tasks`` threads each (``"sync"``: one task with
+        all of them); on ``distributed`` each worker shares its own cores between the tasks it
+        runs at once (its threads). ``progress`` also hears of each finished tile (stages
+        ``tile_cells`` and ``tile_update``).
+    method, k, lam, rebuild_graph, remove_outliers, classification, classes
+        :func:`pssd_fast.denoise`'s, taken at their defaults only (as are ``keep_normals=False``
+        and ``shift_normals=True``): tiled runs run the robust method of the feature-aware
+        presets with the choices it makes in memory. Any other value raises ValueError naming
+        it.
 
     Returns
     -------
@@ -84,14 +97,19 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
     Raises
     ------
     ValueError
-        Preset "fast" on a cloud it would iterate on its points (the noise small against the
-        point spacing): it keeps its first lists through the iterations, which a tile's task
-        of one iteration cannot.
+        A parameter above set to another value than its default, or preset "fast" on a cloud
+        it would iterate on its points (the noise small against the point spacing): it keeps
+        its first lists through the iterations, which a tile's task of one iteration cannot.
+    TypeError
+        An unknown method parameter.
     ImportError
         Without Dask.
     """
-    tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
-                                                 iterations, client)
+    tile_points, iterations, sigma_n, select_scales = _settings(
+        preset, tile_points, iterations, client, dict(
+            method=method, k=k, lam=lam, rebuild_graph=rebuild_graph,
+            remove_outliers=remove_outliers, classification=classification, classes=classes,
+            **method_params))
     report = reporter(progress)
     pts, dtype = as_points(points)
     n = pts.shape[0]
@@ -102,7 +120,6 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, preset=
         if given is not None:
             raise ValueError("orient applies to estimated normals; the given normals keep their "
                              "signs (pass normals=None or drop orient)")
-    select_scales = scales.check(select_scales)
     started = time.perf_counter()
     n_input = n
     order, groups = duplicates.ordered(pts)
@@ -196,10 +213,11 @@ def _cells(current, given, plan, request, runner, tile_points, order):
                     held), tiled
 
 
-def denoise_file(source, destination, *, tile_points=2_000_000, client=None, preset="default",
-                 iterations=None, orient=None, sigma_n=0.05, select_scales=None,
-                 fields=ondisk.RESULT_FIELDS,
-                 n_jobs=None, progress=None, scratch=None, overwrite=False):
+def denoise_file(source, destination, *, tile_points=2_000_000, client=None, method="robust",
+                 iterations="auto", k="auto", lam=None, preset="default",
+                 rebuild_graph="auto", orient=None, remove_outliers=False,
+                 classification=None, classes=None, fields=ondisk.RESULT_FIELDS, n_jobs=None,
+                 progress=None, scratch=None, overwrite=False, **method_params):
     """Denoise the points of an ``.npy``, Zarr or LAS/LAZ file into another, out of core, tile
     by tile on Dask.
 
@@ -224,9 +242,11 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         ``fields`` asked for (as ``pssd denoise --fields`` writes them: ``nx``, ``ny``, ``nz``
         for the normals, float32 extra bytes where new), every other record byte, the header,
         the VLRs and the EVLRs as read.
-    tile_points, client, preset, iterations, orient, sigma_n, select_scales, n_jobs, progress
+    tile_points, client, preset, iterations, orient, n_jobs, progress, **method_params
         As in :func:`denoise`; progress also hears of the passes over the file (``buckets``,
         ``tiles``) and of the output (``write``).
+    method, k, lam, rebuild_graph, remove_outliers, classification, classes
+        As in :func:`denoise`: their defaults only.
     fields : sequence of str
         LAS/LAZ output: which of ``"likelihood"``, ``"feature_intensity"``,
         ``"displacement"`` and ``"normals"`` to write (default all).
@@ -245,8 +265,9 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
     Raises
     ------
     ValueError
-        Bad input, unknown fields, other formats, ``fast`` on a cloud it would iterate on its
-        points (see :func:`denoise`), or too few distinct positions.
+        Bad input, unknown fields, other formats, a parameter :func:`denoise` takes at its
+        default only, ``fast`` on a cloud it would iterate on its points (see
+        :func:`denoise`), or too few distinct positions.
     FileExistsError
         ``destination`` exists and ``overwrite`` is False.
     """
@@ -256,9 +277,11 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, pre
         raise ValueError(f"denoise_file reads .npy into .npy, Zarr into Zarr, or .las/.laz "
                          f"into .las/.laz; got {source.name} and {destination.name} (other "
                          f"formats: pssd_fast.io.read, then denoise)")
-    tile_points, sigma_n, iterations = _settings(preset, tile_points, sigma_n,
-                                                 iterations, client)
-    select_scales = scales.check(select_scales)
+    tile_points, iterations, sigma_n, select_scales = _settings(
+        preset, tile_points, iterations, client, dict(
+            method=method, k=k, lam=lam, rebuild_graph=rebuild_graph,
+            remove_outliers=remove_outliers, classification=classification, classes=classes,
+            **method_params))
     orient = None if orient is None else check_orient(orient)
     unknown = sorted(set(fields) - set(ondisk.RESULT_FIELDS))
     if unknown:
@@ -552,16 +575,37 @@ def _write(array, output, parts, n, dtype, folder, fields, copies):
                 fields)
 
 
-def _settings(preset, tile_points, sigma_n, iterations, client):
-    """The arguments both entry points share, checked: ``tile_points``, ``sigma_n`` and the
-    iterations."""
+def _settings(preset, tile_points, iterations, client, options):
+    """The arguments both entry points share, checked: ``tile_points``, the iterations,
+    ``sigma_n`` and ``select_scales`` (None: ``"auto"``); ``options``: the rest of
+    :func:`pssd_fast.denoise`'s parameters, refused unless at :data:`AT_DEFAULT`."""
     check_choice(preset, "preset", tuple(coarse.COARSE))
     if not (client is None or isinstance(client, str) or hasattr(client, "submit")):
         raise TypeError(f"client must be None, one of {LOCAL_SCHEDULERS}, a scheduler address "
                         f"or a distributed.Client; got {client!r}")
+    robust = METHOD_DEFAULTS["robust"]
+    unknown = sorted(set(options) - set(AT_DEFAULT) - set(robust))
+    if unknown:
+        raise TypeError(f"unknown parameter(s) {', '.join(unknown)}; valid: "
+                        f"{', '.join(sorted({*AT_DEFAULT, *robust} - set(PARAMS)))}")
+    refused = [f"{name}={value!r}" for name, value in options.items()
+               if name not in ("sigma_n", "select_scales")
+               and not _at_default(value, AT_DEFAULT.get(name, robust.get(name)))]
+    if refused:
+        raise ValueError(f"tiled runs take the robust method of the presets default and fast "
+                         f"with the choices it makes in memory; they do not take "
+                         f"{', '.join(refused)} (use pssd_fast.denoise for those)")
     return (check_int(tile_points, "tile_points", minimum=1),
-            check_float(sigma_n, "sigma_n", positive=True),
-            None if iterations is None else check_int(iterations, "iterations", minimum=1))
+            auto(iterations, lambda v: check_int(v, "iterations", minimum=1)),
+            check_float(options.get("sigma_n", robust["sigma_n"]), "sigma_n", positive=True),
+            check_flag(options.get("select_scales"), "select_scales"))
+
+
+def _at_default(value, default):
+    """Whether ``value`` is the parameter's ``default`` (``"auto"`` and None alike)."""
+    if default == "auto" or default is None:
+        return auto(value) is None
+    return isinstance(value, type(default)) and value == default
 
 
 def _check_points_route(preset):
