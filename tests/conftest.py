@@ -1,5 +1,7 @@
 """Shared small clouds: random surfaces and the degenerate cases every kernel must survive; and
 where the tests find the reference meshes."""
+import contextlib
+import io
 import os
 from pathlib import Path
 
@@ -8,6 +10,7 @@ import pytest
 
 import pssd_fast
 from benchmarks import meshes
+from pssd_fast import cli
 from pssd_fast.kernels import feature
 
 #: Where the tests look for the reference meshes when ``PSSD_DATA`` is unset: the folder
@@ -18,6 +21,24 @@ DEFAULT_MESH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "me
 #: The folder holding the ``pssd_fast`` this process imported: a child process run there imports
 #: the same files (and so loads their cached kernels) rather than an installed copy elsewhere.
 PACKAGE_PARENT = Path(pssd_fast.__file__).resolve().parent.parent
+
+
+def pssd(*args, cwd=None):
+    """Run ``pssd ARGS`` as the console script runs it (in this process, which spares each
+    call a start of Python and numba); return (status, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    here = os.getcwd()
+    try:
+        if cwd is not None:
+            os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                status = cli.main([str(arg) for arg in args])
+            except SystemExit as exc:  # argparse's own errors and --help
+                status = exc.code
+    finally:
+        os.chdir(here)
+    return status, out.getvalue(), err.getvalue()
 
 
 def mesh_dir():

@@ -1,13 +1,11 @@
 """Denoising only some LAS classes: ``classes=`` and ``pssd denoise --classes``."""
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
 import pssd_fast
 from pssd_fast import datasets
 
+from .conftest import pssd
 from .test_support import DEFAULT_LIDAR_DIR
 
 
@@ -84,10 +82,9 @@ def test_pssd_denoise_classes_leaves_other_records_byte_for_byte(tmp_path):
     if not source.is_file():
         pytest.skip(f"LiDAR file {source} not found")
     out = tmp_path / "out.laz"
-    done = subprocess.run([sys.executable, "-m", "pssd_fast.cli", "denoise", str(source),
-                           str(out), "--classes", "2", "--fields", "displacement,held",
-                           "--quiet"], capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr
+    status, _, err = pssd("denoise", source, out, "--classes", "2", "--fields",
+                          "displacement,held", "--quiet")
+    assert status == 0, err
     before, after = laspy.read(str(source)), laspy.read(str(out))
     size = before.points.array.dtype.itemsize
     old = before.points.array.view(np.uint8).reshape(len(before.points), size)
@@ -104,12 +101,9 @@ def test_pssd_denoise_classes_leaves_other_records_byte_for_byte(tmp_path):
 def test_pssd_denoise_classes_needs_a_classification(tmp_path):
     points = np.array(datasets.make("cad_part", n_points=500, noise=0.004, seed=5).points)
     np.savetxt(tmp_path / "in.xyz", points)
-    done = subprocess.run([sys.executable, "-m", "pssd_fast.cli", "denoise",
-                           str(tmp_path / "in.xyz"), str(tmp_path / "out.xyz"), "--classes",
-                           "2"], capture_output=True, text=True, timeout=600)
-    assert done.returncode == 1 and "Traceback" not in done.stderr
-    assert "has no classification field" in done.stderr
-    done = subprocess.run([sys.executable, "-m", "pssd_fast.cli", "denoise",
-                           str(tmp_path / "in.xyz"), str(tmp_path / "out.xyz"), "--classes",
-                           "ground"], capture_output=True, text=True, timeout=600)
-    assert done.returncode == 2 and "comma-separated class numbers" in done.stderr
+    status, _, err = pssd("denoise", tmp_path / "in.xyz", tmp_path / "out.xyz", "--classes",
+                          "2")
+    assert status == 1 and "Traceback" not in err and "has no classification field" in err
+    status, _, err = pssd("denoise", tmp_path / "in.xyz", tmp_path / "out.xyz", "--classes",
+                          "ground")
+    assert status == 2 and "comma-separated class numbers" in err

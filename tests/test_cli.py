@@ -1,4 +1,6 @@
-"""The ``pssd`` command end to end, in a subprocess, errors included."""
+"""The ``pssd`` command end to end, errors included: through ``cli.main``, which the console
+script calls, and in a subprocess where the process itself is the subject (stdin and stdout,
+signals)."""
 import gzip
 import inspect
 import subprocess
@@ -11,15 +13,10 @@ import pssd_fast
 from pssd_fast import cli, datasets
 from pssd_fast.denoise import METHOD_DEFAULTS
 
+from .conftest import pssd
+
 plyfile = pytest.importorskip("plyfile")
 laspy = pytest.importorskip("laspy")
-
-
-def pssd(*args, cwd=None):
-    """Run ``pssd ARGS`` as a user would; return (status, stdout, stderr)."""
-    done = subprocess.run([sys.executable, "-m", "pssd_fast.cli", *map(str, args)],
-                          capture_output=True, text=True, cwd=cwd, timeout=600)
-    return done.returncode, done.stdout, done.stderr
 
 
 def assert_one_line_error(status, err, match):
