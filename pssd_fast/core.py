@@ -318,3 +318,34 @@ def move(points, proj, filtered, lik, feat, lam):
     held = np.empty(points.shape[0], np.bool_)
     kernels.update.move_points(points, proj, filtered, lik, feat, lam, out, held)
     return out, held
+
+
+def cell_means(points, normals, order, starts, mass=None):
+    """Mean point of each group of :func:`pssd_fast.routes.coarse.group_cells`, and the unit mean of its ``normals``
+    (each turned to the side of the group's first; None without ``normals``), each point
+    weighted by its ``mass`` if given. The sums run in ``order``, so the result does not depend
+    on the thread count."""
+    m = starts.shape[0] - 1
+    means = np.empty((m, 3))
+    mean_normals = np.empty((m, 3))
+    kernels.cells.cell_means(points, np.empty((0, 3)) if normals is None else normals,
+                             np.empty(0) if mass is None else mass, order, starts, means,
+                             mean_normals)
+    return means, None if normals is None else mean_normals
+
+
+def relative_rows(points, order, centre):
+    """``points[order] - centre``, a new C-contiguous array."""
+    out = np.empty((order.shape[0], 3))
+    kernels.order.gather_rows(points, order, centre, out)
+    return out
+
+
+def caller_order(values, order):
+    """``values`` (row ``i`` belonging to input row ``order[i]``) back in the input's order."""
+    out = np.empty_like(values)
+    if values.ndim == 1:
+        out[order] = values
+    else:
+        kernels.order.scatter_rows(values, order, np.zeros(values.shape[1]), out)
+    return out

@@ -11,7 +11,6 @@ from ._validation import (
     check_orient, check_size,
 )
 from .graph import bounds
-from .kernels.order import gather_rows
 from .progress import Clock, reporter
 from .routes import coarse, edges
 from .routes import plan as planning
@@ -275,8 +274,7 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     # Work relative to the bounding-box centre: georeferenced coordinates (1e6 m offsets) would
     # otherwise cost the kNN distances most of their digits.
     centre = 0.5 * np.add(*bounds(pts))
-    current = np.empty((distinct, 3))
-    gather_rows(pts, order, centre, current)
+    current = core.relative_rows(pts, order, centre)
     given = None if given is None else given[order]
     request = Request(method, preset, pipeline, lam, params, orient, centre, report, started)
     with threads(n_jobs) as n_threads:

@@ -77,6 +77,12 @@ def morton_cells(points):
     low, high = bounds(points)
     extent = float((high - low).max())
     scale = (2**MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
+    return grid_codes(points, low, scale)
+
+
+def grid_codes(points, low, scale):
+    """The Morton code of each point's cell in the grid of cells of side ``1 / scale`` from
+    ``low`` (at most ``2**21 - 1`` cells an axis)."""
     code = np.empty(points.shape[0], np.uint64)
     morton_codes(np.ascontiguousarray(points, dtype=np.float64), low, scale, code)
     return code

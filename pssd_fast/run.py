@@ -12,7 +12,6 @@ from . import core
 from ._threads import threads
 from ._validation import MIN_K, check_k
 from .graph import knn_graph, morton_order, refresh_graph, truncate_graph
-from .kernels.order import scatter_rows
 from .pipelines import STEPS
 from .pipelines.normals import estimated_normals
 from .progress import Clock
@@ -305,14 +304,7 @@ def check_distinct(distinct, n, k):
 def _to_caller_order(values, order, groups=None):
     """``values`` (rows in Morton order ``order``; with ``groups``, those of the distinct
     positions, :func:`pssd_fast.duplicates.ordered`) back in the caller's order."""
-    if groups is not None:
-        return values[groups]
-    out = np.empty_like(values)
-    if values.ndim == 1:
-        out[order] = values
-    else:
-        scatter_rows(values, order, np.zeros(values.shape[1]), out)
-    return out
+    return core.caller_order(values, order) if groups is None else values[groups]
 
 
 def _given_normals(normals):

@@ -3,6 +3,7 @@ import time
 
 import numpy as np
 
+from . import core
 from .denoise import METHODS, denoise
 from .graph import GRID_K, knn_graph
 from .progress import Clock
@@ -42,6 +43,6 @@ def warmup():
     # The coarse-to-fine default: cell means (with and without normals), fits onto them.
     order, starts = coarse.group_cells(points, 0.5)
     for normals in (None, points):
-        coarse.cell_means(points, normals, order, starts)
+        core.cell_means(points, normals, order, starts)
     coarse.refine(points, points, points, 16, 0.05, Clock(None, 0, 1))
     return time.perf_counter() - started

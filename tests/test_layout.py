@@ -70,6 +70,16 @@ def test_each_layer_imports_only_the_layers_below_it():
     assert _upward_imports(PACKAGE) == []
 
 
+def test_only_the_array_layer_calls_kernels():
+    """``core`` (and ``graph`` for the neighbour lists) wrap every kernel the rest calls."""
+    callers = sorted(str(path.relative_to(PACKAGE)) for path in PACKAGE.rglob("*.py")
+                     if path.parent.name not in ("kernels", "jit")
+                     and any("kernels" in (module or "").split(".")
+                             or (not module and "kernels" in names)
+                             for _, module, names in _relative_imports(path)))
+    assert callers == ["core.py", "graph.py"]
+
+
 def test_the_layer_check_catches_an_upward_import(tmp_path):
     package = tmp_path / "pkg"
     (package / "pipelines").mkdir(parents=True)

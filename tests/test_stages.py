@@ -685,7 +685,7 @@ def test_cell_means(name, with_normals):
         normals[1::7] = -normals[::7][:len(normals[1::7])]  # opposite pairs: a sum may cancel
     edge = 0.15
     order, starts = coarse.group_cells(points, edge)
-    means, mean_normals = coarse.cell_means(points, normals, order, starts)
+    means, mean_normals = core.cell_means(points, normals, order, starts)
     ref = reference.cell_means(points, normals, edge)
     low = points.min(axis=0)
     keys = [reference.cell_of(mean, low, edge) for mean in means]

@@ -11,10 +11,9 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
-from .. import core, kernels
+from .. import core
 from .._threads import kdtree
-from ..graph import QUERY_ENTRIES, bounds, knn_graph
-from ..kernels.order import morton_codes
+from ..graph import QUERY_ENTRIES, bounds, grid_codes, knn_graph
 from ..pipelines.aware import interpolated_k
 
 #: Settings of each preset. ``cell``: cell edge over the noise's standard deviation
@@ -76,7 +75,7 @@ def cells_of(points, normals, found, preset):
     """The coarse cloud of the ``preset``'s cells ``found`` by :func:`layout`, as
     :class:`Cells`."""
     order, starts, edge, k, rebuild_graph = found
-    means, mean_normals = cell_means(points, normals, order, starts)
+    means, mean_normals = core.cell_means(points, normals, order, starts)
     return Cells(means, mean_normals, np.diff(starts), edge, k, COARSE[preset]["surface_k"],
                  rebuild_graph)
 
@@ -143,23 +142,7 @@ def cell_codes(points, low, high, edge):
     extent = float((high - low).max())
     if not edge > 0.0 or extent / edge >= 2**_CELL_BITS - 1:
         return None
-    codes = np.empty(points.shape[0], np.uint64)
-    morton_codes(points, low, 1.0 / edge, codes)
-    return codes
-
-
-def cell_means(points, normals, order, starts, mass=None):
-    """Mean point of each group of :func:`group_cells`, and the unit mean of its ``normals``
-    (each turned to the side of the group's first; None without ``normals``), each point
-    weighted by its ``mass`` if given. The sums run in ``order``, so the result does not depend
-    on the thread count."""
-    m = starts.shape[0] - 1
-    means = np.empty((m, 3))
-    mean_normals = np.empty((m, 3))
-    kernels.cells.cell_means(points, np.empty((0, 3)) if normals is None else normals,
-                             np.empty(0) if mass is None else mass, order, starts, means,
-                             mean_normals)
-    return means, None if normals is None else mean_normals
+    return grid_codes(points, low, 1.0 / edge)
 
 
 def collapse(cells, points, normals, fields):
@@ -177,7 +160,7 @@ def collapse(cells, points, normals, fields):
         return points, normals, fields
     order, starts = grouped
     mass = cells.counts.astype(np.float64)
-    means, mean_normals = cell_means(points, normals, order, starts, mass)
+    means, mean_normals = core.cell_means(points, normals, order, starts, mass)
     total = np.add.reduceat(mass[order], starts[:-1])
     fields = tuple(np.add.reduceat((mass * f)[order], starts[:-1]) / total for f in fields)
     return means, mean_normals, fields

@@ -22,8 +22,7 @@ import numpy as np
 
 from .. import atomic
 from .._validation import check_size
-from ..graph import MORTON_BITS, bounds
-from ..kernels.order import morton_codes
+from ..graph import MORTON_BITS, bounds, grid_codes
 from ..routes import coarse
 
 #: Points read from the input at a time.
@@ -254,7 +253,7 @@ class Buckets:
         shift = np.uint64(3 * MORTON_BITS - _PREFIX_BITS)
         histogram = np.zeros(1 << _PREFIX_BITS, np.int64)
         for _, points, _ in chunks(array):
-            prefix = (_codes(points, low, scale) >> shift).astype(np.int64)
+            prefix = (grid_codes(points, low, scale) >> shift).astype(np.int64)
             histogram += np.bincount(prefix, minlength=1 << _PREFIX_BITS)
         # Consecutive bins, at most tile_points points a bucket (a fuller bin alone).
         bucket_of_bin = np.zeros(1 << _PREFIX_BITS, np.int64)
@@ -272,7 +271,7 @@ class Buckets:
             for start, points, normals in chunks(array):
                 records = np.empty(points.shape[0], self.dtype)
                 records["row"] = np.arange(start, start + points.shape[0])
-                records["code"] = codes = _codes(points, low, scale)
+                records["code"] = codes = grid_codes(points, low, scale)
                 records["xyz"] = points
                 if normals is not None:
                     records["nrm"] = normals
@@ -454,12 +453,6 @@ def ranked(paths, spans, dtype, field=None):
         return np.concatenate(found)
 
     return read
-
-
-def _codes(points, low, scale):
-    codes = np.empty(points.shape[0], np.uint64)
-    morton_codes(points, low, scale, codes)
-    return codes
 
 
 def _append(writers, target, records):

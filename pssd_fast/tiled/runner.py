@@ -29,7 +29,6 @@ from .._validation import (
 )
 from ..denoise import METHOD_DEFAULTS
 from ..graph import bounds
-from ..kernels.order import gather_rows
 from ..pipelines import aware
 from ..progress import Clock, reporter
 from ..routes import coarse, edges
@@ -125,8 +124,7 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method=
     order, groups = duplicates.ordered(pts)
     n = check_distinct(order.shape[0], n_input, None)
     centre = 0.5 * np.add(*bounds(pts))
-    current = np.empty((n, 3))
-    gather_rows(pts, order, centre, current)
+    current = core.relative_rows(pts, order, centre)
     given = None if given is None else given[order]
     request = Request("robust", preset, "aware", None, {**PARAMS, "sigma_n": sigma_n}, orient,
                       centre, report, started)
@@ -621,7 +619,7 @@ def _file_cells_task(path, centre, dtype, n_jobs):
     """The cell means of a tile file, and their mean normals (or None)."""
     with threads(n_jobs):
         _, codes, points, normals = ondisk.read_tile(path, centre, dtype)
-        return coarse.cell_means(points, normals, *coarse.group_codes(codes))
+        return core.cell_means(points, normals, *coarse.group_codes(codes))
 
 
 def _file_update(path, part, centre, dtype, surface, normals, coef, extra, rms, degree, code,
@@ -666,7 +664,7 @@ def _tiles(starts, tile_points):
 def _tile_cells(points, normals, starts, n_jobs):
     """A tile's cell means and mean normals (None without normals)."""
     with threads(n_jobs):
-        return coarse.cell_means(points, normals, np.arange(points.shape[0]), starts)
+        return core.cell_means(points, normals, np.arange(points.shape[0]), starts)
 
 
 def _tile_update(points, surface, normals, coef, n_jobs):
