@@ -5,7 +5,6 @@ import time
 import numpy as np
 
 from . import __version__, datasets
-from .cli import truth_errors
 from .denoise import PRESETS, denoise
 from .jit import cache
 
@@ -37,7 +36,7 @@ def main(argv=None):
                      preset=args.preset, n_jobs=args.n_jobs)
     seconds = time.perf_counter() - started
 
-    before, after, moved, edge = truth_errors(cloud, result)
+    before, after, moved, edge = cloud.errors(result)
     print(f"pssd_fast {__version__}: robust denoising of the built-in CAD part")
     lam = "" if result.stats["lam"] is None else f", lambda={result.stats['lam']}"
     print(f"{len(cloud.points):,} points, noise sigma {args.noise:.2%} of the diagonal, "

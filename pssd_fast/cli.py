@@ -635,7 +635,7 @@ def _demo(args):
             print(f"pssd: no pictures: {_one_line(exc)}", file=sys.stderr)
     if args.quiet:
         return 0
-    before, after, disp, edge = truth_errors(cloud, result)
+    before, after, disp, edge = cloud.errors(result)
     print(f"pssd demo: built-in CAD part, {len(disp):,} points, noise {args.noise:.2%} of the "
           f"diagonal, seed {args.seed}; kernels ready in {compile_seconds:.1f} s")
     # The paper's Table 1 calls the displacement "error"; the true error is beside it here.
@@ -649,19 +649,6 @@ def _demo(args):
     for path in written + pictures:
         print(f"wrote {path}")
     return 0
-
-
-def truth_errors(cloud, result):
-    """Errors of a run on a generated cloud, in the paper's unit (1e-4 of the diagonal).
-
-    Returns the distance to the true surface before and after, the displacement, and the mask of
-    points within 1% of the diagonal of a sharp edge.
-    """
-    unit = 1e-4 * cloud.diagonal
-    return (cloud.surface_distance(cloud.points) / unit,
-            cloud.surface_distance(result.points) / unit,
-            result.displacement / unit,
-            cloud.edge_distance < 0.01 * cloud.diagonal)
 
 
 def _demo_files(args, noisy, result):

@@ -111,6 +111,22 @@ class SyntheticCloud:
             raise ValueError("points contains non-finite values")
         return self._unsigned_distance(query)
 
+    def errors(self, result):
+        """Errors of a denoising ``result`` (a :class:`pssd_fast.DenoiseResult` of
+        :attr:`points`) in the paper's unit, 1e-4 of the diagonal.
+
+        Returns
+        -------
+        before, after, moved : (n,) float64
+            Distance to the true surface before and after, and the displacement.
+        edge : (n,) bool
+            Points within 1% of the diagonal of a sharp edge.
+        """
+        unit = 1e-4 * self.diagonal
+        return (self.surface_distance(self.points) / unit,
+                self.surface_distance(result.points) / unit, result.displacement / unit,
+                self.edge_distance < 0.01 * self.diagonal)
+
 
 # --------------------------------------------------------------------------------------------
 # argument checks and shared assembly

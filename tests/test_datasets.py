@@ -383,3 +383,16 @@ def test_surface_distance_rejects_bad_queries(clouds):
         clouds["cube"].surface_distance(np.zeros((4, 2)))
     with pytest.raises(ValueError, match="non-finite"):
         clouds["cube"].surface_distance([[0.0, np.nan, 0.0]])
+
+
+def test_errors_are_in_the_paper_s_unit():
+    from types import SimpleNamespace
+
+    cloud = datasets.cube(n_points=2000, noise=0.01, seed=4)
+    moved = np.linalg.norm(cloud.points - cloud.clean, axis=1)
+    before, after, disp, edge = cloud.errors(
+        SimpleNamespace(points=cloud.clean, displacement=moved))
+    unit = 1e-4 * cloud.diagonal
+    np.testing.assert_allclose(before, cloud.surface_distance(cloud.points) / unit)
+    assert after.max() < 1e-6 and np.allclose(disp, moved / unit)
+    assert before.mean() > 50 and 0 < edge.sum() < edge.size
