@@ -321,10 +321,10 @@ def move(points, proj, filtered, lik, feat, lam):
 
 
 def cell_means(points, normals, order, starts, mass=None):
-    """Mean point of each group of :func:`pssd_fast.routes.coarse.group_cells`, and the unit mean of its ``normals``
-    (each turned to the side of the group's first; None without ``normals``), each point
-    weighted by its ``mass`` if given. The sums run in ``order``, so the result does not depend
-    on the thread count."""
+    """Mean point of each group of :func:`pssd_fast.routes.coarse.group_cells`, and the unit mean
+    of its ``normals`` (each turned to the side of the group's first; None without ``normals``),
+    each point weighted by its ``mass`` if given. The sums run in ``order``, so the result does not
+    depend on the thread count."""
     m = starts.shape[0] - 1
     means = np.empty((m, 3))
     mean_normals = np.empty((m, 3))

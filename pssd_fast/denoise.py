@@ -70,17 +70,17 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         term in the step ``m_i``. Paper's pipeline only (default 0.5); the other presets and
         the baselines refuse it, since their move does not use it.
     preset : {"default", "fast", "paper"}, default "default"
-        ``"paper"``: the paper's formulation (k = 25, lambda = 0.5, 2 iterations; the Notes'
-        first paragraph). ``"default"``: the feature-aware pipeline (Notes), ``k`` from the
-        estimated noise, 4 iterations; chosen on generated shapes to beat CGAL's jet and
-        bilateral smoothing (docs/DECISIONS.md; docs/benchmarks.md, "Beyond the paper");
-        where the noise spans several point spacings it iterates on cell means (Notes).
-        Above 50,000 points, where "fast"'s probe finds the noise at most 0.3 of its list
-        radius, it takes "fast"'s cells and iterations, and then the points near features
-        iterate on their own lists (the edges route; docs/ALGORITHM.md, "Routes").
-        ``"fast"``: the same pipeline, always on cell means (of at least 3 points), 2
-        iterations and a cheaper noise probe. For the baselines a preset sets ``k`` ("default" and "fast": from the noise
-        probe; "fast" 48), ``iterations`` and ``rebuild_graph``.
+        ``"paper"``: the paper's formulation (k = 25, lambda = 0.5, 2 iterations; the Notes' first
+        paragraph). ``"default"``: the feature-aware pipeline (Notes), ``k`` from the estimated
+        noise, 4 iterations; chosen on generated shapes to beat CGAL's jet and bilateral smoothing
+        (docs/DECISIONS.md; docs/benchmarks.md, "Beyond the paper"); where the noise spans several
+        point spacings it iterates on cell means (Notes). Above 50,000 points, where "fast"'s probe
+        finds the noise at most 0.3 of its list radius, it takes "fast"'s cells and iterations, and
+        then the points near features iterate on their own lists (the edges route;
+        docs/ALGORITHM.md, "Routes"). ``"fast"``: the same pipeline, always on cell means (of at
+        least 3 points), 2 iterations and a cheaper noise probe. For the baselines a preset sets
+        ``k`` ("default" and "fast": from the noise probe; "fast" 48), ``iterations`` and
+        ``rebuild_graph``.
     rebuild_graph : bool or "auto", default "auto"
         ``True``: query the k nearest neighbours anew in every iteration. ``False``: later
         iterations keep the first iteration's lists, re-sorted by the current distances (one
@@ -137,18 +137,18 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
             beside a sharp edge, a list that does not reach across it (docs/ALGORITHM.md,
             "Shifted normals"). No effect where ``normals`` are given.
         select_scales : bool or "auto", default "auto"
-            Feature-aware pipeline, on the points (not on the cell means of the
-            coarse-to-fine route): each point fits nested quadratics over prefixes of a list
-            of ``4.5 k`` and keeps the widest that still fits its neighbours within the noise,
-            instead of the fit at ``k`` (docs/ALGORITHM.md, "A scale per point"). ``"auto"``:
-            on where preset "default" iterates on the points of a cloud of at most 50,000
-            points (after ``remove_outliers``), where it wins the sparse clouds the fit at
-            ``k`` loses to CGAL (docs/benchmarks.md, "Sparse clouds"); off otherwise. It
-            costs a kNN query and a fit over lists of ``4.5 k`` an iteration (about 9 times
-            the fit at ``k`` at 30,000 points; with ``rebuild_graph=False`` the lists are
-            queried once and re-sorted later, 2 to 3 times faster).
-            ``stats["params"]["select_scales"]`` says whether a run took it, ``stats["scales"]`` what the probe set, each iteration's
-            record what the walks kept. The tiled runs of :mod:`pssd_fast.tiled` take it too.
+            Feature-aware pipeline, on the points (not on the cell means of the coarse-to-fine
+            route): each point fits nested quadratics over prefixes of a list of ``4.5 k`` and
+            keeps the widest that still fits its neighbours within the noise, instead of the fit at
+            ``k`` (docs/ALGORITHM.md, "A scale per point"). ``"auto"``: on where preset "default"
+            iterates on the points of a cloud of at most 50,000 points (after ``remove_outliers``),
+            where it wins the sparse clouds the fit at ``k`` loses to CGAL (docs/benchmarks.md,
+            "Sparse clouds"); off otherwise. It costs a kNN query and a fit over lists of ``4.5 k``
+            an iteration (about 9 times the fit at ``k`` at 30,000 points; with
+            ``rebuild_graph=False`` the lists are queried once and re-sorted later, 2 to 3 times
+            faster). ``stats["params"]["select_scales"]`` says whether a run took it,
+            ``stats["scales"]`` what the probe set, each iteration's record what the walks kept.
+            The tiled runs of :mod:`pssd_fast.tiled` take it too.
 
         ``h``, ``radius_factor``, ``delta``, ``alpha``, ``beta`` and ``likelihood`` shape the
         paper's pipeline only; the other presets refuse them (ValueError) rather than ignore

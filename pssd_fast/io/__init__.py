@@ -2,14 +2,14 @@
 
 :func:`read` turns a ``.ply``, ``.xyz``/``.pts``/``.txt``/``.csv``, ``.obj``, ``.npy``, ``.npz`` or
 ``.las``/``.laz`` file (text, PLY and OBJ also gzipped: ``scan.ply.gz``), or standard input
-(``"-"`` with ``format=``), into a :class:`PointCloud`: float64 points, normals when the file
-has them, and every other per-point attribute (colours, intensity, classification, scalar
-fields...) in ``fields`` with its original dtype. :func:`write` writes a cloud back with new points, normals and added per-point
-fields (``likelihood``, ``feature_intensity``...), keeping everything else of the input as it was
-when the output has the input's format: other PLY properties and elements (faces), comments,
-ASCII/binary and byte order; LAS point format, version, scale, offset, every point record, VLRs
-and EVLRs; leading comment lines of text files; other arrays of an ``.npz``; faces, groups,
-materials and every other line of an OBJ file.
+(``"-"`` with ``format=``), into a :class:`PointCloud`: float64 points, normals when the file has
+them, and every other per-point attribute (colours, intensity, classification, scalar fields...) in
+``fields`` with its original dtype. :func:`write` writes a cloud back with new points, normals and
+added per-point fields (``likelihood``, ``feature_intensity``...), keeping everything else of the
+input as it was when the output has the input's format: other PLY properties and elements (faces),
+comments, ASCII/binary and byte order; LAS point format, version, scale, offset, every point
+record, VLRs and EVLRs; leading comment lines of text files; other arrays of an ``.npz``; faces,
+groups, materials and every other line of an OBJ file.
 
 What cannot be carried across formats (the output format follows the output's extension):
 

@@ -8,11 +8,11 @@ for: any change gives a new, empty folder, and machines with different CPUs that
 folder (a cluster) each fill their own. Numba's files inside are stamped with the sources'
 hash alone, not with a source file's path, so every copy of the same package shares them.
 
-Every kernel is compiled without fast-math flags (``pssd_fast/kernels/config.py``), so LLVM may not reorder,
-contract or approximate any floating-point operation: whichever copy of a ``prange`` body a
-process runs (the one it just compiled, or the one loaded from the cache) computes the same
-bits. Kernels therefore compile in the calling process, only when first called with new
-argument types, and nothing about the cache can change a result; it changes only the time.
+Every kernel is compiled without fast-math flags (``pssd_fast/kernels/config.py``), so LLVM may not
+reorder, contract or approximate any floating-point operation: whichever copy of a ``prange`` body
+a process runs (the one it just compiled, or the one loaded from the cache) computes the same bits.
+Kernels therefore compile in the calling process, only when first called with new argument types,
+and nothing about the cache can change a result; it changes only the time.
 
 The folder is found on the first kernel call, not at import. A process that finds a kernel
 recorded as compiled into its folder (a marker file) but has numba compile it anyway warns once,

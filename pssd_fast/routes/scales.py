@@ -17,9 +17,9 @@ from ..pipelines.walks import SCALES
 
 def resolve(select_scales, up_to, n, on_points):
     """Whether a run of ``n`` points selects scales: as given (True or False), or where
-    ``select_scales`` is None (``"auto"``), on the points (``on_points``; not on cell means) of a cloud of at most ``up_to``
-    points (the preset's ``scales_up_to``; docs/DECISIONS.md, "A scale per point by
-    default")."""
+    ``select_scales`` is None (``"auto"``), on the points (``on_points``; not on cell means) of a
+    cloud of at most ``up_to`` points (the preset's ``scales_up_to``; docs/DECISIONS.md, "A scale
+    per point by default")."""
     if select_scales is None:
         return bool(on_points and n <= up_to)
     return select_scales

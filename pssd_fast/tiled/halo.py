@@ -28,6 +28,7 @@ from ..graph import bounds, knn_graph, truncate_graph
 from ..pipelines import aware
 from ..pipelines.normals import pca, shifted
 from ..progress import Clock
+from ..run import Iterated
 from ..pipelines import walks
 
 #: Tiles start at multiples of this rank: the feature kernel grows its regions for blocks of
@@ -263,13 +264,14 @@ def orient_pointwise(points, normals, orient, centroid):
     normals[flip] *= -1.0
 
 
-def iterate(current, given, k, iterations, sigma_n, spans, width, runner, scale_plan=None):
-    """The ``iterations`` of the feature-aware pipeline on ``current`` (Morton order), tile by
-    tile over the rank ranges ``spans``, each iteration's tiles run by ``runner`` (see
-    :class:`pssd_fast.tiled.runner._Runner`); ``given``: the caller's normals or None, ``width``: the
-    first halo width, ``scale_plan``: the plan of ``select_scales`` or None. As
-    :func:`pssd_fast.denoise.iterate` returns them: the moved points, the last normals,
-    ``(likelihood, feature intensity)``, one record per iteration and the points held."""
+def iterate(current, given, plan, sigma_n, spans, width, runner):
+    """The iterations of ``plan`` (:class:`pssd_fast.routes.plan.Plan`: its ``k``,
+    ``iterations`` and ``walks``) of the feature-aware pipeline on ``current`` (Morton order),
+    tile by tile over the rank ranges ``spans``, each iteration's tiles run by ``runner`` (see
+    :class:`pssd_fast.tiled.runner._Runner`); ``given``: the caller's normals or None,
+    ``width``: the first halo width. Returns an :class:`pssd_fast.run.Iterated`, as
+    :func:`pssd_fast.run.iterate` does."""
+    k, iterations, scale_plan = plan.k, plan.iterations, plan.walks
     n = current.shape[0]
     widths = [width] * len(spans)
     normals = given
@@ -303,8 +305,8 @@ def iterate(current, given, k, iterations, sigma_n, spans, width, runner, scale_
         records.append(record(out, n, widths, started))
     rms = np.concatenate([o["rms"] for o in out])
     likelihood, _ = core.sampling_likelihood(rms, "exp")
-    return (current, normals, (likelihood, np.concatenate([o["feature"] for o in out])), records,
-            held)
+    return Iterated(current, normals, (likelihood, np.concatenate([o["feature"] for o in out])),
+                    records, held)
 
 
 def record(out, n, widths, started):

@@ -154,10 +154,9 @@ def _points(current, given, plan, request, runner, tile_points):
     spans = halo.tiles(current.shape[0], tile_points)
     centroid = current.mean(axis=0)
     reach = plan.k if plan.walks is None else int(plan.walks.lengths[-1])
-    done = Iterated(*halo.iterate(
-        current, given, plan.k, plan.iterations, request.params["sigma_n"], spans,
-        halo.first_width(plan.probe["probe_radius"], plan.probe["probe_k"], reach), runner,
-        plan.walks))
+    done = halo.iterate(current, given, plan, request.params["sigma_n"], spans,
+                        halo.first_width(plan.probe["probe_radius"], plan.probe["probe_k"],
+                                         reach), runner)
     if request.orient is not None:
         # Propagation over the whole cloud's lists does not tile: one by one.
         halo.orient_pointwise(done.points, done.normals,
