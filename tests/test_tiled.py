@@ -174,7 +174,7 @@ def test_progress_hears_of_every_tile(noisy):
 @pytest.fixture(scope="module")
 def sparse():
     """Noise well under the point spacing: the default iterates on the points."""
-    return datasets.cad_part(n_points=20_000, noise=0.002, seed=3).points
+    return datasets.cad_part(n_points=12_000, noise=0.002, seed=3).points
 
 
 @pytest.fixture(scope="module")
@@ -184,7 +184,7 @@ def sparse_in_core(sparse):
 
 
 def test_a_cloud_iterated_on_its_points_tiles_with_halos(sparse, sparse_in_core):
-    got = tiled.denoise(sparse, tile_points=2_500)
+    got = tiled.denoise(sparse, tile_points=1_500)
     assert got.stats["tiles"]["route"] == "halo" and got.stats["tiles"]["count"] >= 8
     _assert_same(got, sparse_in_core)
     assert got.stats["iterations"][0]["fit_degree"] == \
@@ -197,7 +197,7 @@ def test_halos_too_thin_are_widened_until_exact(sparse, sparse_in_core, monkeypa
 
     monkeypatch.setattr(halo, "FIRST_WIDTH", 0.25)
     seen = []
-    got = tiled.denoise(sparse, tile_points=5_000, progress=lambda *a: seen.append(a[2]))
+    got = tiled.denoise(sparse, tile_points=3_000, progress=lambda *a: seen.append(a[2]))
     assert sum(s.startswith("tile_step") for s in seen) > 4 * got.stats["tiles"]["count"]
     _assert_same(got, sparse_in_core)
 
@@ -214,7 +214,7 @@ def _shorten_scales(patch):
 
 @pytest.fixture(scope="module")
 def short_scales_in_core():
-    points = datasets.cad_part(n_points=16_000, noise=0.002, seed=3).points
+    points = datasets.cad_part(n_points=10_000, noise=0.002, seed=3).points
     with pytest.MonkeyPatch.context() as patch:
         _shorten_scales(patch)
         return points, pssd_fast.denoise(points, select_scales=True, iterations=2)
@@ -240,7 +240,7 @@ def test_halos_cover_the_lists_of_selected_scales(short_scales):
     long lists."""
     points, expected = short_scales
     seen = []
-    got = tiled.denoise(points, tile_points=2_000, select_scales=True, iterations=2,
+    got = tiled.denoise(points, tile_points=1_250, select_scales=True, iterations=2,
                         client="sync", progress=lambda *a: seen.append(a[2]))
     assert got.stats["tiles"]["route"] == "halo"
     assert sum(s.startswith("tile_step") for s in seen) > 2 * 2 * got.stats["tiles"]["count"]
@@ -254,7 +254,7 @@ def test_a_file_tiled_out_of_core_selects_scales_as_in_core(tmp_path, short_scal
     points, expected = short_scales
     source, out = tmp_path / "in.npy", tmp_path / "out.npy"
     np.save(source, points)
-    stats = tiled.denoise_file(source, out, tile_points=2_000, select_scales=True,
+    stats = tiled.denoise_file(source, out, tile_points=1_250, select_scales=True,
                                iterations=2, client="sync")
     assert stats["tiles"]["route"] == "halo"
     np.testing.assert_array_equal(np.load(out), expected.points)
@@ -265,20 +265,20 @@ def test_a_file_tiled_out_of_core_selects_scales_as_in_core(tmp_path, short_scal
 def test_the_default_selects_scales_on_the_whole_cloud(short_scales, monkeypatch):
     """The size that turns the walks on is the cloud's, not a tile's."""
     points, expected = short_scales
-    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 16_000)
-    got = tiled.denoise(points, tile_points=2_000, iterations=2)
+    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 10_000)
+    got = tiled.denoise(points, tile_points=1_250, iterations=2)
     _assert_same(got, expected)
     _same_walks(got.stats, expected)
     # Each tile is below this limit, the cloud is not.
-    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 15_999)
-    off = tiled.denoise(points, tile_points=2_000, iterations=1)
+    monkeypatch.setitem(PRESETS["default"], "scales_up_to", 9_999)
+    off = tiled.denoise(points, tile_points=1_250, iterations=1)
     assert off.stats["scales"] is None and off.stats["params"]["select_scales"] is False
 
 
 def test_halos_take_given_normals():
-    cloud = datasets.cad_part(n_points=20_000, noise=0.002, seed=6)
+    cloud = datasets.cad_part(n_points=12_000, noise=0.002, seed=6)
     expected = pssd_fast.denoise(cloud.points, -cloud.normals)
-    got = tiled.denoise(cloud.points, -cloud.normals, tile_points=2_500, client="sync")
+    got = tiled.denoise(cloud.points, -cloud.normals, tile_points=1_500, client="sync")
     assert got.stats["tiles"]["route"] == "halo"
     _assert_same(got, expected)
 
@@ -299,7 +299,7 @@ def test_the_edges_route_tiles_as_in_core(normals):
 
 
 def test_halos_orient_each_normal_alone(sparse, sparse_in_core):
-    got = tiled.denoise(sparse, tile_points=5_000, orient="up")
+    got = tiled.denoise(sparse, tile_points=3_000, orient="up")
     np.testing.assert_array_equal(got.points, sparse_in_core.points)
     assert (got.normals[:, 2] >= 0).all()
     np.testing.assert_array_equal(np.abs(got.normals), np.abs(sparse_in_core.normals))
