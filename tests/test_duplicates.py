@@ -100,11 +100,11 @@ def test_copies_stay_together_in_tiled_runs():
     pytest.importorskip("dask")
     from pssd_fast import tiled
 
-    points = np.array(datasets.make("cad_part", n_points=20_000, noise=0.0005, seed=3).points)
+    points = np.array(datasets.make("cad_part", n_points=12_000, noise=0.0005, seed=3).points)
     copies, source = _with_copies(points, seed=1)
-    # At k: the walks of select_scales (these 20,000 distinct points) tile in test_tiled.py.
+    # At k: the walks of select_scales (these 12,000 distinct points) tile in test_tiled.py.
     whole = pssd_fast.denoise(copies, select_scales=False)
-    tiles = tiled.denoise(copies, tile_points=15_000, client="sync", select_scales=False)
+    tiles = tiled.denoise(copies, tile_points=9_000, client="sync", select_scales=False)
     np.testing.assert_array_equal(tiles.points, whole.points)
     assert tiles.stats["duplicates"] == whole.stats["duplicates"] == len(points)
     # Every copy of a point ends where the others do.

@@ -70,7 +70,7 @@ def test_the_default_takes_the_edges_route_where_the_noise_is_low(monkeypatch, n
     """Above ``scales_up_to`` points (0 here): fast's probe, then fast's cells and the edges
     pass up to ``LIGHT["up_to"]``; the preset's own plan above."""
     monkeypatch.setitem(plan.PRESETS["default"], "scales_up_to", 0)
-    points = datasets.cad_part(n_points=30_000, noise=noise, seed=2).points
+    points = datasets.cad_part(n_points=15_000, noise=noise, seed=2).points
     result = pssd_fast.denoise(points)
     taken = result.stats["plan"]
     assert (taken["route"] == "edges") == light and (taken["cells"] == "fast") == light
