@@ -30,7 +30,7 @@ def coarse_default():
 @pytest.fixture(scope="module")
 def noisy():
     """Noise several point spacings wide: both presets take the coarse-to-fine route."""
-    return datasets.cad_part(n_points=200_000, noise=0.02, seed=5)
+    return datasets.cad_part(n_points=100_000, noise=0.02, seed=5)
 
 
 @pytest.fixture(scope="module")
@@ -79,9 +79,9 @@ def _assert_same(got, expected):
 
 @pytest.mark.parametrize("preset", ["default", "fast"])
 def test_threads_give_the_in_core_result(noisy, in_core, preset):
-    got = tiled.denoise(noisy.points, preset=preset, tile_points=20_000)
+    got = tiled.denoise(noisy.points, preset=preset, tile_points=10_000)
     assert got.stats["tiles"]["count"] >= 8
-    assert got.stats["tiles"]["most_points"] <= 20_000
+    assert got.stats["tiles"]["most_points"] <= 10_000
     assert got.stats["tiles"]["scheduler"] == "threads"
     _assert_same(got, in_core[preset])
 
@@ -114,11 +114,11 @@ def test_tasks_at_once_share_the_cores(noisy, in_core, monkeypatch):
                     busy[0] -= n
 
     monkeypatch.setattr(tiled.runner, "threads", counted)
-    got = tiled.denoise(noisy.points, tile_points=20_000, n_jobs=2)
+    got = tiled.denoise(noisy.points, tile_points=10_000, n_jobs=2)
     assert 0 < most[0] <= cores
     assert got.stats["tiles"]["threads"] == {"tasks_at_once": cores, "threads_per_task": 1}
     _assert_same(got, in_core["default"])
-    alone = tiled.denoise(noisy.points, tile_points=20_000, n_jobs=2, client="sync")
+    alone = tiled.denoise(noisy.points, tile_points=10_000, n_jobs=2, client="sync")
     assert alone.stats["tiles"]["threads"] == {"tasks_at_once": 1, "threads_per_task": cores}
     _assert_same(alone, in_core["default"])
 
@@ -129,7 +129,7 @@ def test_a_local_cluster_of_two_processes_gives_the_in_core_result(noisy, in_cor
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
-        got = tiled.denoise(noisy.points, tile_points=25_000, client=client)
+        got = tiled.denoise(noisy.points, tile_points=12_500, client=client)
         assert got.stats["tiles"]["scheduler"] == "distributed"
         assert got.stats["tiles"]["count"] >= 8
         _assert_same(got, in_core["default"])
@@ -139,7 +139,7 @@ def test_a_local_cluster_of_two_processes_gives_the_in_core_result(noisy, in_cor
         assert got.stats["tiles"]["threads"] == {
             "tasks_at_once": 2, "threads_per_task": len(os.sched_getaffinity(0))}
         # The scheduler's address does as well as the client.
-        by_address = tiled.denoise(noisy.points, tile_points=100_000,
+        by_address = tiled.denoise(noisy.points, tile_points=50_000,
                                    client=cluster.scheduler_address)
         _assert_same(by_address, in_core["default"])
 
