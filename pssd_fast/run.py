@@ -259,10 +259,10 @@ def result(rows, done, centre, kept, outliers, stats):
     )
 
 
-def stats(request, plan, n, distinct, n_threads, records, held, **more):
+def stats(request, plan, n, distinct, n_threads, records, held, outliers=None, **more):
     """A run's ``stats`` (see :class:`DenoiseResult`) for ``n`` points at ``distinct``
-    positions, ``held`` of them held in place, with the entries of ``more`` (``outliers``
-    and, for a tiled run, ``tiles``)."""
+    positions, ``held`` of them held in place; ``outliers``: what ``remove_outliers`` did, or
+    None; ``more``: the entries a tiled run adds (``tiles``)."""
     orient = request.orient
     return {
         "method": request.method,
@@ -278,7 +278,7 @@ def stats(request, plan, n, distinct, n_threads, records, held, **more):
         "scales": plan.walks_record(),
         "rebuild_graph": plan.rebuild_graph,
         "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
-        "outliers": None,
+        "outliers": outliers,
         "n_iterations": plan.iterations,
         "held_points": held,
         # None in the checked parameters is a choice left to the library.
