@@ -20,6 +20,7 @@ __all__ = [
     "normalize_to_unit_diagonal",
     "read_feat",
     "read_obj",
+    "read_off",
     "sample_surface",
     "segment_distance",
     "sharp_edges",
@@ -186,6 +187,57 @@ def read_obj(path):
             keys.append(np.repeat(sel, size - 2))
         # Restore file order across the groups of different polygon sizes.
         faces = np.concatenate(tris)[np.argsort(np.concatenate(keys), kind="stable")]
+    return vertices, faces
+
+
+def read_off(path):
+    """Read the vertices and faces of an OFF file (the PU-Net test meshes).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file; read through gzip when its name ends in ``.gz``.
+
+    Returns
+    -------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+        0-based vertex indices; polygons of more than three corners are fan-triangulated
+        around their first corner.
+
+    Raises
+    ------
+    ValueError
+        The file does not start with ``OFF``, holds fewer numbers than its counts need, a
+        non-finite coordinate, or a face index out of range; the message names the file.
+    """
+    text = _COMMENT.sub("", _read_text(path))
+    tokens = text.split()
+    if not tokens or tokens[0] != "OFF":
+        raise ValueError(f"{path}: not an OFF file (it does not start with 'OFF')")
+    try:
+        n_vertices, n_faces = int(tokens[1]), int(tokens[2])
+        values = np.array(tokens[4:4 + 3 * n_vertices], dtype=np.float64)
+        rest = np.array(tokens[4 + 3 * n_vertices:], dtype=np.int64)
+    except (IndexError, ValueError) as exc:
+        raise ValueError(f"{path}: malformed OFF header or body ({exc})") from None
+    if values.shape[0] != 3 * n_vertices:
+        raise ValueError(f"{path}: {n_vertices} vertices announced, "
+                         f"{values.shape[0] // 3} found")
+    vertices = values.reshape(n_vertices, 3)
+    if not np.isfinite(vertices).all():
+        raise ValueError(f"{path}: non-finite vertex coordinate")
+    tris, at = [], 0
+    for _ in range(n_faces):
+        if at >= rest.shape[0] or at + 1 + rest[at] > rest.shape[0] or rest[at] < 3:
+            raise ValueError(f"{path}: {n_faces} faces announced, the file ends or breaks "
+                             f"after {len(tris)}")
+        corners = rest[at + 1:at + 1 + rest[at]]
+        tris += [(corners[0], corners[i], corners[i + 1]) for i in range(1, len(corners) - 1)]
+        at += 1 + rest[at]
+    faces = np.array(tris, dtype=np.int64).reshape(-1, 3)
+    if faces.size and (faces.min() < 0 or faces.max() >= n_vertices):
+        raise ValueError(f"{path}: face index out of range ({n_vertices} vertices)")
     return vertices, faces
 
 

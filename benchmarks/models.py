@@ -56,6 +56,12 @@ def mesh_dir():
     return meshes.data_dir(os.environ.get("PSSD_DATA") or DEFAULT_MESH_DIR)
 
 
+def sibling(name):
+    """The data folder ``name`` beside the mesh folder (``$PSSD_DATA`` when set, else
+    ``DEFAULT_MESH_DIR``): where the PU-Net meshes and the raw scans are."""
+    return Path(os.environ.get("PSSD_DATA") or DEFAULT_MESH_DIR).parent / name
+
+
 def available():
     """Whether the mesh folder holds every model (tests and benchmarks skip the models
     otherwise)."""

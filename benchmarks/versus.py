@@ -91,14 +91,16 @@ COLUMNS = ("mean", "edge")
 
 @dataclass(frozen=True)
 class Case:
-    """One cell: the noisy input and a scorer returning (mean, edge) in 1e-4 of the diagonal
-    (edge None when no point lies near an edge), and the seed of its draw."""
+    """One cell: the noisy input and a scorer returning a score per name of ``columns``
+    (here (mean, edge) in 1e-4 of the diagonal, edge None when no point lies near an edge),
+    and the seed of its draw."""
 
     shape: str
     noise: float
     points: np.ndarray
     score: Callable[[np.ndarray], tuple]
     seed: int = 0
+    columns: tuple = COLUMNS
 
 
 def make_case(shape, noise, n_points=None, model_cache=None, seed=0):
@@ -161,11 +163,11 @@ def load_peer_cache(path=PEER_CACHE):
     return {"machine": machine(), "cells": {}}
 
 
-def peer_cell(case, key, cache_path, refresh, log):
-    """The peer scores of one cell from the cache, running the families it lacks (all of them
-    with ``refresh``) and caching them."""
+def peer_cell(case, key, cache_path, refresh, log, families=FAMILIES):
+    """The peer scores of one cell from the cache, running those of ``families`` it lacks
+    (all of them with ``refresh``) and caching them."""
     cached = {} if refresh else load_peer_cache(cache_path)["cells"].get(key, {})
-    missing = [family for family in FAMILIES if family not in cached]
+    missing = [family for family in families if family not in cached]
     if not missing:
         return cached
     cell = {**cached, **run_peers(case, log, missing)}
@@ -177,9 +179,26 @@ def peer_cell(case, key, cache_path, refresh, log):
     return cell
 
 
+#: The library behind each family (``benchmarks.peers.available``'s names).
+LIBRARY = {"jet": "cgal", "bilateral": "cgal", "o3d_mls": "open3d", "o3d_bilateral": "open3d"}
+
+
+def missing_peers(families):
+    """A message naming the libraries ``families`` need that do not import, or ``""``."""
+    from . import peers
+    have = peers.available()
+    absent = sorted({LIBRARY[f] for f in families if not have[LIBRARY[f]]})
+    if not absent:
+        return ""
+    return (f"the peers {', '.join(f for f in families if LIBRARY[f] in absent)} need "
+            f"{' and '.join(absent)}, which do not import here: install them with "
+            "pip install \".[compare]\" (Open3D also needs the system's libusb-1.0), or "
+            "leave those peers out with --peers")
+
+
 def run_peers(case, log, families=FAMILIES):
-    """Every setting of the peer ``families`` on one case: family -> label -> {mean, edge,
-    seconds}."""
+    """Every setting of the peer ``families`` on one case: family -> label -> {each of
+    ``case.columns``, seconds}."""
     from . import peers
     out = {}
     for family in families:
@@ -187,10 +206,11 @@ def run_peers(case, log, families=FAMILIES):
         out[family] = {}
         for label, kwargs in PEER_SETTINGS[family].items():
             result = call(case.points, **kwargs)
-            mean, edge = case.score(result.points)
-            out[family][label] = {"mean": mean, "edge": edge, "seconds": result.seconds}
-            log(f"  {PEER_NAMES[family]:16s} {label:26s} {_fmt(mean, 2):>7s} "
-                f"{_fmt(edge, 2):>7s} {result.seconds:7.2f} s")
+            scores = dict(zip(case.columns, case.score(result.points)))
+            out[family][label] = {**scores, "seconds": result.seconds}
+            log(f"  {PEER_NAMES[family]:16s} {label:26s} "
+                + " ".join(f"{_fmt(value, 2):>7s}" for value in scores.values())
+                + f" {result.seconds:7.2f} s")
     return out
 
 
@@ -205,15 +225,15 @@ def best_of(family_rows, column):
     return scored[label], label
 
 
-def best_entry(family_rows):
+def best_entry(family_rows, columns=COLUMNS):
     """A family's minima: each column's value, the setting behind it and that setting's time;
-    ``seconds`` is the time behind the mean."""
+    ``seconds`` is the time behind the first column."""
     entry = {}
-    for col in COLUMNS:
+    for col in columns:
         value, label = best_of(family_rows, col)
         entry.update({col: value, f"{col}_setting": label,
                       f"{col}_seconds": None if label is None else family_rows[label]["seconds"]})
-    entry["seconds"] = entry["mean_seconds"]
+    entry["seconds"] = entry[f"{columns[0]}_seconds"]
     return entry
 
 
