@@ -268,6 +268,10 @@ def _add_common(parser):
                              "default and paper, no for fast)")
     parser.add_argument("--n-jobs", "--threads", dest="n_jobs", type=int, default=None,
                         help="threads (default: all cores); the result does not depend on it")
+    parser.add_argument("--duplicate-tolerance", type=float, default=0.0, metavar="D",
+                        help="rows in one cube of edge D (in the file's units, cubes from the "
+                             "bounding box's low corner) are one position, denoised as one "
+                             "point (default 0: only rows with equal coordinates)")
 
 
 def _add_size(parser):
@@ -310,7 +314,8 @@ class _Progress:
 def _common_options(args):
     """The options of :func:`pssd_fast.denoise` that ``_add_common`` offers."""
     return {"iterations": args.iterations, "k": args.k, "lam": args.lam, "preset": args.preset,
-            "rebuild_graph": args.rebuild_graph, "n_jobs": args.n_jobs}
+            "rebuild_graph": args.rebuild_graph, "n_jobs": args.n_jobs,
+            "duplicate_tolerance": args.duplicate_tolerance}
 
 
 def _run_denoise(points, normals, args, method_params, say=None, **options):
@@ -443,7 +448,8 @@ def _run_tiled(points, normals, args, method_params, progress, orient, remove_ou
     _check_tiled(args, method_params, remove_outliers)
     return tiled.denoise(points, normals, tile_points=args.tile_points, client=args.scheduler,
                          preset=args.preset, iterations=args.iterations, orient=orient,
-                         n_jobs=args.n_jobs, progress=progress, **method_params)
+                         duplicate_tolerance=args.duplicate_tolerance, n_jobs=args.n_jobs,
+                         progress=progress, **method_params)
 
 
 def _flag(dest):
@@ -516,6 +522,7 @@ def _denoise_on_disk(args, params, inp, out, say):
         stats = tiled.denoise_file(inp, out, tile_points=args.tile_points,
                                    client=args.scheduler, preset=args.preset,
                                    iterations=args.iterations, orient=orient, fields=fields,
+                                   duplicate_tolerance=args.duplicate_tolerance,
                                    n_jobs=args.n_jobs, progress=progress, overwrite=args.force,
                                    **params)
     finally:

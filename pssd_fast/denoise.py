@@ -36,7 +36,8 @@ AWARE_ONLY = ("sigma_n", "shift_normals", "select_scales")
 
 def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto", lam=None,
             preset="default", rebuild_graph="auto", orient=None, remove_outliers=False,
-            classification=None, classes=None, n_jobs=None, progress=None, **method_params):
+            duplicate_tolerance=0.0, classification=None, classes=None, n_jobs=None,
+            progress=None, **method_params):
     """Denoise a point-sampled surface while keeping its sharp features.
 
     Parameters
@@ -97,6 +98,15 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     remove_outliers : bool, default False
         Drop the points whose ``outlier_score`` exceeds 1 before denoising; ``kept`` says
         which input rows the result holds.
+    duplicate_tolerance : float, default 0.0
+        Which rows are one position, denoised as one point: the first of them stands for all
+        and every row takes its result, with its own ``displacement`` (docs/ALGORITHM.md,
+        "Before any iteration: duplicates"). 0: rows with equal coordinates. ``t > 0``, in
+        the cloud's units: rows in one cube of edge ``t``, where ``floor((p - low) / t)``
+        agrees on every axis (``low``: the bounding box's low corner), so rows less than
+        ``t`` apart may still be two positions; at most ``2**52`` cubes along the bounding
+        box's longest side. Rows at different positions are never merged.
+        ``stats["duplicates"]`` counts the rows merged.
     classification : array_like of int, shape (n,), optional
         A class code per point, such as the LAS ``classification`` (2 ground, 6 building...);
         only with ``classes``.
@@ -212,7 +222,8 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         return _only_classes(points, normals, classification, classes, {
             "method": method, "iterations": iterations, "k": k, "lam": lam, "preset": preset,
             "rebuild_graph": rebuild_graph, "orient": orient, "remove_outliers": remove_outliers,
-            "n_jobs": n_jobs, "progress": progress, **method_params})
+            "duplicate_tolerance": duplicate_tolerance, "n_jobs": n_jobs, "progress": progress,
+            **method_params})
     check_choice(method, "method", METHODS)
     check_choice(preset, "preset", tuple(PRESETS))
     setting = PRESETS[preset]
@@ -251,6 +262,7 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
                              "signs (pass normals=None or drop orient)")
     if not isinstance(remove_outliers, (bool, np.bool_)):
         raise TypeError(f"remove_outliers must be True or False; got {remove_outliers!r}")
+    duplicate_tolerance = duplicates.check_tolerance(duplicate_tolerance)
 
     started = time.perf_counter()
     n_input = n
@@ -269,7 +281,7 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         outliers = {"flagged": int((score_all > 1.0).sum()), "removed": n_input - kept.shape[0],
                     "seconds": seconds}
         n = pts.shape[0]
-    order, groups = duplicates.ordered(pts)
+    order, groups = duplicates.ordered(pts, duplicate_tolerance)
     distinct = check_distinct(order.shape[0], n, k)
     # Work relative to the bounding-box centre: georeferenced coordinates (1e6 m offsets) would
     # otherwise cost the kNN distances most of their digits.

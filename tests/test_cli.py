@@ -211,6 +211,8 @@ def test_demo_writes_files_and_pictures(tmp_path):
     (["denoise", "in.xyz", "out.unknown"], "unknown"),
     (["denoise", "in.xyz", "out.ply", "--k", "5"], "k must be at least 10"),
     (["denoise", "five.xyz", "out.ply"], "the cloud has 5 points; denoising needs at least 11"),
+    (["denoise", "in.xyz", "out.ply", "--duplicate-tolerance", "-1"],
+     "duplicate_tolerance must be a finite distance of at least 0"),
     (["denoise", "in.xyz", "nowhere/out.ply"], "does not exist"),
     (["info", "truncated.ply"], "truncated.ply"),
     (["info", "malformed.xyz"], "malformed.xyz"),
@@ -623,6 +625,25 @@ def test_tile_points_give_the_in_core_file(tmp_path):
     np.testing.assert_array_equal(tiled.normals, in_core.normals)
     for name in in_core.fields:
         np.testing.assert_array_equal(tiled.fields[name], in_core.fields[name])
+
+
+def test_duplicate_tolerance_reaches_the_library(tmp_path):
+    """In core and out of core (``--tile-points`` on ``.npy``): rows 1e-9 apart merge in cubes
+    of 1e-6."""
+    pytest.importorskip("dask")
+    points = datasets.cad_part(n_points=2500, noise=0.002, seed=3).points
+    near = np.concatenate([points, points[:500] + 1e-9])
+    np.save(tmp_path / "in.npy", near)
+    want = pssd_fast.denoise(near, iterations=1, select_scales=False, duplicate_tolerance=1e-6)
+    assert want.stats["duplicates"] > 450
+    options = ("--iterations", "1", "--no-select-scales", "--duplicate-tolerance", "1e-6")
+    for name, more in (("in_core", ()),
+                       ("tiled", ("--tile-points", "1000", "--scheduler", "sync"))):
+        status, out, err = pssd("denoise", tmp_path / "in.npy", tmp_path / f"{name}.npy",
+                                *options, *more)
+        assert status == 0, err
+        assert ("out of core" in out) == bool(more)
+        np.testing.assert_array_equal(np.load(tmp_path / f"{name}.npy"), want.points)
 
 
 @pytest.mark.parametrize("ext", [pytest.param(".npy", marks=pytest.mark.slow), ".las"])

@@ -5,12 +5,13 @@ Each pass reads the input in chunks of :data:`CHUNK_POINTS`, so the memory it ne
 the chunk and the tile sizes, not the cloud's. The passes:
 
 1. bounds of the points (the centre and the Morton scale of ``denoise``);
-2. a histogram of the top bits of each point's Morton code, then the points binned into
-   *buckets*, consecutive ranges of codes holding at most ``tile_points`` points each, and
-   each bucket sorted: their concatenation is ``denoise``'s Morton order, so the noise probe
-   reads its evenly spread sample (every ``s``-th point of that order) by rank; the rows at
-   the position of an earlier row are set aside there, to take its result when the output is
-   written (:mod:`pssd_fast.duplicates`);
+2. a histogram of the top bits of the Morton code of each point's position
+   (:func:`pssd_fast.duplicates.codes`), then the points binned into *buckets*, consecutive
+   ranges of codes holding at most ``tile_points`` points each, and each bucket sorted: their
+   concatenation is ``denoise``'s Morton order, so the noise probe reads its evenly spread
+   sample (every ``s``-th point of that order) by rank; the rows at the position of an earlier
+   row are set aside there, to take its result when the output is written
+   (:mod:`pssd_fast.duplicates`);
 3. per grid edge tried, the cells the points fall in, counted bucket by bucket;
 4. the points binned again, into *tiles* of whole cells, in Morton order.
 """
@@ -20,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import atomic
+from .. import atomic, duplicates
 from .._validation import check_size
-from ..graph import MORTON_BITS, bounds, grid_codes
+from ..graph import MORTON_BITS, bounds
 from ..routes import coarse
 
 #: Points read from the input at a time.
@@ -234,10 +235,11 @@ class Buckets:
     """The cloud's distinct positions in ``denoise``'s Morton order, relative to its centre, as
     files of consecutive ranks: ``shape`` and ``[::step]`` as a ``(n, 3)`` array offers them
     (what the noise probe reads), and :meth:`each` for the rest. The rows at the position of
-    an earlier row (:mod:`pssd_fast.duplicates`) are set aside in the :data:`COPY` file
-    ``copies``, ``duplicates`` of them, out of ``rows`` rows in all."""
+    an earlier row (:mod:`pssd_fast.duplicates`; ``tolerance``: ``denoise``'s
+    ``duplicate_tolerance``) are set aside in the :data:`COPY` file ``copies``,
+    ``duplicates`` of them, out of ``rows`` rows in all."""
 
-    def __init__(self, array, folder, tile_points):
+    def __init__(self, array, folder, tile_points, tolerance=0.0):
         n = array.shape[0]
         check_size(n)
         self.rows = n
@@ -248,12 +250,11 @@ class Buckets:
             lo, hi = bounds(points)
             low, high = np.minimum(low, lo), np.maximum(high, hi)
         self.centre = 0.5 * (low + high)
-        extent = float((high - low).max())
-        scale = (2**MORTON_BITS - 1) / extent if extent > 0.0 else 0.0
+        origin = low  # of the cubes of the tolerance
         shift = np.uint64(3 * MORTON_BITS - _PREFIX_BITS)
         histogram = np.zeros(1 << _PREFIX_BITS, np.int64)
         for _, points, _ in chunks(array):
-            prefix = (grid_codes(points, low, scale) >> shift).astype(np.int64)
+            prefix = (duplicates.codes(points, origin, high, tolerance) >> shift).astype(np.int64)
             histogram += np.bincount(prefix, minlength=1 << _PREFIX_BITS)
         # Consecutive bins, at most tile_points points a bucket (a fuller bin alone).
         bucket_of_bin = np.zeros(1 << _PREFIX_BITS, np.int64)
@@ -271,7 +272,7 @@ class Buckets:
             for start, points, normals in chunks(array):
                 records = np.empty(points.shape[0], self.dtype)
                 records["row"] = np.arange(start, start + points.shape[0])
-                records["code"] = codes = grid_codes(points, low, scale)
+                records["code"] = codes = duplicates.codes(points, origin, high, tolerance)
                 records["xyz"] = points
                 if normals is not None:
                     records["nrm"] = normals
@@ -280,8 +281,9 @@ class Buckets:
             for writer in writers:
                 writer.close()
         counts = []
-        # A bucket holds whole cells of the grid of pssd_fast.duplicates, so each merges its
-        # own; the bounds are then those of the distinct positions, as in core.
+        # The rows at one position share its code (pssd_fast.duplicates), so a bucket holds
+        # whole positions and merges its own; the bounds are then those of the distinct
+        # positions, as in core.
         self.copies = folder / "copies.bin"
         low = np.full(3, np.inf)
         high = np.full(3, -np.inf)
@@ -290,14 +292,16 @@ class Buckets:
                 records = np.fromfile(path, self.dtype)
                 # Rows were appended in input order: a stable sort by code is denoise's order.
                 records = records[np.argsort(records["code"], kind="stable")]
-                first = np.concatenate(([True], records["code"][1:] != records["code"][:-1]))
-                if not first.all():
-                    aside = np.empty(np.count_nonzero(~first), COPY)
-                    aside["row"] = records["row"][~first]
-                    aside["first"] = records["row"][first][np.cumsum(first)[~first] - 1]
-                    aside["xyz"] = records["xyz"][~first]
+                into = duplicates.merged(records["code"], lambda at: duplicates.keys(
+                    records["xyz"][at], origin, tolerance))
+                if into is not None:
+                    copy = into != np.arange(into.shape[0])
+                    aside = np.empty(np.count_nonzero(copy), COPY)
+                    aside["row"] = records["row"][copy]
+                    aside["first"] = records["row"][into[copy]]
+                    aside["xyz"] = records["xyz"][copy]
                     aside.tofile(out)
-                    records = records[first]
+                    records = records[~copy]
                 records.tofile(path)
                 counts.append(records.shape[0])
                 lo, hi = bounds(records["xyz"])

@@ -52,8 +52,8 @@ AT_DEFAULT = {"method": "robust", "k": "auto", "lam": None, "rebuild_graph": "au
 
 def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method="robust",
             iterations="auto", k="auto", lam=None, preset="default", rebuild_graph="auto",
-            orient=None, remove_outliers=False, classification=None, classes=None, n_jobs=None,
-            progress=None, **method_params):
+            orient=None, remove_outliers=False, duplicate_tolerance=0.0, classification=None,
+            classes=None, n_jobs=None, progress=None, **method_params):
     """Denoise ``points`` tile by tile on Dask; the result of :func:`pssd_fast.denoise`.
 
     Parameters
@@ -70,7 +70,7 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method=
     preset : {"default", "fast"}
         The preset of :func:`pssd_fast.denoise`; its coarse-to-fine route is the one that
         tiles.
-    iterations, orient, n_jobs, progress, **method_params
+    iterations, orient, duplicate_tolerance, n_jobs, progress, **method_params
         As in :func:`pssd_fast.denoise`; of its method parameters ``sigma_n`` and
         ``select_scales`` (on the points only, as there; the plan of its walks is made before
         the tiles, and each task's halo covers the lists of ``4.5 k``). ``n_jobs`` is the
@@ -119,9 +119,10 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method=
         if given is not None:
             raise ValueError("orient applies to estimated normals; the given normals keep their "
                              "signs (pass normals=None or drop orient)")
+    duplicate_tolerance = duplicates.check_tolerance(duplicate_tolerance)
     started = time.perf_counter()
     n_input = n
-    order, groups = duplicates.ordered(pts)
+    order, groups = duplicates.ordered(pts, duplicate_tolerance)
     n = check_distinct(order.shape[0], n_input, None)
     centre = 0.5 * np.add(*bounds(pts))
     current = core.relative_rows(pts, order, centre)
@@ -213,8 +214,9 @@ def _cells(current, given, plan, request, runner, tile_points, order):
 def denoise_file(source, destination, *, tile_points=2_000_000, client=None, method="robust",
                  iterations="auto", k="auto", lam=None, preset="default",
                  rebuild_graph="auto", orient=None, remove_outliers=False,
-                 classification=None, classes=None, fields=ondisk.RESULT_FIELDS, n_jobs=None,
-                 progress=None, scratch=None, overwrite=False, **method_params):
+                 duplicate_tolerance=0.0, classification=None, classes=None,
+                 fields=ondisk.RESULT_FIELDS, n_jobs=None, progress=None, scratch=None,
+                 overwrite=False, **method_params):
     """Denoise the points of an ``.npy``, Zarr or LAS/LAZ file into another, out of core, tile
     by tile on Dask.
 
@@ -242,6 +244,9 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
     tile_points, client, preset, iterations, orient, n_jobs, progress, **method_params
         As in :func:`denoise`; progress also hears of the passes over the file (``buckets``,
         ``tiles``) and of the output (``write``).
+    duplicate_tolerance : float
+        As in :func:`pssd_fast.denoise`: the rows at one position are merged while the file
+        is binned (each bucket holds whole positions), and take their first row's output.
     method, k, lam, rebuild_graph, remove_outliers, classification, classes
         As in :func:`denoise`: their defaults only.
     fields : sequence of str
@@ -280,6 +285,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
             remove_outliers=remove_outliers, classification=classification, classes=classes,
             **method_params))
     orient = None if orient is None else check_orient(orient)
+    duplicate_tolerance = duplicates.check_tolerance(duplicate_tolerance)
     unknown = sorted(set(fields) - set(ondisk.RESULT_FIELDS))
     if unknown:
         raise ValueError(f"unknown field(s) {', '.join(unknown)}; choose from "
@@ -300,7 +306,8 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
             # The plan may change the preset's iterations; the buckets come before it.
             first = Clock(report, 0, iterations or PRESETS[preset]["iterations"])
-            cloud = first.run("buckets", ondisk.Buckets, array, folder, tile_points)
+            cloud = first.run("buckets", ondisk.Buckets, array, folder, tile_points,
+                              duplicate_tolerance)
             n = check_distinct(cloud.shape[0], cloud.rows, None)
             given = cloud.normals
             if given is not None and orient is not None:
