@@ -23,7 +23,7 @@ import numpy as np
 from pykdtree.kdtree import KDTree
 
 import pssd_fast
-from pssd_fast import datasets
+from pssd_fast import atomic, datasets
 
 from . import report
 
@@ -126,10 +126,9 @@ def write_results(folder, stem, text, data, indent=2):
 
 
 def write_atomic(path, text):
-    """Write through a temporary file and rename, so a crash leaves no half-written result."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+    """Write ``text`` whole or not at all (:func:`pssd_fast.atomic.replacing`)."""
+    with atomic.replacing(path) as fh:
+        fh.write(text.encode())
 
 
 if __name__ == "__main__":

@@ -49,7 +49,8 @@ def _child(script, cache_dir, *args, env=None, cwd=None, wait=True):
     command = [sys.executable, "-c", script, *map(str, args)]
     cwd = PACKAGE_PARENT if cwd is None else cwd
     if not wait:
-        return subprocess.Popen(command, env=env, cwd=cwd, stdout=subprocess.PIPE, text=True)
+        return subprocess.Popen(command, env=env, cwd=cwd, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
     return subprocess.run(command, env=env, cwd=cwd, capture_output=True, text=True, check=True)
 
 
@@ -71,9 +72,9 @@ def _compile_at_once(folder, runs):
     for out in outs:
         out.mkdir()
         children.append(_child(CHILD, base, out, runs, wait=False))
-    reports = [child.communicate()[0] for child in children]
+    reports = [child.communicate() for child in children]
     assert [child.returncode for child in children] == [0, 0], reports
-    return base, [_outputs(out) for out in outs], reports
+    return base, [_outputs(out) for out in outs], [out for out, _ in reports]
 
 
 @pytest.fixture(scope="module")
@@ -88,6 +89,7 @@ def _check_warm_run(cold, runs, folder):
     assert set(cold_bytes[0]) == set(runs.split(","))
     assert cold_bytes[0] == cold_bytes[1] == _outputs(folder)
     assert sum(_compiled(report) for report in cold_reports) >= 4
+    assert all("warnings: []" in report for report in cold_reports), cold_reports
     assert _compiled(warm.stdout) == 0 and "warnings: []" in warm.stdout
     kernels, = base.glob("kernels-*")
     assert len(list((kernels / "built").iterdir())) >= 4
@@ -151,6 +153,44 @@ def test_a_cache_copied_across_cpus_is_detected_and_gives_the_same_bytes(cold, t
     assert _outputs(out) == {"mls": original[0]["mls"]}
 
 
+#: Run in a child, one of ``argv[2]`` started at once: wait until all have imported (a flag
+#: file each in ``argv[1]``), then call one small kernel on a fresh cache; print how many
+#: signatures this process compiled and a hash of the kernel's output.
+AT_ONCE = """
+import hashlib, os, sys, time
+from pathlib import Path
+import numpy as np
+from pssd_fast.jit import cache
+from pssd_fast.kernels import order
+flags, children = Path(sys.argv[1]), int(sys.argv[2])
+(flags / str(os.getpid())).touch()
+while len(list(flags.iterdir())) < children:
+    time.sleep(0.001)
+points = np.random.default_rng(0).random((1000, 3))
+codes = np.zeros(1000, np.uint64)
+order.morton_codes(points, points.min(axis=0), 2.0**20, codes)
+print(cache.stats()["compiled"], hashlib.sha256(codes.tobytes()).hexdigest())
+"""
+
+
+def test_processes_compiling_one_kernel_at_once_give_no_warning_and_the_same_bytes(tmp_path):
+    """Three processes on one empty cache call one kernel together (a cluster's workers on a
+    cold cache): none warns that the cache missed, and all compute the same bytes. Where the
+    lock exists (``fcntl``), one compiles and the others wait and load what it saved."""
+    (tmp_path / "flags").mkdir()
+    children = [_child(AT_ONCE, tmp_path / "cache", tmp_path / "flags", 3, wait=False)
+                for _ in range(3)]
+    reports = [child.communicate(timeout=300) for child in children]
+    assert [child.returncode for child in children] == [0] * 3, reports
+    assert [err for _, err in reports] == [""] * 3
+    compiled, hashes = zip(*(out.split() for out, _ in reports))
+    assert len(set(hashes)) == 1
+    if cache.fcntl is not None:
+        assert sorted(compiled) == ["0", "0", "1"]
+    kernels, = (tmp_path / "cache").glob("kernels-*")
+    assert len(list((kernels / "built").iterdir())) == 1
+
+
 def test_the_key_changes_with_any_kernel_source(tmp_path, monkeypatch):
     copy = tmp_path / "kernels"
     shutil.copytree(cache._KERNEL_DIR, copy, ignore=shutil.ignore_patterns("__pycache__"))
@@ -164,6 +204,16 @@ def test_the_key_changes_with_any_kernel_source(tmp_path, monkeypatch):
         assert cache.source_key() != before, name
         path.write_text(original)
     assert cache.source_key() == before
+
+
+@pytest.mark.parametrize("module", ["numpy", "numba", "llvmlite"])
+def test_the_key_names_the_versions_of_numpy_numba_and_llvmlite(monkeypatch, module):
+    """numpy's version decides how numba types and lowers numpy's functions, so a new numpy
+    gets a new folder like a new numba."""
+    before = cache.source_key(), cache.cache_key()
+    monkeypatch.setattr(getattr(cache, module), "__version__", "99.0.0")
+    after = cache.source_key(), cache.cache_key()
+    assert after[0] != before[0] and after[1] != before[1]
 
 
 def test_the_folder_name_changes_with_the_cpu(monkeypatch):
@@ -206,6 +256,35 @@ def test_a_process_with_nothing_writable_runs_with_one_warning(tmp_path):
               "print(len(caught), [str(w.message)[:40] for w in caught], np.isfinite(n).all())\n")
     done = _child(script, "/proc/pssd_fast_cannot_be_created")
     assert done.stdout.startswith("1 ") and done.stdout.rstrip().endswith("True"), done.stdout
+
+
+def test_the_numba_versions_tested_are_those_pyproject_pins():
+    import re
+
+    import numba
+
+    low, high = (".".join(map(str, version)) for version in cache.NUMBA_TESTED)
+    assert f'"numba>={low},<{high}"' in (PACKAGE_PARENT / "pyproject.toml").read_text()
+    assert cache.numba_tested() and cache.numba_tested(numba.__version__)
+    assert re.fullmatch(r"0\.\d+", low) and re.fullmatch(r"0\.\d+", high)
+    for version, tested in ((low, True), (f"{low}.1", True), ("0.68.1", True),
+                            (f"{high}.0", False), (f"{high}.0rc1", False), ("0.58.1", False),
+                            ("1.0.0", False), ("unknown", False)):
+        assert cache.numba_tested(version) == tested, version
+
+
+def test_a_numba_outside_the_tested_range_compiles_in_memory_with_one_warning(
+        tmp_path, monkeypatch):
+    """pip would not install such a numba next to this package, but an environment may force
+    one: the kernels still run, compiled in memory, and one warning says why."""
+    import numba
+    monkeypatch.setenv(cache.CACHE_ENV, str(tmp_path))
+    monkeypatch.setattr(numba, "__version__", "0.99.0")
+    monkeypatch.setattr(cache, "_state", {})
+    with pytest.warns(RuntimeWarning, match="numba 0.99.0 is not among") as caught:
+        assert _kernel()(2.0) == 4.0 and _kernel()(3.0) == 6.0
+    assert len(caught) == 1 and cache.stats()["folder"] is None
+    assert cache.stats()["compiled"] == 2 and list(tmp_path.iterdir()) == []  # two dispatchers
 
 
 def test_kernel_wrapper_exposes_the_dispatcher():
@@ -298,6 +377,23 @@ def test_stale_folders_of_other_keys_are_removed(tmp_path):
     assert cache.remove_stale(tmp_path, folders["kernels-keep"]) == ["kernels-old"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kernels-keep", "kernels-recent",
                                                           "other-old"]
+
+
+def test_stale_folders_go_only_when_clear_stale_is_called(tmp_path, monkeypatch):
+    """A process never removes another key's folder (a long job of an older install may be
+    using it); ``pssd_fast.jit.clear_stale()``, which the README names, does."""
+    import pssd_fast.jit
+    monkeypatch.setenv(cache.CACHE_ENV, str(tmp_path))
+    old = time.time() - (cache.STALE_DAYS + 1) * 86400
+    for name in ("kernels-old", f"kernels-{cache.cache_key()}"):
+        (tmp_path / name).mkdir()
+        os.utime(tmp_path / name, (old, old))
+    folder, persistent = cache._resolve()
+    assert persistent and sorted(p.name for p in tmp_path.iterdir()) == [
+        f"kernels-{cache.cache_key()}", "kernels-old"]
+    assert pssd_fast.jit.clear_stale() == ["kernels-old"]
+    assert [p.name for p in tmp_path.iterdir()] == [folder.name]
+    assert pssd_fast.jit.clear_stale(days=0) == []
 
 
 def test_a_process_marks_its_folder_used(tmp_path):

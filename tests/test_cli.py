@@ -247,14 +247,17 @@ def test_a_failing_write_leaves_nothing(tmp_path, cloud, monkeypatch, capsys):
     source = tmp_path / "in.xyz"
     np.savetxt(source, cloud.points)
     before = source.read_bytes()
-    real_replace = os.replace
 
-    def full_disk(src, dst):
-        if str(dst).endswith("out.ply"):
-            raise OSError(errno.ENOSPC, "No space left on device")
-        return real_replace(src, dst)
+    def full_disk(call):
+        """``call`` (the rename or the link that gives the output its name) failing on it."""
+        def failing(src, dst):
+            if str(dst).endswith("out.ply"):
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return call(src, dst)
+        return failing
 
-    monkeypatch.setattr(os, "replace", full_disk)
+    monkeypatch.setattr(os, "replace", full_disk(os.replace))
+    monkeypatch.setattr(os, "link", full_disk(os.link))
     status = cli.main(["denoise", str(source), str(tmp_path / "out.ply"), "--iterations", "1",
                        "--quiet"])
     err = capsys.readouterr().err

@@ -2,8 +2,12 @@
 
 Importing this package makes the kernel cache the kernels' loader (see
 :class:`pssd_fast.kernels.config.Kernel`); it creates no folder until the first kernel call.
+:func:`clear_stale` removes the folders of other versions and CPUs, and nothing else does.
 """
 from ..kernels.config import Kernel
 from . import cache
+from .cache import clear_stale
 
 Kernel.loader = cache.prepare
+
+__all__ = ["clear_stale"]

@@ -271,7 +271,8 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
         default only, ``fast`` on a cloud it would iterate on its points (see
         :func:`denoise`), or too few distinct positions.
     FileExistsError
-        ``destination`` exists and ``overwrite`` is False.
+        ``destination`` exists and ``overwrite`` is False: checked first, and again by the
+        final rename, which never replaces what another writer put there meanwhile.
     """
     source, destination = Path(source), Path(destination)
     kinds = {path: FILE_KINDS.get(path.suffix.lower()) for path in (source, destination)}
@@ -290,8 +291,9 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
     if unknown:
         raise ValueError(f"unknown field(s) {', '.join(unknown)}; choose from "
                          f"{', '.join(ondisk.RESULT_FIELDS)}")
+    exists = f"{destination} exists; pass overwrite=True to replace it"
     if destination.exists() and not overwrite:
-        raise FileExistsError(f"{destination} exists; pass overwrite=True to replace it")
+        raise FileExistsError(exists)
     if destination.resolve() == source.resolve():
         raise ValueError(f"the output {destination} would overwrite the input")
     array = {"npy": ondisk.NpyFile, "las": ondisk.LasFile, "zarr": ondisk.ZarrFile}[
@@ -336,7 +338,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
             clock.run("write", _write, array, output, parts, cloud.rows, dtype, folder, fields,
                       cloud.copies if cloud.duplicates else None)
             atomic.sync(output)
-            atomic.replace(output, destination)
+            atomic.replace(output, destination, overwrite=overwrite, exists_message=exists)
         records[0]["times"].update(first.times)
         records[-1]["times"].update(clock.times)
     finally:
