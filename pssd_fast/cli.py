@@ -346,6 +346,9 @@ def _run_denoise(points, normals, args, method_params, say=None, **options):
         for i, record in enumerate(result.stats["iterations"], 1):
             times = ", ".join(f"{s} {t:.3f}" for s, t in record["times"].items())
             print(f"iteration {i}: {times} (s)", file=say or sys.stdout)
+        if result.stats["outliers"] is not None:
+            print(f"outlier score: {result.stats['outliers']['seconds']:.3f} s",
+                  file=say or sys.stdout)
     return result, seconds
 
 
@@ -401,16 +404,20 @@ def _jobs(args):
     return jobs
 
 
-def _added_fields(args, result, out, had_normals):
-    """The fields ``--fields`` asks for (float32) and whether to write the new normals."""
+def _added_fields(args, result, cloud, out, say):
+    """The fields ``--fields`` asks for (float32; ``held`` uint8) and whether to write the new
+    normals. Any method's points have an outlier score, computed only when asked for
+    (docs/DECISIONS.md, "The outlier score on request")."""
     from . import io
 
     have = {"likelihood": result.likelihood, "feature_intensity": result.feature_intensity,
             "displacement": result.displacement, "outlier_score": result.outlier_score,
             "normals": result.normals, "held": result.held}
+    computes = {name for name, values in have.items() if values is not None}
+    computes.add("outlier_score")
     fmt = args.format if _is_stdio(out) else None
     if args.fields is None:
-        scalars = [n for n in DEFAULT_FIELDS if n != "normals" and have[n] is not None]
+        scalars = [n for n in DEFAULT_FIELDS if n != "normals" and n in computes]
         names = [*io.storable(out, scalars, format=fmt), "normals"]
     else:
         names = [n.strip() for n in args.fields.split(",") if n.strip()]
@@ -420,7 +427,7 @@ def _added_fields(args, result, out, had_normals):
         if unknown:
             raise CommandError(f"--fields: unknown field(s) {', '.join(unknown)}; choose from "
                                f"{', '.join(RESULT_FIELDS)} or none")
-        missing = [n for n in names if have[n] is None]
+        missing = [n for n in names if n not in computes]
         if missing:
             raise CommandError(f"--fields: method {args.method!r} computes no "
                                f"{', '.join(missing)}")
@@ -429,10 +436,29 @@ def _added_fields(args, result, out, had_normals):
         if refused:
             raise CommandError(f"--fields: {out} cannot hold {', '.join(refused)} (use .npz, "
                                f".ply, .las or text)")
+    if "outlier_score" in names and have["outlier_score"] is None:
+        have["outlier_score"] = _outlier_score(args, cloud, say)
     # ``held`` is a flag (0 or 1), the others are float32.
     fields = {n: np.asarray(have[n], dtype=np.uint8 if n == "held" else np.float32)
               for n in names if n != "normals"}
-    return fields, "normals" in names or had_normals
+    return fields, "normals" in names or cloud.normals is not None
+
+
+def _outlier_score(args, cloud, say):
+    """:func:`pssd_fast.outlier_score` of ``cloud``'s points; with ``--classes``, of the
+    chosen points among themselves (NaN elsewhere), as the run saw them."""
+    from .stages import outlier_score
+
+    started = time.perf_counter()
+    if args.classes is None:
+        score = outlier_score(cloud.points, n_jobs=args.n_jobs)
+    else:
+        chosen = np.isin(cloud.fields["classification"], args.classes)
+        score = np.full(len(cloud), np.nan)
+        score[chosen] = outlier_score(cloud.points[chosen], n_jobs=args.n_jobs)
+    if args.verbose:
+        print(f"outlier score: {time.perf_counter() - started:.3f} s", file=say)
+    return score
 
 
 def _run_tiled(points, normals, args, method_params, progress, orient, remove_outliers,
@@ -590,7 +616,7 @@ def _denoise_file(args, params, inp, out, say):
                                    **labels)
     if args.remove_outliers:
         cloud = io.select(cloud, result.kept)
-    fields, with_normals = _added_fields(args, result, out, cloud.normals is not None)
+    fields, with_normals = _added_fields(args, result, cloud, out, say)
     normals = result.normals.astype(np.float64) if with_normals else None
     io.write(out, cloud, points=result.points.astype(np.float64), normals=normals,
              fields=fields, overwrite=args.force, format=fmt if _is_stdio(out) else None)

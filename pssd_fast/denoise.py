@@ -95,17 +95,19 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         cloud's centroid, as before (docs/DECISIONS.md, "Normal orientation"). Not with
         ``normals``, whose signs are the caller's. The positions do not depend on it.
     remove_outliers : bool, default False
-        Drop the points whose ``outlier_score`` exceeds 1 before denoising; ``kept`` says
-        which input rows the result holds.
+        Drop the points whose :func:`pssd_fast.outlier_score` exceeds 1 before denoising;
+        ``kept`` says which input rows the result holds, ``outlier_score`` their scores.
+        Without it the run makes no outlier query (``pssd_fast.outlier_score(points)`` gives
+        the scores).
     classification : array_like of int, shape (n,), optional
         A class code per point, such as the LAS ``classification`` (2 ground, 6 building...);
         only with ``classes``.
     classes : iterable of int, optional
         Denoise only the points whose ``classification`` is one of these. The others are no
         point's neighbours and keep their exact coordinates (and given normals; else NaN
-        normals), NaN ``likelihood``, ``feature_intensity`` and ``outlier_score``, and zero
-        ``displacement``; ``remove_outliers`` drops outliers among the chosen points only.
-        ``stats["classes"]`` counts both. Default: every point.
+        normals), NaN ``likelihood``, ``feature_intensity`` and (with ``remove_outliers``)
+        ``outlier_score``, and zero ``displacement``; ``remove_outliers`` drops outliers among
+        the chosen points only. ``stats["classes"]`` counts both. Default: every point.
     n_jobs : int or None, default None
         Threads for the kernels: ``None`` or -1 use every thread numba may use (by default one
         per core), a positive number that many (capped at that maximum). Numba's setting is
@@ -291,10 +293,8 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         else:
             # Iterate on the cell means; the input points are projected onto them last.
             done = _cells_route(current, given, plan, request, order)
-    # A copy (in the input's dtype): the caller may change the input before the access.
     return result(Input(pts, dtype, order, groups), done, centre, kept,
-                  (pts.astype(dtype), n_jobs) if score is None
-                  else score.astype(dtype, copy=False),
+                  None if score is None else score.astype(dtype, copy=False),
                   stats(request, plan, n, distinct, n_threads, done.records,
                         int(done.held.sum()), outliers=outliers))
 
@@ -354,7 +354,7 @@ def _only_classes(points, normals, classification, classes, options):
         points=out_points, normals=out_normals, likelihood=spread(part.likelihood),
         feature_intensity=spread(part.feature_intensity),
         displacement=spread(part.displacement, 0), held=spread(part.held, False), kept=kept,
-        stats=stats, _outliers=lambda: spread(part.outlier_score))
+        outlier_score=spread(part.outlier_score), stats=stats)
 
 
 def check_classes(classification, classes, n):

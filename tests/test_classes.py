@@ -31,8 +31,7 @@ def test_only_the_named_classes_move(labelled):
     np.testing.assert_array_equal(result.points[~ground], points[~ground])
     assert np.isnan(result.normals[~ground]).all() and np.isnan(result.likelihood[~ground]).all()
     assert (result.displacement[~ground] == 0).all() and not result.held[~ground].any()
-    assert np.isnan(result.outlier_score[~ground]).all()
-    np.testing.assert_array_equal(result.outlier_score[ground], alone.outlier_score)
+    assert result.outlier_score is None and alone.outlier_score is None  # none asked for
     assert result.stats["classes"] == {"classes": [2], "denoised": int(ground.sum()),
                                        "untouched": int((~ground).sum())}
     np.testing.assert_array_equal(result.kept, np.arange(len(points)))
@@ -56,6 +55,10 @@ def test_classes_keep_given_normals_and_work_with_outlier_removal(labelled):
     np.testing.assert_array_equal(removed.kept,
                                   np.sort(np.concatenate([np.flatnonzero(one),
                                                           ground[alone.kept]])))
+    # The scores are the ground's own, NaN on the points of the other classes.
+    at = np.isin(removed.kept, ground)
+    assert np.isnan(removed.outlier_score[~at]).all()
+    np.testing.assert_array_equal(removed.outlier_score[at], alone.outlier_score)
 
 
 @pytest.mark.parametrize("kwargs, error, match", [

@@ -582,6 +582,31 @@ def test_las_normals_point_up_and_outliers_are_dropped(tmp_path):
     assert len(every.x) == 4040 and (np.asarray(every["nz"])[:4000] < 0).all()
 
 
+def test_outlier_query_only_when_its_field_is_asked_for(tmp_path, monkeypatch):
+    """``--fields none`` (or fields without it) makes no outlier query; ``outlier_score`` is
+    that of the input points, and ``--verbose`` gives its time beside the stages'."""
+    _terrain_las(tmp_path / "scan.las")
+
+    def no_query(*args, **kwargs):
+        raise AssertionError("an outlier query ran")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(pssd_fast.core, "outlier_score", no_query)
+        for fields in ("none", "displacement,normals"):
+            status, text, err = pssd("denoise", tmp_path / "scan.las", tmp_path / "out.las",
+                                     "--preset", "fast", "--fields", fields, "--verbose",
+                                     "--force")
+            assert status == 0, err
+            assert "iteration 2:" in text and "outlier score" not in text
+    status, text, err = pssd("denoise", tmp_path / "scan.las", tmp_path / "score.las",
+                             "--preset", "fast", "--fields", "outlier_score", "--verbose")
+    assert status == 0, err
+    assert "outlier score: " in text
+    points = pssd_fast.io.read(tmp_path / "scan.las").points
+    np.testing.assert_array_equal(laspy.read(tmp_path / "score.las")["outlier_score"],
+                                  pssd_fast.outlier_score(points).astype(np.float32))
+
+
 def test_orient_and_removal_errors(tmp_path, ply_with_extras):
     path, _ = ply_with_extras
     status, _, err = pssd("denoise", path, tmp_path / "out.ply", "--remove-outliers",
