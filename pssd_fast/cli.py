@@ -124,6 +124,7 @@ def _parser():
     den.add_argument("--format", default=None, metavar="FMT",
                      help="format of '-' (stdin/stdout) as an extension: xyz, csv, ply, "
                           "ply.gz, las...")
+    _add_columns(den)
     den.add_argument("--fields", default=None, metavar="LIST",
                      help=f"comma-separated fields to add: {', '.join(RESULT_FIELDS)}, or "
                           f"none (default: all the method computes but held, where the output "
@@ -192,6 +193,7 @@ def _parser():
                                       "elements (faces...) and a LAS file's version, point "
                                       "format, scale and offset.")
     info.add_argument("file", metavar="FILE", type=Path)
+    _add_columns(info)
     info.set_defaults(run=_info)
 
     render = sub.add_parser(
@@ -208,6 +210,7 @@ def _parser():
     render.add_argument("-o", "--output", type=Path, required=True,
                         help="picture to write; the format follows the extension: "
                              ".png, .jpg, .jpeg, .tif, .tiff, .webp")
+    _add_columns(render)
     render.add_argument("--color", choices=COLORS, default="height",
                         help="field to colour by (height)")
     render.add_argument("--view", type=float, nargs=2, default=(30.0, -60.0),
@@ -268,6 +271,14 @@ def _add_common(parser):
                              "default and paper, no for fast)")
     parser.add_argument("--n-jobs", "--threads", dest="n_jobs", type=int, default=None,
                         help="threads (default: all cores); the result does not depend on it")
+
+
+def _add_columns(parser):
+    parser.add_argument("--columns", default=None, metavar="LIST",
+                        help="text input: the names of its columns, comma-separated, e.g. "
+                             "x,y,z,red,green,blue (instead of its header line; without one, "
+                             "columns 4-6 of six are colours when integers, else normals when "
+                             "unit vectors)")
 
 
 def _add_size(parser):
@@ -500,8 +511,8 @@ def _on_disk(args, inp, out):
     from .tiled import ondisk
     from .tiled import FILE_KINDS
 
-    if args.tile_points is None or _is_stdio(inp) or _is_stdio(out):
-        return False
+    if args.tile_points is None or _is_stdio(inp) or _is_stdio(out) or args.columns:
+        return False  # io.read refuses --columns for these formats
     kind = FILE_KINDS.get(Path(inp).suffix.lower())
     if kind is None or kind != FILE_KINDS.get(Path(out).suffix.lower()):
         return False
@@ -598,26 +609,35 @@ def _denoise_file(args, params, inp, out, say):
         _denoise_on_disk(args, params, inp, out, say)
         return
     fmt = args.format
-    cloud = io.read(inp, format=fmt if _is_stdio(inp) else None)
-    orient = args.orient
-    if orient is None and cloud.format == "las" and cloud.normals is None:
-        orient = "up"  # aerial and terrestrial LiDAR: the ground's normals point to the sky
-    if orient is not None and cloud.normals is not None:
-        raise CommandError(f"--orient applies to estimated normals; {inp} has normals, whose "
-                           "signs are kept")
-    labels = {}
+    cloud = _read(inp, args, fmt if _is_stdio(inp) else None)
+    labels, chosen = {}, None
     if args.classes is not None:
         if "classification" not in cloud.fields:
             raise CommandError(f"--classes: {inp} has no classification field (LAS/LAZ "
                                "files have one; other formats need a 'classification' column)")
         labels = {"classification": cloud.fields["classification"], "classes": args.classes}
-    result, seconds = _run_denoise(cloud.points, cloud.normals, args, params, say,
+        chosen = np.isin(labels["classification"], args.classes)
+    given = _given_normals(cloud, inp, chosen)
+    if given is None and cloud.normals is not None and params.get("keep_normals"):
+        raise CommandError(f"--keep-normals needs a normal on every point to denoise; {inp} "
+                           f"has points without one")
+    orient = args.orient
+    if orient is None and cloud.format == "las" and given is None:
+        orient = "up"  # aerial and terrestrial LiDAR: the ground's normals point to the sky
+    if orient is not None and given is not None:
+        raise CommandError(f"--orient applies to estimated normals; {inp} has normals, whose "
+                           "signs are kept")
+    result, seconds = _run_denoise(cloud.points, given, args, params, say,
                                    orient=orient, remove_outliers=args.remove_outliers,
                                    **labels)
     if args.remove_outliers:
         cloud = io.select(cloud, result.kept)
     fields, with_normals = _added_fields(args, result, cloud, out, say)
     normals = result.normals.astype(np.float64) if with_normals else None
+    if given is None and chosen is not None and cloud.normals is not None:
+        # The points outside the classes keep the file's normals, as they keep their records.
+        untouched = ~np.isin(cloud.fields["classification"], args.classes)
+        normals[untouched] = cloud.normals[untouched]
     io.write(out, cloud, points=result.points.astype(np.float64), normals=normals,
              fields=fields, overwrite=args.force, format=fmt if _is_stdio(out) else None)
     if not args.quiet:
@@ -627,6 +647,32 @@ def _denoise_file(args, params, inp, out, say):
         print(f"{inp} -> {out}: {len(disp):,} points{removed}, method {args.method}, "
               f"{result.stats['n_iterations']} iterations, {seconds:.2f} s; displacement max "
               f"{disp.max():.4g}, mean {disp.mean():.4g}", file=say)
+
+
+def _read(path, args, fmt=None):
+    """:func:`pssd_fast.io.read` of ``path``, with the column names of ``--columns``."""
+    from . import io
+
+    return io.read(path, format=fmt, columns=args.columns)
+
+
+def _given_normals(cloud, name, rows=None):
+    """The normals of ``cloud`` for a run on its ``rows`` (a mask; default every point), or
+    None for a run that estimates them: where the file has none, or where some of those points
+    have none (a row of NaN, Inf or zeros, as ``--classes`` writes for the points outside its
+    classes), with a note (docs/DECISIONS.md, "No normal")."""
+    normals = cloud.normals
+    if normals is None:
+        return None
+    used = normals if rows is None else normals[rows]
+    missing = ~(np.isfinite(used).all(axis=1) & (np.abs(used).max(axis=1) > 0.0))
+    if not missing.any():
+        return normals
+    which = "" if rows is None else " to denoise"
+    print(f"pssd: note: {name}: {int(missing.sum()):,} of the {len(used):,} points{which} "
+          f"have no normal (NaN or zeros); every normal is estimated, none read from the file",
+          file=sys.stderr)
+    return None
 
 
 def _demo(args):
@@ -704,7 +750,7 @@ def _info(args):
 
     from . import io
 
-    cloud = io.read(args.file)
+    cloud = _read(args.file, args)
     points = cloud.points
     low, high = points.min(axis=0), points.max(axis=0)
     diagonal = np.linalg.norm(high - low)
@@ -731,27 +777,26 @@ def _vec(v, decimals):
 
 
 def _render(args):
-    from . import io
     from .pictures import render
     from .pictures.fields import field_values
     from .stages import estimate_normals
 
     _check_output(args.output, args.force)
     render.image_format(args.output)  # refuse an unknown format before the long work
-    cloud = io.read(args.file)
+    cloud = _read(args.file, args)
     points = cloud.points
+    given = _given_normals(cloud, args.file)
     up = render.choose_up(points, cloud.format == "las") if args.up == "auto" else args.up
     if args.color == "height":
         values = render.height(points, up)
     else:
         progress = _Progress(STAGE_COUNT["robust"], not args.quiet)
         try:
-            values = field_values(args.color, points, cloud.normals, cloud.fields,
+            values = field_values(args.color, points, given, cloud.fields,
                                   progress=progress, **_common_options(args))
         finally:
             progress.close()
-    normals = estimate_normals(points, n_jobs=args.n_jobs) if cloud.normals is None \
-        else cloud.normals
+    normals = estimate_normals(points, n_jobs=args.n_jobs) if given is None else given
     render.render(points, values, args.output, field=args.color, view=tuple(args.view), up=up,
                   normals=normals, title=args.file.name, size=tuple(args.size))
     if not args.quiet:

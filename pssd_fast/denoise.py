@@ -104,10 +104,11 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         only with ``classes``.
     classes : iterable of int, optional
         Denoise only the points whose ``classification`` is one of these. The others are no
-        point's neighbours and keep their exact coordinates (and given normals; else NaN
-        normals), NaN ``likelihood``, ``feature_intensity`` and (with ``remove_outliers``)
-        ``outlier_score``, and zero ``displacement``; ``remove_outliers`` drops outliers among
-        the chosen points only. ``stats["classes"]`` counts both. Default: every point.
+        point's neighbours and keep their exact coordinates (and their normals as given, NaN
+        allowed; else NaN normals), NaN ``likelihood``, ``feature_intensity`` and (with
+        ``remove_outliers``) ``outlier_score``, and zero ``displacement``; ``remove_outliers``
+        drops outliers among the chosen points only. ``stats["classes"]`` counts both.
+        Default: every point.
     n_jobs : int or None, default None
         Threads for the kernels: ``None`` or -1 use every thread numba may use (by default one
         per core), a positive number that many (capped at that maximum). Numba's setting is
@@ -328,7 +329,16 @@ def _only_classes(points, normals, classification, classes, options):
     pts, dtype = as_points(points)
     n = pts.shape[0]
     chosen, wanted = check_classes(classification, classes, n)
-    given = None if normals is None else as_normals(normals, n)
+    given = None
+    if normals is not None:
+        given = np.asarray(normals)
+        if given.shape != (n, 3):
+            as_normals(normals, n)  # names what is wrong
+        # Only the chosen points' normals are used, and checked; the others are kept as given,
+        # NaN included (as a classes run returns them where none were given).
+        used = as_normals(given[chosen], int(chosen.sum()), "normals (of the chosen classes)")
+        given = given.astype(np.float64)
+        given[chosen] = used
     part = denoise(pts[chosen], None if given is None else given[chosen], **options)
     denoised = np.flatnonzero(chosen)[part.kept]
     holds = ~chosen

@@ -412,6 +412,49 @@ def csv_lines(points, header="//X,Y,Z,R,G,B"):
     return [header, *rows], rgb
 
 
+def test_xyzrgb_keeps_its_colours(tmp_path, small):
+    """Six unnamed columns with integer colours, a black point among them: the colours come
+    out byte for byte, the coordinates moved, and a note says how the columns were read."""
+    lines, rgb = csv_lines(small, header=None)
+    lines = [line.replace(",", " ") for line in lines[1:]]
+    lines[0] = " ".join(lines[0].split()[:3] + ["0", "0", "0"])
+    (tmp_path / "six.xyz").write_text("\n".join(lines) + "\n")
+    status, text, err = pssd("denoise", tmp_path / "six.xyz", tmp_path / "out.xyz",
+                             "--iterations", "1")
+    assert status == 0, err
+    assert err.strip() == (f"pssd: note: {tmp_path / 'six.xyz'}: no column names; columns 4-6 "
+                           "read as red, green, blue (integers); name the columns to read them "
+                           "otherwise (columns=, --columns)")
+    out = (tmp_path / "out.xyz").read_text().splitlines()
+    assert out[0].split()[1:7] == ["x", "y", "z", "nx", "ny", "nz"]
+    assert out[0].split()[7:10] == ["red", "green", "blue"]
+    rows = [line.split() for line in out[1:]]
+    assert [row[6:9] for row in rows] == [line.split()[3:] for line in lines]
+    moved = np.array([row[:3] for row in rows], dtype=float)
+    assert (np.abs(moved - small).max(axis=1) > 0).mean() > 0.9
+
+
+def test_columns_option_names_text_columns(tmp_path, small):
+    """``--columns`` names the columns of a file without names, and wins over a wrong header;
+    a file of another format refuses it."""
+    lines, rgb = csv_lines(small, header="x,y,z,nx,ny,nz")
+    (tmp_path / "in.csv").write_text("\n".join(lines) + "\n")
+    status, _, err = pssd("info", tmp_path / "in.csv", "--columns", "x,y,z,r,g,b")
+    assert status == 0 and "replace those of header line 1 (x, y, z, nx, ny, nz)" in err
+    status, _, err = pssd("denoise", tmp_path / "in.csv", tmp_path / "out.csv", "--iterations",
+                          "1", "--columns", "x,y,z,red,green,blue", "--fields", "none")
+    assert status == 0, err
+    out = (tmp_path / "out.csv").read_text().splitlines()
+    assert out[0] == "x,y,z,red,green,blue"
+    assert [row.split(",")[3:] for row in out[1:]] == [list(map(str, c)) for c in rgb]
+    np.save(tmp_path / "in.npy", small)
+    status, _, err = pssd("denoise", tmp_path / "in.npy", tmp_path / "o.npy", "--columns",
+                          "x,y,z")
+    assert_one_line_error(status, err, "columns= names the columns of text files")
+    status, _, err = pssd("info", tmp_path / "in.csv", "--columns", "x,y")
+    assert_one_line_error(status, err, "the column list x,y names 2 columns but the data has 6")
+
+
 class Stdio:
     """Stands for sys.stdin / sys.stdout in-process: the data goes through ``buffer``."""
 
