@@ -124,6 +124,7 @@ def _parser():
     den.add_argument("--format", default=None, metavar="FMT",
                      help="format of '-' (stdin/stdout) as an extension: xyz, csv, ply, "
                           "ply.gz, las...")
+    _add_columns(den)
     den.add_argument("--fields", default=None, metavar="LIST",
                      help=f"comma-separated fields to add: {', '.join(RESULT_FIELDS)}, or "
                           f"none (default: all the method computes but held, where the output "
@@ -192,6 +193,7 @@ def _parser():
                                       "elements (faces...) and a LAS file's version, point "
                                       "format, scale and offset.")
     info.add_argument("file", metavar="FILE", type=Path)
+    _add_columns(info)
     info.set_defaults(run=_info)
 
     render = sub.add_parser(
@@ -208,6 +210,7 @@ def _parser():
     render.add_argument("-o", "--output", type=Path, required=True,
                         help="picture to write; the format follows the extension: "
                              ".png, .jpg, .jpeg, .tif, .tiff, .webp")
+    _add_columns(render)
     render.add_argument("--color", choices=COLORS, default="height",
                         help="field to colour by (height)")
     render.add_argument("--view", type=float, nargs=2, default=(30.0, -60.0),
@@ -272,6 +275,14 @@ def _add_common(parser):
                         help="rows in one cube of edge D (in the file's units, cubes from the "
                              "bounding box's low corner) are one position, denoised as one "
                              "point (default 0: only rows with equal coordinates)")
+
+
+def _add_columns(parser):
+    parser.add_argument("--columns", default=None, metavar="LIST",
+                        help="text input: the names of its columns, comma-separated, e.g. "
+                             "x,y,z,red,green,blue (instead of its header line; without one, "
+                             "columns 4-6 of six are colours when integers, else normals when "
+                             "unit vectors)")
 
 
 def _add_size(parser):
@@ -351,6 +362,9 @@ def _run_denoise(points, normals, args, method_params, say=None, **options):
         for i, record in enumerate(result.stats["iterations"], 1):
             times = ", ".join(f"{s} {t:.3f}" for s, t in record["times"].items())
             print(f"iteration {i}: {times} (s)", file=say or sys.stdout)
+        if result.stats["outliers"] is not None:
+            print(f"outlier score: {result.stats['outliers']['seconds']:.3f} s",
+                  file=say or sys.stdout)
     return result, seconds
 
 
@@ -406,16 +420,20 @@ def _jobs(args):
     return jobs
 
 
-def _added_fields(args, result, out, had_normals):
-    """The fields ``--fields`` asks for (float32) and whether to write the new normals."""
+def _added_fields(args, result, cloud, out, say):
+    """The fields ``--fields`` asks for (float32; ``held`` uint8) and whether to write the new
+    normals. Any method's points have an outlier score, computed only when asked for
+    (docs/DECISIONS.md, "The outlier score on request")."""
     from . import io
 
     have = {"likelihood": result.likelihood, "feature_intensity": result.feature_intensity,
             "displacement": result.displacement, "outlier_score": result.outlier_score,
             "normals": result.normals, "held": result.held}
+    computes = {name for name, values in have.items() if values is not None}
+    computes.add("outlier_score")
     fmt = args.format if _is_stdio(out) else None
     if args.fields is None:
-        scalars = [n for n in DEFAULT_FIELDS if n != "normals" and have[n] is not None]
+        scalars = [n for n in DEFAULT_FIELDS if n != "normals" and n in computes]
         names = [*io.storable(out, scalars, format=fmt), "normals"]
     else:
         names = [n.strip() for n in args.fields.split(",") if n.strip()]
@@ -425,7 +443,7 @@ def _added_fields(args, result, out, had_normals):
         if unknown:
             raise CommandError(f"--fields: unknown field(s) {', '.join(unknown)}; choose from "
                                f"{', '.join(RESULT_FIELDS)} or none")
-        missing = [n for n in names if have[n] is None]
+        missing = [n for n in names if n not in computes]
         if missing:
             raise CommandError(f"--fields: method {args.method!r} computes no "
                                f"{', '.join(missing)}")
@@ -434,10 +452,29 @@ def _added_fields(args, result, out, had_normals):
         if refused:
             raise CommandError(f"--fields: {out} cannot hold {', '.join(refused)} (use .npz, "
                                f".ply, .las or text)")
+    if "outlier_score" in names and have["outlier_score"] is None:
+        have["outlier_score"] = _outlier_score(args, cloud, say)
     # ``held`` is a flag (0 or 1), the others are float32.
     fields = {n: np.asarray(have[n], dtype=np.uint8 if n == "held" else np.float32)
               for n in names if n != "normals"}
-    return fields, "normals" in names or had_normals
+    return fields, "normals" in names or cloud.normals is not None
+
+
+def _outlier_score(args, cloud, say):
+    """:func:`pssd_fast.outlier_score` of ``cloud``'s points; with ``--classes``, of the
+    chosen points among themselves (NaN elsewhere), as the run saw them."""
+    from .stages import outlier_score
+
+    started = time.perf_counter()
+    if args.classes is None:
+        score = outlier_score(cloud.points, n_jobs=args.n_jobs)
+    else:
+        chosen = np.isin(cloud.fields["classification"], args.classes)
+        score = np.full(len(cloud), np.nan)
+        score[chosen] = outlier_score(cloud.points[chosen], n_jobs=args.n_jobs)
+    if args.verbose:
+        print(f"outlier score: {time.perf_counter() - started:.3f} s", file=say)
+    return score
 
 
 def _run_tiled(points, normals, args, method_params, progress, orient, remove_outliers,
@@ -480,8 +517,8 @@ def _on_disk(args, inp, out):
     from .tiled import ondisk
     from .tiled import FILE_KINDS
 
-    if args.tile_points is None or _is_stdio(inp) or _is_stdio(out):
-        return False
+    if args.tile_points is None or _is_stdio(inp) or _is_stdio(out) or args.columns:
+        return False  # io.read refuses --columns for these formats
     kind = FILE_KINDS.get(Path(inp).suffix.lower())
     if kind is None or kind != FILE_KINDS.get(Path(out).suffix.lower()):
         return False
@@ -579,26 +616,35 @@ def _denoise_file(args, params, inp, out, say):
         _denoise_on_disk(args, params, inp, out, say)
         return
     fmt = args.format
-    cloud = io.read(inp, format=fmt if _is_stdio(inp) else None)
-    orient = args.orient
-    if orient is None and cloud.format == "las" and cloud.normals is None:
-        orient = "up"  # aerial and terrestrial LiDAR: the ground's normals point to the sky
-    if orient is not None and cloud.normals is not None:
-        raise CommandError(f"--orient applies to estimated normals; {inp} has normals, whose "
-                           "signs are kept")
-    labels = {}
+    cloud = _read(inp, args, fmt if _is_stdio(inp) else None)
+    labels, chosen = {}, None
     if args.classes is not None:
         if "classification" not in cloud.fields:
             raise CommandError(f"--classes: {inp} has no classification field (LAS/LAZ "
                                "files have one; other formats need a 'classification' column)")
         labels = {"classification": cloud.fields["classification"], "classes": args.classes}
-    result, seconds = _run_denoise(cloud.points, cloud.normals, args, params, say,
+        chosen = np.isin(labels["classification"], args.classes)
+    given = _given_normals(cloud, inp, chosen)
+    if given is None and cloud.normals is not None and params.get("keep_normals"):
+        raise CommandError(f"--keep-normals needs a normal on every point to denoise; {inp} "
+                           f"has points without one")
+    orient = args.orient
+    if orient is None and cloud.format == "las" and given is None:
+        orient = "up"  # aerial and terrestrial LiDAR: the ground's normals point to the sky
+    if orient is not None and given is not None:
+        raise CommandError(f"--orient applies to estimated normals; {inp} has normals, whose "
+                           "signs are kept")
+    result, seconds = _run_denoise(cloud.points, given, args, params, say,
                                    orient=orient, remove_outliers=args.remove_outliers,
                                    **labels)
     if args.remove_outliers:
         cloud = io.select(cloud, result.kept)
-    fields, with_normals = _added_fields(args, result, out, cloud.normals is not None)
+    fields, with_normals = _added_fields(args, result, cloud, out, say)
     normals = result.normals.astype(np.float64) if with_normals else None
+    if given is None and chosen is not None and cloud.normals is not None:
+        # The points outside the classes keep the file's normals, as they keep their records.
+        untouched = ~np.isin(cloud.fields["classification"], args.classes)
+        normals[untouched] = cloud.normals[untouched]
     io.write(out, cloud, points=result.points.astype(np.float64), normals=normals,
              fields=fields, overwrite=args.force, format=fmt if _is_stdio(out) else None)
     if not args.quiet:
@@ -608,6 +654,32 @@ def _denoise_file(args, params, inp, out, say):
         print(f"{inp} -> {out}: {len(disp):,} points{removed}, method {args.method}, "
               f"{result.stats['n_iterations']} iterations, {seconds:.2f} s; displacement max "
               f"{disp.max():.4g}, mean {disp.mean():.4g}", file=say)
+
+
+def _read(path, args, fmt=None):
+    """:func:`pssd_fast.io.read` of ``path``, with the column names of ``--columns``."""
+    from . import io
+
+    return io.read(path, format=fmt, columns=args.columns)
+
+
+def _given_normals(cloud, name, rows=None):
+    """The normals of ``cloud`` for a run on its ``rows`` (a mask; default every point), or
+    None for a run that estimates them: where the file has none, or where some of those points
+    have none (a row of NaN, Inf or zeros, as ``--classes`` writes for the points outside its
+    classes), with a note (docs/DECISIONS.md, "No normal")."""
+    normals = cloud.normals
+    if normals is None:
+        return None
+    used = normals if rows is None else normals[rows]
+    missing = ~(np.isfinite(used).all(axis=1) & (np.abs(used).max(axis=1) > 0.0))
+    if not missing.any():
+        return normals
+    which = "" if rows is None else " to denoise"
+    print(f"pssd: note: {name}: {int(missing.sum()):,} of the {len(used):,} points{which} "
+          f"have no normal (NaN or zeros); every normal is estimated, none read from the file",
+          file=sys.stderr)
+    return None
 
 
 def _demo(args):
@@ -685,7 +757,7 @@ def _info(args):
 
     from . import io
 
-    cloud = io.read(args.file)
+    cloud = _read(args.file, args)
     points = cloud.points
     low, high = points.min(axis=0), points.max(axis=0)
     diagonal = np.linalg.norm(high - low)
@@ -712,27 +784,26 @@ def _vec(v, decimals):
 
 
 def _render(args):
-    from . import io
     from .pictures import render
     from .pictures.fields import field_values
     from .stages import estimate_normals
 
     _check_output(args.output, args.force)
     render.image_format(args.output)  # refuse an unknown format before the long work
-    cloud = io.read(args.file)
+    cloud = _read(args.file, args)
     points = cloud.points
+    given = _given_normals(cloud, args.file)
     up = render.choose_up(points, cloud.format == "las") if args.up == "auto" else args.up
     if args.color == "height":
         values = render.height(points, up)
     else:
         progress = _Progress(STAGE_COUNT["robust"], not args.quiet)
         try:
-            values = field_values(args.color, points, cloud.normals, cloud.fields,
+            values = field_values(args.color, points, given, cloud.fields,
                                   progress=progress, **_common_options(args))
         finally:
             progress.close()
-    normals = estimate_normals(points, n_jobs=args.n_jobs) if cloud.normals is None \
-        else cloud.normals
+    normals = estimate_normals(points, n_jobs=args.n_jobs) if given is None else given
     render.render(points, values, args.output, field=args.color, view=tuple(args.view), up=up,
                   normals=normals, title=args.file.name, size=tuple(args.size))
     if not args.quiet:

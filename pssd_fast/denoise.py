@@ -96,8 +96,10 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         cloud's centroid, as before (docs/DECISIONS.md, "Normal orientation"). Not with
         ``normals``, whose signs are the caller's. The positions do not depend on it.
     remove_outliers : bool, default False
-        Drop the points whose ``outlier_score`` exceeds 1 before denoising; ``kept`` says
-        which input rows the result holds.
+        Drop the points whose :func:`pssd_fast.outlier_score` exceeds 1 before denoising;
+        ``kept`` says which input rows the result holds, ``outlier_score`` their scores.
+        Without it the run makes no outlier query (``pssd_fast.outlier_score(points)`` gives
+        the scores).
     duplicate_tolerance : float, default 0.0
         Which rows are one position, denoised as one point: the first of them stands for all
         and every row takes its result, with its own ``displacement`` (docs/ALGORITHM.md,
@@ -112,10 +114,11 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         only with ``classes``.
     classes : iterable of int, optional
         Denoise only the points whose ``classification`` is one of these. The others are no
-        point's neighbours and keep their exact coordinates (and given normals; else NaN
-        normals), NaN ``likelihood``, ``feature_intensity`` and ``outlier_score``, and zero
-        ``displacement``; ``remove_outliers`` drops outliers among the chosen points only.
-        ``stats["classes"]`` counts both. Default: every point.
+        point's neighbours and keep their exact coordinates (and their normals as given, NaN
+        allowed; else NaN normals), NaN ``likelihood``, ``feature_intensity`` and (with
+        ``remove_outliers``) ``outlier_score``, and zero ``displacement``; ``remove_outliers``
+        drops outliers among the chosen points only. ``stats["classes"]`` counts both.
+        Default: every point.
     n_jobs : int or None, default None
         Threads for the kernels: ``None`` or -1 use every thread numba may use (by default one
         per core), a positive number that many (capped at that maximum). Numba's setting is
@@ -303,10 +306,8 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         else:
             # Iterate on the cell means; the input points are projected onto them last.
             done = _cells_route(current, given, plan, request, order)
-    # A copy (in the input's dtype): the caller may change the input before the access.
     return result(Input(pts, dtype, order, groups), done, centre, kept,
-                  (pts.astype(dtype), n_jobs) if score is None
-                  else score.astype(dtype, copy=False),
+                  None if score is None else score.astype(dtype, copy=False),
                   stats(request, plan, n, distinct, n_threads, done.records,
                         int(done.held.sum()), outliers=outliers))
 
@@ -340,7 +341,16 @@ def _only_classes(points, normals, classification, classes, options):
     pts, dtype = as_points(points)
     n = pts.shape[0]
     chosen, wanted = check_classes(classification, classes, n)
-    given = None if normals is None else as_normals(normals, n)
+    given = None
+    if normals is not None:
+        given = np.asarray(normals)
+        if given.shape != (n, 3):
+            as_normals(normals, n)  # names what is wrong
+        # Only the chosen points' normals are used, and checked; the others are kept as given,
+        # NaN included (as a classes run returns them where none were given).
+        used = as_normals(given[chosen], int(chosen.sum()), "normals (of the chosen classes)")
+        given = given.astype(np.float64)
+        given[chosen] = used
     part = denoise(pts[chosen], None if given is None else given[chosen], **options)
     denoised = np.flatnonzero(chosen)[part.kept]
     holds = ~chosen
@@ -366,7 +376,7 @@ def _only_classes(points, normals, classification, classes, options):
         points=out_points, normals=out_normals, likelihood=spread(part.likelihood),
         feature_intensity=spread(part.feature_intensity),
         displacement=spread(part.displacement, 0), held=spread(part.held, False), kept=kept,
-        stats=stats, _outliers=lambda: spread(part.outlier_score))
+        outlier_score=spread(part.outlier_score), stats=stats)
 
 
 def check_classes(classification, classes, n):

@@ -1,7 +1,6 @@
 """A run once its parameters are resolved: the iterations of a pipeline's step, and what it
 returns in the caller's order. :func:`pssd_fast.denoise` and the tiled runs
 (:mod:`pssd_fast.tiled`) share it, so that both give the same bits and the same ``stats``."""
-import functools
 import time
 from dataclasses import dataclass, field
 from typing import Callable, NamedTuple, Optional
@@ -44,11 +43,12 @@ class DenoiseResult:
         points, in any iteration; on the cell means of the coarse-to-fine route, in the last
         step onto their fits). ``stats["held_points"]`` counts them (docs/DECISIONS.md, "No
         point flung").
-    outlier_score : (n,) ndarray
-        :func:`pssd_fast.outlier_score` of the input points (before any iteration, ``k = 64``);
-        above 1: flagged as an outlier. Computed on first access (a query of 64 neighbours,
-        about 2-4 times the run's cheapest kNN query), unless ``remove_outliers=True`` needed
-        it already.
+    outlier_score : (n,) ndarray or None
+        With ``remove_outliers=True``: :func:`pssd_fast.outlier_score` of the input points
+        (before any iteration, ``k = 64``) that the run computed to drop those above 1. Else
+        None: the run makes no outlier query and keeps no copy of the input for one;
+        ``pssd_fast.outlier_score(points)`` gives it (docs/DECISIONS.md, "The outlier score
+        on request").
     kept : (n,) int64 ndarray
         Rows of the input that the other arrays hold, in increasing order: every row, or with
         ``remove_outliers=True`` those scoring at most 1 (so ``points[kept]`` is what was
@@ -75,20 +75,9 @@ class DenoiseResult:
     feature_intensity: Optional[np.ndarray]
     displacement: np.ndarray
     held: np.ndarray
+    outlier_score: Optional[np.ndarray]
     kept: np.ndarray
     stats: dict = field(repr=False)
-    # The score once known, else what computes it: the input rows the result holds and n_jobs,
-    # or a function.
-    _outliers: object = field(default=None, repr=False, compare=False)
-
-    @functools.cached_property
-    def outlier_score(self):
-        if isinstance(self._outliers, np.ndarray):
-            return self._outliers
-        if callable(self._outliers):
-            return self._outliers()
-        points, n_jobs = self._outliers
-        return outlier_scores(points, n_jobs)
 
 
 def outlier_scores(points, n_jobs, k=core.OUTLIER_K):
@@ -231,10 +220,11 @@ class Input(NamedTuple):
     groups: Optional[np.ndarray]
 
 
-def result(rows, done, centre, kept, outliers, stats):
+def result(rows, done, centre, kept, score, stats):
     """The :class:`DenoiseResult` of a run on the input ``rows`` (:class:`Input`), whose
     outputs ``done`` (:class:`Iterated`) are in the order of ``rows.order`` and
-    ``rows.groups``, relative to ``centre``; ``outliers``: the scores or what computes them."""
+    ``rows.groups``, relative to ``centre``; ``score``: the outlier scores of the ``kept``
+    rows, or None."""
     pts, dtype, order, groups = rows
     shift = _to_caller_order(done.points, order, groups)
     points = shift + centre
@@ -253,7 +243,7 @@ def result(rows, done, centre, kept, outliers, stats):
         feature_intensity=feat,
         displacement=displacement.astype(dtype, copy=False),
         held=_to_caller_order(done.held, order, groups),
-        _outliers=outliers,
+        outlier_score=score,
         kept=kept,
         stats=stats,
     )

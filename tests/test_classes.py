@@ -31,8 +31,7 @@ def test_only_the_named_classes_move(labelled):
     np.testing.assert_array_equal(result.points[~ground], points[~ground])
     assert np.isnan(result.normals[~ground]).all() and np.isnan(result.likelihood[~ground]).all()
     assert (result.displacement[~ground] == 0).all() and not result.held[~ground].any()
-    assert np.isnan(result.outlier_score[~ground]).all()
-    np.testing.assert_array_equal(result.outlier_score[ground], alone.outlier_score)
+    assert result.outlier_score is None and alone.outlier_score is None  # none asked for
     assert result.stats["classes"] == {"classes": [2], "denoised": int(ground.sum()),
                                        "untouched": int((~ground).sum())}
     np.testing.assert_array_equal(result.kept, np.arange(len(points)))
@@ -56,6 +55,69 @@ def test_classes_keep_given_normals_and_work_with_outlier_removal(labelled):
     np.testing.assert_array_equal(removed.kept,
                                   np.sort(np.concatenate([np.flatnonzero(one),
                                                           ground[alone.kept]])))
+    # The scores are the ground's own, NaN on the points of the other classes.
+    at = np.isin(removed.kept, ground)
+    assert np.isnan(removed.outlier_score[~at]).all()
+    np.testing.assert_array_equal(removed.outlier_score[at], alone.outlier_score)
+
+
+def test_normals_outside_the_classes_are_kept_as_given(labelled):
+    """The points outside the classes keep their normals as given, NaN included (as a classes
+    run returns them); only the chosen points' normals are checked."""
+    points, labels = labelled
+    one = labels == 1
+    normals = np.tile([0.0, 0.0, 2.0], (len(points), 1))
+    normals[one] = np.nan
+    normals[np.flatnonzero(one)[0]] = [3.0, 0.0, 0.0]
+    result = pssd_fast.denoise(points, normals, classification=labels, classes=[2],
+                               iterations=1, select_scales=False)
+    np.testing.assert_array_equal(result.normals[one], normals[one])
+    assert np.isfinite(result.normals[~one]).all()
+    normals[np.flatnonzero(~one)[0]] = np.nan
+    with pytest.raises(ValueError, match=r"normals \(of the chosen classes\) contains NaN or "
+                                         r"Inf in 1 row"):
+        pssd_fast.denoise(points, normals, classification=labels, classes=[2])
+
+
+@pytest.mark.parametrize("ext", [".las", ".ply", ".xyz"])
+def test_a_classes_output_denoises_and_renders_again(tmp_path, labelled, ext):
+    """What ``--classes`` writes (NaN normals outside the classes) reads back: denoised again
+    whole (every normal estimated, after a note), with the same classes, with the other class
+    (whose points keep the file's normals) and drawn."""
+    if ext != ".xyz":
+        pytest.importorskip({".las": "laspy", ".ply": "plyfile"}[ext])
+    from pssd_fast import io
+
+    points, labels = labelled
+    source = tmp_path / f"in{ext}"
+    io.write(source, io.PointCloud(points, None, {"classification": labels}))
+    fast = ("--preset", "fast", "--iterations", "1", "--quiet")
+    first = tmp_path / f"first{ext}"
+    status, _, err = pssd("denoise", source, first, "--classes", "2", *fast)
+    assert status == 0, err
+    written = io.read(first)
+    one = written.fields["classification"] == 1
+    assert np.isnan(written.normals[one]).all() and np.isfinite(written.normals[~one]).all()
+    note = "have no normal (NaN or zeros); every normal is estimated, none read from the file"
+    for name, extra, warned in (("whole", (), True), ("again", ("--classes", "2"), False),
+                                ("other", ("--classes", "1"), True)):
+        out = tmp_path / f"{name}{ext}"
+        status, _, err = pssd("denoise", first, out, *extra, *fast)
+        assert status == 0, err
+        assert (note in err) == warned, err
+        normals = io.read(out).normals
+        if name == "again":
+            assert np.isnan(normals[one]).all() and np.isfinite(normals[~one]).all()
+        else:
+            assert np.isfinite(normals).all()
+        if name == "other":  # the ground keeps the normals of the first run
+            np.testing.assert_array_equal(normals[~one], written.normals[~one])
+    if ext == ".las":
+        pytest.importorskip("matplotlib")
+        status, _, err = pssd("render", first, "-o", tmp_path / "first.png", "--size", "200",
+                              "150", "--quiet")
+        assert status == 0 and note in err, err
+        assert (tmp_path / "first.png").stat().st_size > 0
 
 
 @pytest.mark.parametrize("kwargs, error, match", [

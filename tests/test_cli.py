@@ -417,6 +417,49 @@ def csv_lines(points, header="//X,Y,Z,R,G,B"):
     return [header, *rows], rgb
 
 
+def test_xyzrgb_keeps_its_colours(tmp_path, small):
+    """Six unnamed columns with integer colours, a black point among them: the colours come
+    out byte for byte, the coordinates moved, and a note says how the columns were read."""
+    lines, rgb = csv_lines(small, header=None)
+    lines = [line.replace(",", " ") for line in lines[1:]]
+    lines[0] = " ".join(lines[0].split()[:3] + ["0", "0", "0"])
+    (tmp_path / "six.xyz").write_text("\n".join(lines) + "\n")
+    status, text, err = pssd("denoise", tmp_path / "six.xyz", tmp_path / "out.xyz",
+                             "--iterations", "1")
+    assert status == 0, err
+    assert err.strip() == (f"pssd: note: {tmp_path / 'six.xyz'}: no column names; columns 4-6 "
+                           "read as red, green, blue (integers); name the columns to read them "
+                           "otherwise (columns=, --columns)")
+    out = (tmp_path / "out.xyz").read_text().splitlines()
+    assert out[0].split()[1:7] == ["x", "y", "z", "nx", "ny", "nz"]
+    assert out[0].split()[7:10] == ["red", "green", "blue"]
+    rows = [line.split() for line in out[1:]]
+    assert [row[6:9] for row in rows] == [line.split()[3:] for line in lines]
+    moved = np.array([row[:3] for row in rows], dtype=float)
+    assert (np.abs(moved - small).max(axis=1) > 0).mean() > 0.9
+
+
+def test_columns_option_names_text_columns(tmp_path, small):
+    """``--columns`` names the columns of a file without names, and wins over a wrong header;
+    a file of another format refuses it."""
+    lines, rgb = csv_lines(small, header="x,y,z,nx,ny,nz")
+    (tmp_path / "in.csv").write_text("\n".join(lines) + "\n")
+    status, _, err = pssd("info", tmp_path / "in.csv", "--columns", "x,y,z,r,g,b")
+    assert status == 0 and "replace those of header line 1 (x, y, z, nx, ny, nz)" in err
+    status, _, err = pssd("denoise", tmp_path / "in.csv", tmp_path / "out.csv", "--iterations",
+                          "1", "--columns", "x,y,z,red,green,blue", "--fields", "none")
+    assert status == 0, err
+    out = (tmp_path / "out.csv").read_text().splitlines()
+    assert out[0] == "x,y,z,red,green,blue"
+    assert [row.split(",")[3:] for row in out[1:]] == [list(map(str, c)) for c in rgb]
+    np.save(tmp_path / "in.npy", small)
+    status, _, err = pssd("denoise", tmp_path / "in.npy", tmp_path / "o.npy", "--columns",
+                          "x,y,z")
+    assert_one_line_error(status, err, "columns= names the columns of text files")
+    status, _, err = pssd("info", tmp_path / "in.csv", "--columns", "x,y")
+    assert_one_line_error(status, err, "the column list x,y names 2 columns but the data has 6")
+
+
 class Stdio:
     """Stands for sys.stdin / sys.stdout in-process: the data goes through ``buffer``."""
 
@@ -585,6 +628,31 @@ def test_las_normals_point_up_and_outliers_are_dropped(tmp_path):
     every = laspy.read(str(tmp_path / "all.las"))
     # The terrain faces the viewpoint below it; the 40 scattered points have no surface.
     assert len(every.x) == 4040 and (np.asarray(every["nz"])[:4000] < 0).all()
+
+
+def test_outlier_query_only_when_its_field_is_asked_for(tmp_path, monkeypatch):
+    """``--fields none`` (or fields without it) makes no outlier query; ``outlier_score`` is
+    that of the input points, and ``--verbose`` gives its time beside the stages'."""
+    _terrain_las(tmp_path / "scan.las")
+
+    def no_query(*args, **kwargs):
+        raise AssertionError("an outlier query ran")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(pssd_fast.core, "outlier_score", no_query)
+        for fields in ("none", "displacement,normals"):
+            status, text, err = pssd("denoise", tmp_path / "scan.las", tmp_path / "out.las",
+                                     "--preset", "fast", "--fields", fields, "--verbose",
+                                     "--force")
+            assert status == 0, err
+            assert "iteration 2:" in text and "outlier score" not in text
+    status, text, err = pssd("denoise", tmp_path / "scan.las", tmp_path / "score.las",
+                             "--preset", "fast", "--fields", "outlier_score", "--verbose")
+    assert status == 0, err
+    assert "outlier score: " in text
+    points = pssd_fast.io.read(tmp_path / "scan.las").points
+    np.testing.assert_array_equal(laspy.read(tmp_path / "score.las")["outlier_score"],
+                                  pssd_fast.outlier_score(points).astype(np.float32))
 
 
 def test_orient_and_removal_errors(tmp_path, ply_with_extras):

@@ -1,7 +1,9 @@
 """pssd_fast.io formats: CSV and headers, integer columns, PTS, OBJ, gzip and
 stdin/stdout."""
+import contextlib
 import gzip
 import io
+import warnings
 
 import numpy as np
 import pytest
@@ -51,11 +53,12 @@ def test_separators_and_header_variants(tmp_path, sep, header):
     lines = rows(PTS, RGB, sep=sep)
     if header is not None:
         lines.insert(0, header.format(s=sep.strip() or sep))
-    cloud = pio.read(write_text(tmp_path / "a.txt", lines))
+    # Without names, three integer columns after x y z are colours, and a note says so.
+    with (pytest.warns(pio.PointCloudWarning, match=r"columns 4-6 read as red, green, blue "
+                                                    r"\(integers\)")
+          if header is None else contextlib.nullcontext()):
+        cloud = pio.read(write_text(tmp_path / "a.txt", lines))
     np.testing.assert_array_equal(cloud.points, PTS)
-    if header is None:  # six unnamed columns are points and normals
-        np.testing.assert_array_equal(cloud.normals, RGB)
-        return
     names = ["red", "green", "blue"]
     assert cloud.normals is None
     assert list(cloud.fields) == names
@@ -130,6 +133,92 @@ def test_sixteen_bit_colours_and_big_integers(tmp_path):
     assert cloud.fields["red"].dtype == np.uint16
     assert cloud.fields["id"].dtype == np.int64
     np.testing.assert_array_equal(cloud.fields["id"], big)
+
+
+# ---------------------------------------------------------------------------------------------
+# Six unnamed columns, and names given
+
+
+UNIT = NRM / np.linalg.norm(NRM, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("columns, expected, why", [
+    # The issue's line, and a black point: integers are colours, written back as integers.
+    (np.array([[96, 133, 142], [0, 0, 0], [255, 255, 255], [1, 2, 3], [0, 0, 1]]),
+     ["red", "green", "blue"], "integers"),
+    (UNIT, ["nx", "ny", "nz"], "unit vectors"),
+    # Within 5% of unit length (two decimals), or no normal at all (NaN, zeros).
+    (np.vstack([np.round(UNIT[:3], 2), [np.nan] * 3, [0.0] * 3]), ["nx", "ny", "nz"],
+     "unit vectors"),
+    # Integers that no colour has (negative) but unit length: normals.
+    (np.array([[0, 0, -1], [0, 1, 0], [1, 0, 0], [0, 0, 1], [-1, 0, 0]]),
+     ["nx", "ny", "nz"], "unit vectors"),
+    # Float colours in [0, 1] and other floats: plain fields, kept as read.
+    (np.array([[0.5, 0.2, 0.1], [0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.3, 0.3, 0.3],
+               [0.9, 0.1, 0.1]]), ["col3", "col4", "col5"], "neither"),
+    (UNIT * 1.2, ["col3", "col4", "col5"], "neither"),
+])
+def test_six_unnamed_columns(tmp_path, columns, expected, why):
+    path = write_text(tmp_path / "a.xyz", rows(PTS, columns))
+    with pytest.warns(pio.PointCloudWarning, match=rf"a\.xyz: no column names; columns 4-6 "
+                                                   rf"read as {', '.join(expected)} \({why}"):
+        cloud = pio.read(path)
+    np.testing.assert_array_equal(cloud.points, PTS)
+    if expected[0] == "nx":
+        np.testing.assert_array_equal(cloud.normals, columns)
+        assert cloud.fields == {}
+        return
+    assert cloud.normals is None and list(cloud.fields) == expected
+    for i, name in enumerate(expected):
+        np.testing.assert_array_equal(cloud.fields[name], columns[:, i])
+    if why == "integers":
+        assert cloud.fields["red"].dtype == np.uint8
+        pio.write(tmp_path / "b.xyz", cloud)
+        out = (tmp_path / "b.xyz").read_text().splitlines()
+        assert out[0] == "# x y z red green blue"
+        assert [line.split()[3:] for line in out[1:]] == [r.split()[3:] for r in rows(PTS,
+                                                                                     columns)]
+
+
+def test_columns_name_the_columns(tmp_path):
+    """Names given read a file without names without a note, win over a header line (with a
+    note where they differ), and are checked like a header line."""
+    lines = rows(PTS, RGB)
+    path = write_text(tmp_path / "a.xyz", lines)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        cloud = pio.read(path, columns="X,Y,Z,r,g,b")
+        same = pio.read(write_text(tmp_path / "h.xyz", ["# x y z red green blue", *lines]),
+                        columns=["x", "y", "z", "red", "green", "blue"])
+    for read in (cloud, same):
+        assert read.normals is None and list(read.fields) == ["red", "green", "blue"]
+        np.testing.assert_array_equal(read.fields["green"], RGB[:, 1])
+    wrong = write_text(tmp_path / "b.csv", ["x,y,z,nx,ny,nz", *rows(PTS, RGB, sep=",")])
+    with pytest.warns(pio.PointCloudWarning, match=r"b\.csv: the column names given \(x, y, z, "
+                                                   r"red, green, blue\) replace those of header "
+                                                   r"line 1 \(x, y, z, nx, ny, nz\)"):
+        fixed = pio.read(wrong, columns="x,y,z,red,green,blue")
+    assert fixed.normals is None and fixed.fields["red"].dtype == np.uint8
+    pio.write(tmp_path / "c.csv", fixed)
+    assert (tmp_path / "c.csv").read_text().splitlines()[0] == "x,y,z,red,green,blue"
+    # A bare header line that names nothing is replaced, not refused.
+    odd = write_text(tmp_path / "d.xyz", ["a b c d e f", *lines])
+    with pytest.warns(pio.PointCloudWarning, match="replace those of header line 1 "
+                                                   r"\(a b c d e f\)"):
+        assert list(pio.read(odd, columns="x,y,z,i,j,k").fields) == ["intensity", "j", "k"]
+    for columns, error, match in (
+            ("x,y,z", PointCloudFileError, "the column list x,y,z names 3 columns but the data "
+                                           "has 6"),
+            ("x,y,z,r,r,g", PointCloudFileError, r"names columns \['red'\] more than once"),
+            ("a,b,c,d,e,f", PointCloudFileError, "names no x, y and z columns"),
+            (3, TypeError, "comma-separated string or a sequence of strings"),
+            (["x", "y", 3], TypeError, "sequence of strings")):
+        with pytest.raises(error, match=match):
+            pio.read(path, columns=columns)
+    np.save(tmp_path / "e.npy", PTS)
+    with pytest.raises(PointCloudFileError, match=r"e\.npy: columns= names the columns of text "
+                                                  r"files"):
+        pio.read(tmp_path / "e.npy", columns="x,y,z")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -266,15 +355,17 @@ class Stdio:
 
 
 def test_stdin_and_stdout(monkeypatch):
-    monkeypatch.setattr("sys.stdin", Stdio("\n".join(rows(PTS, RGB, sep=",")).encode()))
-    cloud = pio.read("-", format="csv")
+    monkeypatch.setattr("sys.stdin", Stdio("\n".join(rows(PTS, NRM, sep=",")).encode()))
+    with pytest.warns(pio.PointCloudWarning, match="<stdin>: no column names; columns 4-6 "
+                                                   "read as col3, col4, col5"):
+        cloud = pio.read("-", format="csv")
     np.testing.assert_array_equal(cloud.points, PTS)
     assert cloud.source.path is None
     out = Stdio()
     monkeypatch.setattr("sys.stdout", out)
     assert pio.write("-", cloud, format=".xyz.gz") == "-"
     text = gzip.decompress(out.buffer.getvalue()).decode()
-    assert text.splitlines()[0] == "# x y z nx ny nz"
+    assert text.splitlines()[0] == "# x y z col3 col4 col5"
     with pytest.raises(PointCloudFileError, match=r"<stdin>: reading or writing '-' needs a "
                                                   r"format"):
         pio.read("-")

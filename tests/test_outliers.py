@@ -1,5 +1,7 @@
 """The outlier score: kernel against the reference, and removal on generated shapes
 with 2% uniform outliers (a small version of benchmarks/outliers.py)."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -49,15 +51,26 @@ def test_removal_on_generated_shapes(name):
     assert error <= 1.05 * cloud.surface_distance(clean.points).mean()
 
 
-def test_score_and_kept_without_removal():
+def _no_outlier_query(*args, **kwargs):
+    raise AssertionError("an outlier query ran")
+
+
+def test_score_and_kept_without_removal(monkeypatch):
+    """Without ``remove_outliers`` a run makes no outlier query and keeps no copy of the
+    input for one; with it, the result holds the scores of the rows it kept."""
     points, n_surface = with_outliers(datasets.sphere(5000, noise=0.0025, seed=0))
-    result = pssd_fast.denoise(points, preset="fast")
+    with monkeypatch.context() as patch:
+        patch.setattr(pssd_fast.core, "outlier_score", _no_outlier_query)
+        result = pssd_fast.denoise(points, preset="fast")
     np.testing.assert_array_equal(result.kept, np.arange(len(points)))
-    assert result.stats["outliers"] is None  # not computed until asked for
-    np.testing.assert_array_equal(result.outlier_score, pssd_fast.outlier_score(points))
-    assert result.outlier_score is result.outlier_score  # computed once
+    assert result.stats["outliers"] is None and result.outlier_score is None
+    assert [f.name for f in dataclasses.fields(result)] == [
+        "points", "normals", "likelihood", "feature_intensity", "displacement", "held",
+        "outlier_score", "kept", "stats"]
+    score = pssd_fast.outlier_score(points)
     removed = pssd_fast.denoise(points, preset="fast", remove_outliers=True)
-    np.testing.assert_array_equal(removed.kept, np.flatnonzero(result.outlier_score <= 1.0))
+    np.testing.assert_array_equal(removed.kept, np.flatnonzero(score <= 1.0))
+    np.testing.assert_array_equal(removed.outlier_score, score[removed.kept])
     np.testing.assert_array_equal(removed.points,
                                   pssd_fast.denoise(points[removed.kept], preset="fast").points)
     assert removed.stats["outliers"]["removed"] == len(points) - len(removed.kept) > 0

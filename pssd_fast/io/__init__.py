@@ -53,13 +53,8 @@ import numpy as np
 
 from . import las, npy, obj, ply, text
 from ._common import (COORDS, NORMALS, PointCloud, PointCloudFileError,
-                      PointCloudFileNotFoundError, Source, as_array, as_fields, atomic_write,
-                      check_finite, check_names, exists_message)
-
-
-class PointCloudWarning(UserWarning):
-    """Something of the cloud that the output format cannot hold and that is not written."""
-
+                      PointCloudFileNotFoundError, PointCloudWarning, Source, as_array, as_fields,
+                      atomic_write, check_finite, check_names, exists_message)
 
 # Report the public classes where users import them from, not from the private module.
 for _cls in (PointCloud, PointCloudFileError, PointCloudFileNotFoundError, PointCloudWarning):
@@ -171,7 +166,7 @@ def _gunzip(name, raw):
         raise PointCloudFileError(f"{name}: not a complete gzip file ({exc})") from None
 
 
-def read(path, *, format=None):
+def read(path, *, format=None, columns=None):
     """Read a point-cloud file, or standard input.
 
     Parameters
@@ -184,12 +179,17 @@ def read(path, *, format=None):
     format : str, optional
         The format, as an extension with or without its dot (``"xyz"``, ``"ply.gz"``), used
         instead of the name's extension; needed for ``"-"``.
+    columns : str or sequence of str, optional
+        Text files only: the names of the columns in their order (``"x,y,z,red,green,blue"``
+        or a list), every column once with ``x y z`` among them; they win over a column-name
+        line in the file (a :class:`PointCloudWarning` says so where they differ).
 
     Returns
     -------
     PointCloud
         Points as float64; normals from PLY ``nx ny nz``, text ``nx ny nz`` columns (columns
-        4-6 of a six-column text file without names), OBJ ``vn`` lines (one per vertex), the
+        4-6 of a six-column text file without names where they are unit vectors, see Notes),
+        OBJ ``vn`` lines (one per vertex), the
         columns 4-6 of an ``.npy`` array, the ``normals`` key of an ``.npz`` or
         ``nx``/``ny``/``nz`` LAS extra bytes; every other per-point attribute in ``fields``
         with its dtype.
@@ -203,8 +203,16 @@ def read(path, *, format=None):
         (gzip included), a header that claims more points than the file can hold (checked
         before anything is allocated), NaN or Inf coordinates, or no points at all. The
         message is one line naming the file.
+    TypeError
+        If ``columns`` is not a string or a sequence of strings.
     ImportError
         If ``plyfile`` (PLY) or ``laspy[lazrs]`` (LAS/LAZ) is not installed.
+
+    Warns
+    -----
+    PointCloudWarning
+        How the columns 4-6 of a six-column text file without names were read, and where
+        ``columns`` replaces other names of the file's column-name line.
 
     Notes
     -----
@@ -214,12 +222,23 @@ def read(path, *, format=None):
     line before the data names the columns when it is a header (``x,y,z,r,g,b``, ``//X Y Z``,
     ``# x y z nx ny nz likelihood``, as :func:`write` puts it); names are case-insensitive and
     common spellings map to ``x y z nx ny nz red green blue intensity`` (``R``, ``Nx``,
-    ``scalar_Intensity``...). Without names, three columns are points, six are points and
-    normals, ``.pts`` files of 4 or 7 columns are ``x y z intensity [red green blue]``, other
-    counts are points followed by fields ``col3``, ``col4``...
+    ``scalar_Intensity``...). Without names (nor ``columns``), three columns are points;
+    ``.pts`` files of 4 or 7 columns are ``x y z intensity [red green blue]``; columns 4-6 of
+    a six-column file are ``red green blue`` where all three are written as integers (no
+    decimal point or exponent) from 0 to 65535, else ``nx ny nz`` where every row is a unit
+    vector (length within 5% of 1) or has no normal (NaN or ``0 0 0``), else fields ``col3``
+    to ``col5``, and a :class:`PointCloudWarning` says which; other counts are points
+    followed by fields ``col3``, ``col4``...
     """
     target = _target(path, format, "<stdin>")
     name = target.name
+    kind = _FORMATS[target.ext]
+    if columns is not None:
+        columns = _column_list(columns)
+        if kind != "xyz":
+            raise PointCloudFileError(f"{name}: columns= names the columns of text files "
+                                      f"(.xyz .pts .txt .csv); a {target.ext} file names its own")
+    options = {} if columns is None else {"columns": columns}
     if target.path is None:
         data = sys.stdin.buffer.read()
         fh = io.BytesIO(_gunzip(name, data) if target.gz else data)
@@ -232,15 +251,28 @@ def read(path, *, format=None):
         if target.gz:
             with fh:
                 fh = io.BytesIO(_gunzip(name, fh.read()))
-    kind = _FORMATS[target.ext]
     with fh:
-        points, normals, fields, source = _MODULES[kind].read(name, fh, target.ext)
+        points, normals, fields, source = _MODULES[kind].read(name, fh, target.ext, **options)
     if len(points) == 0:
         raise PointCloudFileError(f"{name}: holds no points")
     check_finite(name, points)
     if target.path is not None:
         source = dataclasses.replace(source, path=os.path.abspath(target.path))
     return PointCloud(points, normals, fields, kind, source)
+
+
+def _column_list(columns):
+    """``columns`` of :func:`read` as a list of names: a comma-separated string split."""
+    if isinstance(columns, str):
+        columns = columns.split(",")
+    try:
+        names = list(columns)
+    except TypeError:
+        names = None
+    if names is None or not all(isinstance(c, str) for c in names):
+        raise TypeError(f"columns must be a comma-separated string or a sequence of strings; "
+                        f"got {columns!r}")
+    return names
 
 
 def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=False, format=None):

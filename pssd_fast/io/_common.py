@@ -20,6 +20,11 @@ class PointCloudFileNotFoundError(PointCloudFileError, FileNotFoundError):
     """The file to read, or the folder to write into, does not exist."""
 
 
+class PointCloudWarning(UserWarning):
+    """A note on a file: something of the cloud that the output format cannot hold and that is
+    not written, or how a reader named columns that the file does not name."""
+
+
 @dataclass(frozen=True, eq=False)
 class PointCloud:
     """A point cloud as read from a file, with whatever is needed to write it back.

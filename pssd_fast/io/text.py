@@ -5,15 +5,21 @@ line); lines before the data may be comments (``#`` or ``//``), a PTS point-coun
 column-name line (``//X,Y,Z,R,G,B``, ``x y z``, ``# x y z nx ny nz``).
 """
 import io
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from ._columns import canonical, integer_type
-from ._common import COORDS, NORMALS, PointCloudFileError, Source, decimal_strings
+from ._common import (COORDS, NORMALS, PointCloudFileError, PointCloudWarning, Source,
+                      decimal_strings)
 
 TEXT_CHUNK = 2**16  # rows formatted at once when writing text
+#: How far from 1 the length of every row of columns 4-6 of an unnamed six-column file may be
+#: for them to be read as normals (rows of NaN or zeros, no normal, aside).
+UNIT_TOLERANCE = 0.05
 _PTS_FIRST = ("intensity", "red", "green", "blue")  # the Leica PTS columns after x y z
+_COLOURS = ("red", "green", "blue")
 _COMMENT = ("#", "//")
 
 
@@ -23,12 +29,34 @@ class _TextSource(Source):
 
 
 def _default_names(ncols, ext):
-    """Column names a reader infers for a text file without a column-name line."""
+    """Column names a reader gives a text file without a column-name line, before
+    :func:`_six_columns` looks at the values of a six-column one."""
     if ext == ".pts" and ncols in (4, 7):
         return [*COORDS, *_PTS_FIRST[:ncols - 3]]
-    if ncols == 6:
-        return [*COORDS, *NORMALS]
     return [*COORDS, *(f"col{i}" for i in range(3, ncols))]
+
+
+def _six_columns(path, data, ints):
+    """The names of an unnamed six-column file, from columns 4-6 (``ints``: those written as
+    integers, :func:`_integer_columns`): colours when all three are integers from 0 to 65535,
+    else normals when every row has length 1 (within ``UNIT_TOLERANCE``) or is NaN or zeros
+    (no normal), else fields ``col3`` to ``col5``. A note says which (docs/DECISIONS.md,
+    "Unnamed text columns")."""
+    rest = data[:, 3:6]
+    length = np.linalg.norm(rest, axis=1)
+    if all(i in ints and ints[i].min() >= 0 and ints[i].max() <= 65535 for i in (3, 4, 5)):
+        names, why = list(_COLOURS), "integers"
+    elif np.all(np.isnan(rest).all(axis=1) | (length == 0.0)
+                | (np.abs(length - 1.0) <= UNIT_TOLERANCE)):
+        names, why = list(NORMALS), "unit vectors"
+        for i in (3, 4, 5):
+            ints.pop(i, None)
+    else:
+        names, why = ["col3", "col4", "col5"], "neither integer colours nor unit normals"
+    warnings.warn(f"{path}: no column names; columns 4-6 read as {', '.join(names)} ({why}); "
+                  f"name the columns to read them otherwise (columns=, --columns)",
+                  PointCloudWarning, stacklevel=4)
+    return [*COORDS, *names]
 
 
 def _separator(line):
@@ -59,21 +87,41 @@ def _column_names(path, line, lineno, sep, ncols, bare):
         text = text.removeprefix(mark)
     tokens = _split(text, sep if sep and sep in text else None)
     names = [canonical(t) for t in tokens]
-    problem = None
-    if len(names) != ncols:
-        problem = f"names {len(names)} columns but the data has {ncols}"
-    elif any(_is_number(t) for t in tokens):
-        problem = "mixes names and numbers"
-    elif not set(COORDS) <= set(names):
-        problem = "names no x, y and z columns"
-    elif len(set(names)) != ncols:
-        twice = sorted({n for n in names if names.count(n) > 1})
-        problem = f"names columns {twice} more than once"
+    problem = _names_problem(tokens, names, ncols)
     if problem is None:
         return names
     if bare:
         raise PointCloudFileError(f"{path}: header line {lineno} {problem}: {line.strip()!r}")
     return None
+
+
+def _names_problem(tokens, names, ncols):
+    """What keeps ``names`` (canonical ``tokens``) from naming ``ncols`` columns, or None."""
+    if len(names) != ncols:
+        return f"names {len(names)} columns but the data has {ncols}"
+    if any(_is_number(t) for t in tokens):
+        return "mixes names and numbers"
+    if not set(COORDS) <= set(names):
+        return "names no x, y and z columns"
+    if len(set(names)) != ncols:
+        twice = sorted({n for n in names if names.count(n) > 1})
+        return f"names columns {twice} more than once"
+    return None
+
+
+def _given_names(path, columns, ncols, header):
+    """Canonical names of the ``columns`` the caller gives, which replace the ``header``
+    line's (if any; with a note where they differ)."""
+    tokens = [t.strip() for t in columns]
+    names = [canonical(t) for t in tokens]
+    problem = _names_problem(tokens, names, ncols)
+    if problem is not None:
+        raise PointCloudFileError(f"{path}: the column list {','.join(tokens)} {problem}")
+    if header is not None and header[1] != names:
+        warnings.warn(f"{path}: the column names given ({', '.join(names)}) replace those of "
+                      f"header line {header[0]} ({', '.join(header[1])})", PointCloudWarning,
+                      stacklevel=4)
+    return names
 
 
 def _text_parse_error(path, text, start, first_line, ncols, sep, exc):
@@ -121,7 +169,7 @@ def _integer_columns(data, body, sep, names):
         return found
 
 
-def read(path, fh, ext):
+def read(path, fh, ext, columns=None):
     """Read a text file of separated columns.
 
     Parameters
@@ -133,6 +181,10 @@ def read(path, fh, ext):
     ext : str
         ``".xyz"``, ``".pts"``, ``".txt"`` or ``".csv"``: ``.pts`` files without a column-name
         line read 4 columns as ``x y z intensity`` and 7 as ``x y z intensity red green blue``.
+    columns : sequence of str, optional
+        The names of the columns, in their order (every column once, ``x y z`` among them;
+        aliases as in a column-name line), instead of the file's column-name line (a note
+        says so where they differ) or of the names a file without one gets.
 
     Returns
     -------
@@ -140,7 +192,8 @@ def read(path, fh, ext):
         The ``x y z`` columns (the first three without names), as float64 (empty if the file
         has no data lines).
     normals : (n, 3) numpy.ndarray or None
-        The ``nx ny nz`` columns (columns 4-6 of a six-column file without names), or None.
+        The ``nx ny nz`` columns (in a six-column file without names, columns 4-6 where they
+        read as normals: see Notes), or None.
     fields : dict of str to (n,) numpy.ndarray
         Every other column, named by the column-name line or ``col3``...: integers (no decimal
         point or exponent anywhere in the column) as int32 (int64 if needed; colours uint8, or
@@ -151,9 +204,16 @@ def read(path, fh, ext):
     Raises
     ------
     PointCloudFileError
-        On fewer than three columns, rows of unequal length, a bad number, a header line that
-        does not name every column once (x, y and z included), or a point-count line that does
-        not match the rows (or that claims more than the file can hold).
+        On fewer than three columns, rows of unequal length, a bad number, a header line (or
+        ``columns``) that does not name every column once (x, y and z included), or a
+        point-count line that does not match the rows (or that claims more than the file can
+        hold).
+
+    Warns
+    -----
+    PointCloudWarning
+        How columns 4-6 of a six-column file without names were read, and where ``columns``
+        replaces other names of a column-name line.
 
     Notes
     -----
@@ -165,6 +225,13 @@ def read(path, fh, ext):
     are columns, x, y and z among them. Names are case-insensitive and common spellings are
     mapped: ``r g b`` to ``red green blue``, ``i`` to ``intensity``, ``normal_x`` to ``nx``,
     ``scalar_Intensity`` to ``intensity``...
+
+    Without names (no column-name line, no ``columns``), the first three columns are
+    ``x y z``. Columns 4-6 of a six-column file are ``red green blue`` where all three are
+    written as integers (no decimal point or exponent in any row) from 0 to 65535; else
+    ``nx ny nz`` where every row is a unit vector (length within ``UNIT_TOLERANCE``, 5%, of 1)
+    or has no normal (NaN or ``0 0 0``); else fields ``col3`` to ``col5``. Other counts are
+    ``x y z`` and fields ``col3``... (``.pts``: see ``ext``).
     """
     # Undecodable bytes are kept as surrogates so that comments are written back verbatim.
     text = fh.read().decode("utf-8", errors="surrogateescape")
@@ -207,13 +274,21 @@ def read(path, fh, ext):
     if count is not None and count != len(data):
         raise PointCloudFileError(f"{path}: first line says {count:,} points but the file holds "
                                   f"{len(data):,}")
-    names = None
+    names = header = None
     if leading:
-        names = _column_names(path, leading[-1][1], leading[-1][0], sep, ncols, leading[-1][2])
-        if names is not None:
+        at, line, bare = leading[-1]
+        # Names given replace a column-name line; a bare line before the data can only be one.
+        names = _column_names(path, line, at, sep, ncols, bare and columns is None)
+        if names is not None or (bare and columns is not None):
             leading.pop()
+            header = (at, names or [line.strip()])
+    if columns is not None:
+        names = _given_names(path, columns, ncols, header)
+    unnamed = names is None
     names = names or _default_names(ncols, ext)
     ints = _integer_columns(data, body, sep, names)
+    if unnamed and ncols == 6:
+        names = _six_columns(path, data, ints)
     column = {}
     for i, name in enumerate(names):
         column[name] = (ints[i].astype(integer_type(name, ints[i])) if i in ints

@@ -143,8 +143,7 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method=
         else:
             done, tiled = _cells(current, given, plan, request, runner, tile_points, order)
     tiled.update(scheduler=runner.name, threads=runner.threads)
-    return result(Input(pts, dtype, order, groups), done, centre, np.arange(n_input),
-                  (pts.astype(dtype), n_jobs),
+    return result(Input(pts, dtype, order, groups), done, centre, np.arange(n_input), None,
                   stats(request, plan, n_input, n, n_threads, done.records,
                         int(done.held.sum()), tiles=tiled))
 
