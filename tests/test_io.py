@@ -508,7 +508,9 @@ def test_truncated_las(tmp_path, ext):
     make_las(tmp_path / f"a{ext}", n=500)
     data = (tmp_path / f"a{ext}").read_bytes()
     (tmp_path / f"cut{ext}").write_bytes(data[:len(data) // 2])
-    match = "header claims 500 points" if ext == ".las" else "truncated or corrupt"
+    # The LAZ file's chunk table (at the end of its points) is cut off: refused before lazrs
+    # reads it.
+    match = "header claims 500 points" if ext == ".las" else r"chunk table .* \(truncated"
     with pytest.raises(PointCloudFileError, match=match):
         pio.read(tmp_path / f"cut{ext}")
 
