@@ -251,7 +251,10 @@ def read(path, *, format=None, columns=None):
         if target.gz:
             with fh:
                 fh = io.BytesIO(_gunzip(name, fh.read()))
-    with fh:
+    # Casting a signalling NaN sets numpy's "invalid" flag, and a LAS scale of 1e300 its
+    # "overflow"; NaN and Inf coordinates are refused below with a message of their own, and
+    # NaN normals and fields are kept as they are.
+    with fh, np.errstate(invalid="ignore", over="ignore"):
         points, normals, fields, source = _MODULES[kind].read(name, fh, target.ext, **options)
     if len(points) == 0:
         raise PointCloudFileError(f"{name}: holds no points")

@@ -1,15 +1,32 @@
 """LAS and LAZ files through ``laspy[lazrs]``: header, VLRs, EVLRs and point records kept."""
 import copy
 import dataclasses
+import struct
 from dataclasses import dataclass
 
 import numpy as np
 
 from ._common import INSTALL, NORMALS, PointCloudFileError, Source, fit_dtype, need, stream_size
 
-# LAS point records are read in pieces so that a header claiming more points than the file
-# holds costs at most one piece of memory before the shortfall is noticed.
+# LAS point records are read in pieces, the first of 4 MiB and each next as large as all read
+# so far (up to _LAS_CHUNK records), so that a header claiming more points than the file holds
+# costs little more memory than the points there are before the shortfall is noticed.
+_LAS_FIRST_BYTES = 2**22
 _LAS_CHUNK = 2**20
+# The smallest public header of each LAS 1.x version, and the fixed part of a VLR and an EVLR.
+_LAS_HEADER_SIZES = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
+_VLR_HEADER = 54
+_EVLR_HEADER = 60
+# The laszip VLR: its compressors that chunk the points (pointwise, layered), the chunk size
+# meaning chunks of their own sizes, and where its items start (type, size, version each).
+_LAZ_CHUNKED = (2, 3)
+_LAZ_LAYERED = 3
+_LAZ_VARIABLE = 2**32 - 1
+_LAZ_ITEMS = 34
+# Layers of a layered chunk per item type (point14, rgb14, rgbnir14, wavepacket14); byte14
+# items have one a byte.
+_LAZ_LAYERS = {10: 9, 11: 1, 12: 2, 13: 1}
+_LAZ_BYTES = 14
 
 
 @dataclass(frozen=True)
@@ -27,6 +44,168 @@ def _need_laspy(ext, what):
         raise ImportError(f"{what} .laz files needs laspy[lazrs] (the lazrs backend): "
                           f"{INSTALL}")
     return laspy
+
+
+def check_header(path, fh, size):
+    """Refuse a LAS header whose sizes and counts do not fit the ``size`` bytes of the file.
+
+    laspy reads the header, the VLRs and the EVLRs where and as many as the header says: a
+    wrong offset makes it allocate that many bytes, and a wrong count loops that many times.
+    Uncompressed points must fit too; compressed ones are read in growing pieces instead
+    (docs/DECISIONS.md, "Readers that survive any file").
+    """
+    head = fh.read(_LAS_HEADER_SIZES[4])
+    fh.seek(0)
+    if len(head) < _LAS_HEADER_SIZES[0] or not head.startswith(b"LASF"):
+        raise PointCloudFileError(f"{path}: not a LAS file (no 'LASF' signature and header)")
+    major, minor = head[24], head[25]
+    if major != 1 or minor not in _LAS_HEADER_SIZES:
+        raise PointCloudFileError(f"{path}: LAS version {major}.{minor} is not 1.0 to 1.4")
+    header_size, offset, vlrs = struct.unpack_from("<HII", head, 94)
+    if not _LAS_HEADER_SIZES[minor] <= header_size <= offset <= size:
+        raise PointCloudFileError(
+            f"{path}: LAS {major}.{minor} header of {header_size:,} bytes with its points at "
+            f"byte {offset:,} does not fit the file's {size:,} bytes (corrupt header)")
+    if header_size + vlrs * _VLR_HEADER > offset:
+        raise PointCloudFileError(f"{path}: header claims {vlrs:,} VLRs, more than the "
+                                  f"{offset - header_size:,} bytes before the points hold")
+    point_format, record = struct.unpack_from("<BH", head, 104)
+    n = struct.unpack_from("<Q" if minor >= 4 else "<I", head, 247 if minor >= 4 else 107)[0]
+    need = offset + n * record
+    if point_format & 0xC0 == 0x80:  # compressed (laspy's test)
+        _check_laz(path, fh, header_size, vlrs, offset, n, size)
+    elif need > size:
+        raise PointCloudFileError(
+            f"{path}: header claims {n:,} points ({need:,} bytes with the header) but the "
+            f"file has {size:,} bytes (truncated file or wrong header)")
+    if minor < 4:
+        return
+    start, evlrs = struct.unpack_from("<QI", head, 235)
+    if evlrs and (start < offset or start + evlrs * _EVLR_HEADER > size):
+        raise PointCloudFileError(f"{path}: header claims {evlrs:,} EVLRs from byte {start:,}, "
+                                  f"which do not fit after the points of a file of {size:,} "
+                                  f"bytes (truncated file or wrong header)")
+    for i in range(evlrs):  # at most size / 60 of them, as checked above
+        fh.seek(start + 20)  # its record length, after the reserved field and the ids
+        length = fh.read(8)
+        start += _EVLR_HEADER + (struct.unpack("<Q", length)[0] if len(length) == 8 else size)
+        if start > size:
+            raise PointCloudFileError(f"{path}: EVLR {i + 1} of {evlrs:,} ends beyond the end "
+                                      f"of the file (truncated file or wrong header)")
+    fh.seek(0)
+
+
+def _laszip_vlr(fh, header_size, vlrs):
+    """The record of a LAS file's "laszip encoded" VLR, or None."""
+    at = header_size
+    for _ in range(vlrs):
+        fh.seek(at)
+        head = fh.read(_VLR_HEADER)
+        if len(head) < _VLR_HEADER:
+            return None
+        record_id, length = struct.unpack_from("<HH", head, 18)
+        if head[2:18].rstrip(b"\0") == b"laszip encoded" and record_id == 22204:
+            return fh.read(length)
+        at += _VLR_HEADER + length
+    return None
+
+
+def _check_laz(path, fh, header_size, vlrs, start, n, size):
+    """Refuse a LAZ file whose chunks do not fit it or its header.
+
+    lazrs allocates what the file claims before reading it: the chunk table's entries, the
+    points of a fixed-size chunk, each chunk's bytes and each layer's bytes. On files of 1.6 kB
+    such claims allocated 4 GB, aborted the process (52 and 180 GB) or raised a Rust panic.
+    """
+    record = _laszip_vlr(fh, header_size, vlrs)
+    if record is None or len(record) < _LAZ_ITEMS:
+        return  # laspy and lazrs refuse a LAZ file without a whole laszip VLR
+    compressor = struct.unpack_from("<H", record)[0]
+    chunk_size = struct.unpack_from("<I", record, 12)[0]
+    if compressor not in _LAZ_CHUNKED:
+        return  # lazrs reads no other
+    fh.seek(start)  # the points start with the chunk table's offset...
+    table = struct.unpack("<q", fh.read(8).ljust(8, b"\0"))[0]
+    if table == -1:  # ...or, from a writer that could not seek back, end with it
+        fh.seek(max(size - 8, 0))
+        table = struct.unpack("<q", fh.read(8).ljust(8, b"\0"))[0]
+    if not start + 8 <= table <= size - 8:
+        raise PointCloudFileError(f"{path}: LAZ chunk table at byte {table:,} lies outside the "
+                                  f"points of a file of {size:,} bytes (truncated or corrupt "
+                                  f"file)")
+    area = table - start - 8  # the chunks' bytes
+    fh.seek(table + 4)  # after its version
+    count = struct.unpack("<I", fh.read(4))[0]
+    if count > area:  # a chunk takes a byte at least (its first point is stored whole)
+        raise PointCloudFileError(f"{path}: LAZ chunk table claims {count:,} chunks, more than "
+                                  f"the {area:,} bytes of points before it hold (corrupt file)")
+    try:
+        import lazrs
+    except ImportError:
+        return  # laspy refuses to decompress without it
+    try:
+        fh.seek(start)
+        chunks = lazrs.read_chunk_table(fh, lazrs.LazVlr(record))
+    except RuntimeError as exc:  # lazrs.LazrsError
+        raise corrupt(path, exc) from None
+    if sum(nbytes for _, nbytes in chunks) > area:
+        raise PointCloudFileError(f"{path}: LAZ chunks claim more than the {area:,} bytes of "
+                                  f"points before the chunk table (corrupt file)")
+    if chunk_size == _LAZ_VARIABLE:
+        if sum(points for points, _ in chunks) != n:
+            raise PointCloudFileError(f"{path}: LAZ chunks hold other than the header's {n:,} "
+                                      f"points (corrupt file)")
+    elif n and (chunk_size == 0 or chunk_size > max(n, _LAS_CHUNK)
+                or len(chunks) != -(-n // chunk_size)):
+        raise PointCloudFileError(f"{path}: {len(chunks):,} LAZ chunks of {chunk_size:,} points "
+                                  f"do not hold the header's {n:,} points (corrupt file)")
+    items = [struct.unpack_from("<HH", record, _LAZ_ITEMS + 6 * i)
+             for i in range(struct.unpack_from("<H", record, _LAZ_ITEMS - 2)[0])
+             if _LAZ_ITEMS + 6 * i + 6 <= len(record)]
+    if compressor != _LAZ_LAYERED or any(k not in _LAZ_LAYERS and k != _LAZ_BYTES
+                                         for k, _ in items):
+        return
+    raw = sum(size for _, size in items)  # the chunk's first point, whole
+    layers = sum(size if kind == _LAZ_BYTES else _LAZ_LAYERS[kind] for kind, size in items)
+    at = start + 8
+    for i, (_, nbytes) in enumerate(chunks):  # a point count, then each layer's size
+        fh.seek(at + raw + 4)
+        sizes = fh.read(4 * layers)
+        if (len(sizes) < 4 * layers
+                or raw + 4 + len(sizes) + sum(struct.unpack(f"<{layers}I", sizes)) > nbytes):
+            raise PointCloudFileError(f"{path}: the layers of LAZ chunk {i + 1:,} of "
+                                      f"{len(chunks):,} claim more than its {nbytes:,} bytes "
+                                      f"(corrupt file)")
+        at += nbytes
+
+
+def failures(laspy):
+    """What laspy and lazrs raise on corrupt bytes: laspy's own errors, lazrs' (RuntimeError),
+    struct and EOF errors of short records, and ZeroDivisionError from an extra-bytes
+    description of zero elements."""
+    return (laspy.LaspyException, RuntimeError, ValueError, EOFError, struct.error,
+            ZeroDivisionError)
+
+
+def read_records(reader, n):
+    """Up to ``n`` raw point records from a laspy reader, read in growing pieces (fewer when
+    the data ends first; lazrs raises instead); one of :func:`failures` on corrupt data."""
+    size = reader.header.point_format.size
+    chunks, got = [], 0
+    while got < n:
+        want = min(_LAS_CHUNK, max(_LAS_FIRST_BYTES // size, got, 1), n - got)
+        chunk = reader.read_points(want).array
+        if len(chunk) == 0:
+            break
+        chunks.append(chunk)
+        got += len(chunk)
+    return np.concatenate(chunks) if chunks else np.zeros(0, reader.header.point_format.dtype())
+
+
+def corrupt(path, exc):
+    """The error for one of :func:`failures`."""
+    return PointCloudFileError(f"{path}: cannot read LAS/LAZ data (truncated or corrupt file): "
+                               f"{' '.join(str(exc).split())}")
 
 
 def read(path, fh, ext):
@@ -62,46 +241,35 @@ def read(path, fh, ext):
         If ``laspy`` is not installed, or a ``.laz`` file lacks its lazrs backend.
     """
     laspy = _need_laspy(ext, "Reading")
-    # laspy's own errors, lazrs' (RuntimeError) and struct/EOF errors of a short header.
-    failures = (laspy.LaspyException, RuntimeError, ValueError, EOFError)
-
-    def corrupt(exc):
-        return PointCloudFileError(f"{path}: cannot read LAS/LAZ data (truncated or corrupt "
-                                   f"file): {' '.join(str(exc).split())}")
-
     size = stream_size(fh)
+    check_header(path, fh, size)
     try:
         reader = laspy.LasReader(fh, closefd=False)
-    except failures as exc:
-        raise corrupt(exc) from None
+    except failures(laspy) as exc:
+        raise corrupt(path, exc) from None
     header = reader.header
     n = header.point_count
-    need = header.offset_to_point_data + n * header.point_format.size
-    if not header.are_points_compressed and need > size:
-        raise PointCloudFileError(
-            f"{path}: header claims {n:,} points ({need:,} bytes with the header) but the "
-            f"file has {size:,} bytes (truncated file or wrong header)")
-    chunks, got = [], 0
     try:
-        while got < n:
-            chunk = reader.read_points(min(_LAS_CHUNK, n - got)).array
-            if len(chunk) == 0:
-                break
-            chunks.append(chunk)
-            got += len(chunk)
-    except failures as exc:
-        raise corrupt(exc) from None
-    if got < n:
-        raise PointCloudFileError(f"{path}: header claims {n:,} points but only {got:,} could "
-                                  f"be read (truncated)")
-    records = np.concatenate(chunks) if chunks else np.zeros(0, header.point_format.dtype())
+        records = read_records(reader, n)
+    except failures(laspy) as exc:
+        raise corrupt(path, exc) from None
+    if len(records) < n:
+        raise PointCloudFileError(f"{path}: header claims {n:,} points but only "
+                                  f"{len(records):,} could be read (truncated)")
     rec = laspy.ScaleAwarePointRecord(records, header.point_format, header.scales,
                                       header.offsets)
     points = np.column_stack([records[c] * s + o for c, s, o in
                               zip("XYZ", header.scales, header.offsets, strict=True)])
-    # Copies: fields must not be views into the records kept for writing back.
-    values = {name: np.array(rec[name]) for name in header.point_format.dimension_names
-              if name not in ("X", "Y", "Z")}
+    values = {}
+    for name in header.point_format.dimension_names:
+        if name in ("X", "Y", "Z"):
+            continue
+        try:
+            # A copy: fields must not be views into the records kept for writing back.
+            values[name] = np.array(rec[name])
+        except failures(laspy) as exc:  # a name the extra-bytes VLR lost: no such field
+            raise PointCloudFileError(f"{path}: cannot read its dimension {name!r} (corrupt "
+                                      f"extra-bytes VLR): {' '.join(str(exc).split())}") from None
     # Multi-valued extra bytes stay in the records only: fields are one value per point.
     values = {k: v for k, v in values.items() if v.ndim == 1}
     normals = None

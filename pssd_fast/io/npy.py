@@ -1,6 +1,11 @@
 """NumPy ``.npy`` arrays and ``.npz`` archives, with plain numpy (no pickled objects)."""
+import io
+import lzma
 import math
+import tokenize
+import warnings
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,19 +22,28 @@ class _ArraySource(Source):
     extras: dict = field(default_factory=dict)  # npz: arrays that are not per-point fields
 
 
-def _npy_header(path, fh, size, what):
-    """Shape and dtype from an .npy header, checked against the ``size`` bytes available."""
+def npy_header(path, fh, size, what):
+    """Shape, Fortran order and dtype from an .npy header, checked against the ``size`` bytes
+    available; a PointCloudFileError naming ``path`` and ``what`` otherwise."""
     fmt = np.lib.format
     try:
-        version = fmt.read_magic(fh)
-        if version == (1, 0):
-            shape, _, dtype = fmt.read_array_header_1_0(fh)
-        elif version == (2, 0):
-            shape, _, dtype = fmt.read_array_header_2_0(fh)
-        else:
-            raise ValueError(f"unsupported .npy format version {version}")
-    except ValueError as exc:
-        raise PointCloudFileError(f"{path}: {what} is not a valid .npy array ({exc})") from None
+        with warnings.catch_warnings():
+            # The header is a Python literal: a stray backslash in a corrupt one makes Python
+            # warn of an "invalid escape sequence" (a SyntaxWarning from 3.12, a
+            # DeprecationWarning before) before numpy refuses it.
+            warnings.filterwarnings("ignore", "invalid escape sequence")
+            version = fmt.read_magic(fh)
+            if version == (1, 0):
+                shape, fortran, dtype = fmt.read_array_header_1_0(fh)
+            elif version == (2, 0):
+                shape, fortran, dtype = fmt.read_array_header_2_0(fh)
+            else:
+                raise ValueError(f"unsupported .npy format version {version}")
+    except (ValueError, tokenize.TokenError) as exc:  # numpy tokenizes old headers
+        raise PointCloudFileError(f"{path}: {what} is not a valid .npy array "
+                                  f"({' '.join(str(exc).split())})") from None
+    if any(d < 0 for d in shape):
+        raise PointCloudFileError(f"{path}: {what} claims shape {shape}, with a negative size")
     if dtype.hasobject:
         raise PointCloudFileError(f"{path}: {what} holds Python objects, which are not loaded")
     need = math.prod(shape) * dtype.itemsize
@@ -37,7 +51,7 @@ def _npy_header(path, fh, size, what):
     if need > have:
         raise PointCloudFileError(f"{path}: {what} claims shape {shape} ({need:,} bytes) but "
                                   f"only {have:,} bytes follow its header (truncated)")
-    return shape, dtype
+    return shape, fortran, dtype
 
 
 def read(path, fh, ext):
@@ -76,7 +90,7 @@ def read(path, fh, ext):
 
 
 def _read_npy(path, fh):
-    shape, dtype = _npy_header(path, fh, stream_size(fh), "the array")
+    shape, _, dtype = npy_header(path, fh, stream_size(fh), "the array")
     if len(shape) != 2 or shape[1] not in (3, 6) or dtype.kind not in "fiu":
         raise PointCloudFileError(f"{path}: expected an (n, 3) or (n, 6) numeric array; "
                                   f"got shape {shape}, dtype {dtype}")
@@ -97,15 +111,20 @@ def _read_npz(path, fh):
                 if key == info.filename:
                     raise PointCloudFileError(f"{path}: member {info.filename!r} is not an "
                                               f".npy array")
-                with zf.open(info) as member:
-                    _npy_header(path, member, info.file_size, f"array {key!r}")
-                with zf.open(info) as member:
-                    arrays[key] = np.lib.format.read_array(member, allow_pickle=False)
+                # Decompressed whole, so that the header is checked against the bytes there
+                # are, not against the size the archive claims.
+                member = io.BytesIO(zf.read(info))
+                npy_header(path, member, len(member.getvalue()), f"array {key!r}")
+                member.seek(0)
+                arrays[key] = np.lib.format.read_array(member, allow_pickle=False)
     except PointCloudFileError:
         raise
-    except (zipfile.BadZipFile, EOFError, ValueError) as exc:
+    # zipfile's errors: RuntimeError for an encrypted member, NotImplementedError for an
+    # unknown compression, OSError for a bad bzip2 stream or offset.
+    except (zipfile.BadZipFile, EOFError, ValueError, zlib.error, lzma.LZMAError, RuntimeError,
+            NotImplementedError, OSError) as exc:
         raise PointCloudFileError(f"{path}: not a readable .npz (zip) archive, truncated or "
-                                  f"corrupt ({exc})") from None
+                                  f"corrupt ({' '.join(str(exc).split())})") from None
     points = arrays.pop("points", None)
     if points is None or points.ndim != 2 or points.shape[1] != 3 or points.dtype.kind not in "fiu":
         got = "no 'points' array" if points is None else f"'points' of shape {points.shape}"

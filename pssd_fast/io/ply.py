@@ -1,6 +1,8 @@
 """PLY files, ASCII or binary, through ``plyfile``: every element, property and comment kept."""
 import copy
+import io
 import re
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -144,13 +146,29 @@ def read(path, fh, ext):
     plyfile = need("plyfile", "plyfile", "Reading .ply files")
     layout = _ply_layout(path, fh, stream_size(fh))
     fh.seek(0)
+    # ASCII data goes through a text wrapper of ours, detached after the read: the one plyfile
+    # would make closes ``fh`` when it is collected, with a ResourceWarning.
+    stream = io.TextIOWrapper(fh, "ascii") if layout.ascii else fh
     try:
-        ply = plyfile.PlyData.read(fh)
+        with warnings.catch_warnings():
+            # An empty list (a range grid's pixel without a return: a row "0") makes numpy
+            # warn that it "contained no data"; it is read as the empty list it is.
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data",
+                                    UserWarning)
+            ply = plyfile.PlyData.read(stream)
     except plyfile.PlyParseError as exc:
         raise _ply_parse_error(path, exc, layout, plyfile) from None
     except UnicodeDecodeError:
         raise PointCloudFileError(f"{path}: non-ASCII bytes in the PLY header or in its "
                                   f"ASCII data") from None
+    except OverflowError as exc:  # an ASCII value beyond its integer type: 300 as uchar
+        raise PointCloudFileError(f"{path}: a value does not fit the type of its PLY "
+                                  f"property ({exc})") from None
+    except ValueError as exc:  # plyfile's checks outside its parser: names given twice
+        raise PointCloudFileError(f"{path}: bad PLY header: {exc}") from None
+    finally:
+        if stream is not fh:
+            stream.detach()
     for element in ply.elements:
         # plyfile memory-maps binary elements copy-on-write; untouched pages of such a map
         # follow later changes of the file, so the cloud takes its own copy.

@@ -41,6 +41,12 @@ RECORD_NORMALS = np.dtype([*RECORD.descr, ("nrm", np.float64, 3)])
 #: A row at the position of an earlier one: its row, the row it was merged into (its first),
 #: its coordinates.
 COPY = np.dtype([("row", np.int64), ("first", np.int64), ("xyz", np.float64, 3)])
+#: What zarr and its codecs raise on a corrupt store is open-ended: ValueError (its own and
+#: JSON's), OSError, KeyError, TypeError, ZeroDivisionError (a chunk shape of 0), and from the
+#: codecs RuntimeError, SystemError (blosc), MemoryError (a chunk header claiming terabytes),
+#: zlib.error... Zarr input is opened and read only through zarr, so all of them are caught there
+#: and named in one line (docs/DECISIONS.md, "Readers that survive any file").
+_ZARR_FAILURES = Exception
 
 
 class NpyFile:
@@ -48,14 +54,13 @@ class NpyFile:
     memory map would keep every page read resident in the process)."""
 
     def __init__(self, path, columns=3):
+        from ..io.npy import npy_header
+
         self.path = path
         with open(path, "rb") as fh:
-            version = np.lib.format.read_magic(fh)
-            read_header = {(1, 0): np.lib.format.read_array_header_1_0,
-                           (2, 0): np.lib.format.read_array_header_2_0}.get(version)
-            if read_header is None:
-                raise ValueError(f"{path}: unsupported .npy format version {version}")
-            self.shape, fortran, self.dtype = read_header(fh)
+            # Checked against the file's size: a truncated file is refused here.
+            self.shape, fortran, self.dtype = npy_header(path, fh, os.fstat(fh.fileno()).st_size,
+                                                         "the array")
             self.offset = fh.tell()
         if self.dtype.kind not in "fiu":
             raise TypeError(f"{path}: points must hold real numbers; got dtype {self.dtype}")
@@ -84,39 +89,71 @@ class LasFile:
 
     def __init__(self, path):
         from ..io._common import NORMALS
-        from ..io.las import _need_laspy
+        from ..io.las import _need_laspy, check_header, corrupt, failures
 
         self.path = path
         self.laspy = _need_laspy(Path(path).suffix.lower(), "Reading")
-        with self.laspy.open(path) as reader:
-            self.header = reader.header
+        with open(path, "rb") as fh:
+            check_header(path, fh, os.fstat(fh.fileno()).st_size)
+        try:
+            with self.laspy.open(path) as reader:
+                self.header = reader.header
+        except failures(self.laspy) as exc:
+            raise corrupt(path, exc) from None
         self.shape = (self.header.point_count, 3)
         self.dtype = np.dtype(np.float64)
         self.has_normals = set(NORMALS) <= set(self.header.point_format.dimension_names)
+        self._cursor = None  # (reader, row it is at) between calls of chunk()
 
     def __getitem__(self, rows):
         return self.chunk(rows.start or 0, rows.stop)[0]
 
     def chunk(self, start, stop):
-        """The coordinates of rows ``start..stop-1``, and their normals or None."""
+        """The coordinates of rows ``start..stop-1``, and their normals or None.
+
+        Rows that follow the previous call's are read on from there, and a read from row 0
+        opens the file afresh: laspy fills the rows beyond a LAZ file's real end with zeros
+        after a seek, where a read from the start fails. Only other starts seek.
+        """
         from ..io._common import NORMALS
+        from ..io.las import corrupt, failures, read_records
 
         stop = min(stop, self.shape[0])
-        with self.laspy.open(self.path) as reader:
-            reader.seek(start)
-            records = reader.read_points(stop - start)
+        try:
+            if self._cursor is None or self._cursor[1] != start:
+                self.close()
+                self._cursor = (self.laspy.open(self.path), start)
+                if start:
+                    self._cursor[0].seek(start)
+            reader = self._cursor[0]
+            records = read_records(reader, stop - start)
+        except failures(self.laspy) as exc:
+            self.close()
+            raise corrupt(self.path, exc) from None
+        self._cursor = (reader, stop)
+        if stop == self.shape[0]:
+            self.close()
         if len(records) != stop - start:
             raise ValueError(f"{self.path}: truncated; its header claims {self.shape[0]:,} "
                              f"points, but point {start + len(records):,} is missing")
         header = self.header
-        points = np.column_stack([records.array[c] * s + o for c, s, o in
-                                  zip("XYZ", header.scales, header.offsets, strict=True)])
+        records = self.laspy.ScaleAwarePointRecord(records, header.point_format, header.scales,
+                                                   header.offsets)
+        with np.errstate(invalid="ignore", over="ignore"):  # NaN and Inf are refused later
+            points = np.column_stack([records.array[c] * s + o for c, s, o in
+                                      zip("XYZ", header.scales, header.offsets, strict=True)])
         normals = None
         if self.has_normals:
             # As pssd_fast.io.read takes them.
             normals = np.column_stack([np.asarray(records[c]) for c in NORMALS]).astype(
                 np.float64)
         return points, normals
+
+    def close(self):
+        """Close the reader :meth:`chunk` keeps open between calls, if any."""
+        if self._cursor is not None:
+            self._cursor[0].close()
+            self._cursor = None
 
     def write(self, path, table, fields=RESULT_FIELDS):
         """A copy of this file with the columns of ``table`` (an ``(n, 9)`` array-like read
@@ -174,11 +211,15 @@ class ZarrFile:
         except ImportError as err:
             raise ImportError("Zarr input needs zarr: pip install 'pssd_fast[zarr]'") from err
         self.path = path
-        found = zarr.open(str(path), mode="r")
+        try:
+            found = zarr.open(str(path), mode="r")
+            if not hasattr(found, "shape") and "points" in found:
+                found = found["points"]
+        except _ZARR_FAILURES as exc:
+            raise ValueError(f"{path}: not a readable Zarr array or group "
+                             f"({_named(exc)})") from None
         if not hasattr(found, "shape"):
-            if "points" not in found:
-                raise ValueError(f"{path}: a Zarr group without a 'points' array")
-            found = found["points"]
+            raise ValueError(f"{path}: a Zarr group without a 'points' array")
         self.array = found
         self.shape, self.dtype = found.shape, np.dtype(found.dtype)
         if self.dtype.kind not in "fiu":
@@ -187,7 +228,12 @@ class ZarrFile:
             raise ValueError(f"{path}: points must have shape (n, 3); got {self.shape}")
 
     def __getitem__(self, rows):
-        return np.asarray(self.array[rows])
+        try:
+            return np.asarray(self.array[rows])
+        except _ZARR_FAILURES as exc:
+            raise ValueError(f"{self.path}: cannot read rows {rows.start or 0:,} to "
+                             f"{rows.stop:,} of the Zarr array (corrupt chunk?): "
+                             f"{_named(exc)}") from None
 
     def write(self, path, points):
         """A new Zarr array at ``path`` of ``points`` (an ``(n, 3)`` array-like read by row
@@ -199,6 +245,11 @@ class ZarrFile:
         step = max(CHUNK_POINTS // self.array.chunks[0], 1) * self.array.chunks[0]
         for start in range(0, points.shape[0], step):
             out[start:start + step] = points[start:start + step]
+
+
+def _named(exc):
+    """``Type: message`` of an exception, on one line."""
+    return " ".join(f"{type(exc).__name__}: {exc}".split())
 
 
 def chunks(array):
