@@ -222,6 +222,12 @@ def test_render_colours_a_survey_by_its_own_fields(tmp_path, color):
         assert (spread > 60).mean() > 0.5
 
 
+def test_render_offers_every_colouring_of_the_pictures():
+    from pssd_fast import pictures
+
+    assert cli.COLORS == pictures.COLOR_FIELDS
+
+
 def test_render_of_a_field_the_file_lacks_names_what_it_has(tmp_path):
     path = survey_file(tmp_path / "survey.npz", intensity=SURVEY_FIELDS["intensity"])
     status, _, err = pssd("render", path, "-o", tmp_path / "s.png", "--color", "classification")
