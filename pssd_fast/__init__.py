@@ -11,7 +11,12 @@ The stages of the method are public too (:func:`neighbors`, :func:`estimate_norm
 :func:`filter_normals`, :func:`outlier_score`), so other tools can use them as a backend.
 Kernels are compiled by numba on first use and cached on disk; :func:`warmup` compiles them
 ahead of time.
+
+The subpackages load on first use, so that ``import pssd_fast`` stays cheap: ``pssd_fast.io``
+(point-cloud files), ``pssd_fast.pictures`` (pictures of a cloud), ``pssd_fast.datasets``
+(generated clouds with their truth) and ``pssd_fast.tiled`` (tiled runs on Dask).
 """
+
 from ._threads import configure_threads
 from .denoise import METHODS, DenoiseResult, denoise
 from .graph import NeighborGraph, morton_order, neighbors
@@ -28,3 +33,18 @@ __all__ = [
     "estimate_normals", "feature_intensity", "filter_normals", "mls_fit", "morton_order",
     "neighbors", "outlier_score", "sampling_likelihood", "warmup",
 ]
+
+#: Subpackages imported on first access (PEP 562), not by ``import pssd_fast``.
+SUBPACKAGES = ("datasets", "io", "pictures", "tiled")
+
+
+def __getattr__(name):
+    if name in SUBPACKAGES:
+        from importlib import import_module
+
+        return import_module(f"{__name__}.{name}")  # which also binds it here
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(SUBPACKAGES))

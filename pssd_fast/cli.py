@@ -31,7 +31,9 @@ METHOD_OPTIONS = {
     "sigma_c": (("bilateral",), "BIL spatial width (default: half the list radius)"),
     "sigma_s": (("bilateral",), "BIL height width (default: std of the heights)"),
 }
-COLORS = ("likelihood", "feature", "curvature", "displacement", "height")
+#: What ``pssd render --color`` offers (``pssd_fast.pictures.COLOR_FIELDS``).
+COLORS = ("height", "classification", "intensity", "rgb", "likelihood", "feature", "curvature",
+          "displacement")
 #: Stems of the files ``pssd demo`` writes (point clouds and the paper's figure set).
 DEMO_FILES = ("noisy", "denoised", "curvature", "likelihood", "feature", "denoised_curvature",
               "denoised_displacement")
@@ -198,24 +200,31 @@ def _parser():
 
     render = sub.add_parser(
         "render", help="draw a point cloud as a picture",
-        description="Draw FILE coloured by a per-point field, each field with one fixed colour "
-                    "scale. likelihood and feature are taken from FILE when it holds them (as "
-                    "pssd denoise writes them), else computed by the same denoise run, so they "
-                    "equal what pssd denoise with the same options would store; curvature is "
-                    "the mean curvature of FILE's points (k=25 MLS fits) times the "
-                    "bounding-box diagonal; displacement (over the diagonal) must be in FILE; "
-                    "height is the coordinate along the up axis. Files without normals are "
-                    "shaded with estimated ones.")
+        description="Draw FILE coloured by a per-point field, fitted to the picture. "
+                    "classification (ASPRS colours, a legend naming the classes present), "
+                    "intensity (grey, 2nd to 98th percentile) and rgb (red, green, blue of 8 "
+                    "or 16 bits) are FILE's own; displacement too, in FILE's units (named "
+                    "where a LAS file's coordinate system says them), 0 to its 98th "
+                    "percentile. likelihood and feature are taken from FILE when it holds "
+                    "them (as pssd denoise writes them), else computed by the same denoise "
+                    "run, so they equal what pssd denoise with the same options would store; "
+                    "curvature is the mean curvature of FILE's points (k=25 MLS fits) times "
+                    "the bounding-box diagonal; height is the coordinate along the up axis. "
+                    "Files without normals are shaded with estimated ones.")
     render.add_argument("file", metavar="FILE", type=Path)
     render.add_argument("-o", "--output", type=Path, required=True,
                         help="picture to write; the format follows the extension: "
                              ".png, .jpg, .jpeg, .tif, .tiff, .webp")
     _add_columns(render)
     render.add_argument("--color", choices=COLORS, default="height",
-                        help="field to colour by (height)")
-    render.add_argument("--view", type=float, nargs=2, default=(30.0, -60.0),
-                        metavar=("ELEV", "AZIM"), help="view elevation and azimuth in degrees "
-                                                       "about the up axis (30 -60)")
+                        help="what to colour by (height); a field FILE lacks is refused with "
+                             "the list of those it has")
+    render.add_argument("--view", type=float, nargs=2, default=None,
+                        metavar=("ELEV", "AZIM"),
+                        help="view elevation and azimuth in degrees about the up axis "
+                             "(default: a flat scene, whose extent along the up axis is under "
+                             "a third of its length, from 50 degrees with its long side across "
+                             "the picture; anything else 30 -60)")
     render.add_argument("--up", choices=("auto", "x", "y", "z"), default="auto",
                         help="axis drawn upwards; auto: z for LAS/LAZ, the axis of least "
                              "extent for a flat cloud (under a third of the largest), else y "
@@ -286,8 +295,16 @@ def _add_columns(parser):
 
 
 def _add_size(parser):
-    parser.add_argument("--size", type=int, nargs=2, default=(1000, 800),
-                        metavar=("WIDTH", "HEIGHT"), help="picture size in pixels (1000 800)")
+    parser.add_argument("--size", type=int, nargs="+", default=[1000], metavar="PX",
+                        help="picture WIDTH [HEIGHT] in pixels (default 1000 wide, as high as "
+                             "the drawing of the cloud needs at that width)")
+
+
+def _size(args):
+    """``--size``: ``(width, height)``, the height None where not given."""
+    if len(args.size) > 2:
+        raise CommandError(f"--size takes WIDTH [HEIGHT]; got {len(args.size)} numbers")
+    return (args.size[0], args.size[1] if len(args.size) == 2 else None)
 
 
 def _add_verbosity(parser):
@@ -699,17 +716,17 @@ def _demo(args):
     result, seconds = _run_denoise(cloud.points, None, args, {})
     written = _demo_files(args, cloud.points, result)
     try:
-        from .pictures import render
+        from .pictures import figure_set
     except ImportError:
-        render = None
+        figure_set = None
     pictures = []
-    if render is not None:
+    if figure_set is not None:
         try:
             # The generated part is z-up, as choose_up finds for it (it is flat).
-            pictures = render.figure_set(
+            pictures = figure_set(
                 args.out, cloud.points, result.points, likelihood=result.likelihood,
                 feature=result.feature_intensity, displacement=result.displacement,
-                normals_denoised=result.normals, up="z", size=tuple(args.size))
+                normals_denoised=result.normals, up="z", size=_size(args))
         except ImportError as exc:
             print(f"pssd: no pictures: {_one_line(exc)}", file=sys.stderr)
     if args.quiet:
@@ -784,18 +801,24 @@ def _vec(v, decimals):
 
 
 def _render(args):
-    from .pictures import render
-    from .pictures.fields import field_values
+    from .pictures import draw, view
+    from .pictures.fields import FROM_CLOUD, field_values, units
     from .stages import estimate_normals
 
     _check_output(args.output, args.force)
-    render.image_format(args.output)  # refuse an unknown format before the long work
+    draw.image_format(args.output)  # refuse an unknown format before the long work
+    size = _size(args)
     cloud = _read(args.file, args)
     points = cloud.points
     given = _given_normals(cloud, args.file)
-    up = render.choose_up(points, cloud.format == "las") if args.up == "auto" else args.up
+    up = view.choose_up(points, cloud.format == "las") if args.up == "auto" else args.up
     if args.color == "height":
-        values = render.height(points, up)
+        values = view.height(points, up)
+    elif args.color in FROM_CLOUD:
+        try:
+            values = field_values(args.color, points, stored=cloud.fields)
+        except ValueError as exc:  # a field FILE lacks or holds wrongly
+            raise CommandError(f"{args.file}: {exc}") from None
     else:
         progress = _Progress(STAGE_COUNT["robust"], not args.quiet)
         try:
@@ -804,10 +827,12 @@ def _render(args):
         finally:
             progress.close()
     normals = estimate_normals(points, n_jobs=args.n_jobs) if given is None else given
-    render.render(points, values, args.output, field=args.color, view=tuple(args.view), up=up,
-                  normals=normals, title=args.file.name, size=tuple(args.size))
+    seen_from = view.choose_view(points, up) if args.view is None else tuple(args.view)
+    draw.render(points, values, args.output, field=None if args.color == "rgb" else args.color,
+                view=seen_from, up=up, normals=normals, units=units(cloud),
+                title=args.file.name, size=size)
     if not args.quiet:
-        print(f"wrote {args.output} (up axis {up})")
+        print(f"wrote {args.output} (up axis {up}, view {seen_from[0]:g} {seen_from[1]:.1f})")
     return 0
 
 

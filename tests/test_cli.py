@@ -143,7 +143,8 @@ def test_info_and_render(tmp_path, ply_with_extras):
     jpg = tmp_path / "feature.jpg"
     status, out, err = pssd("render", path, "-o", jpg, "--color", "feature", "--preset", "fast")
     assert status == 0, err
-    assert jpg.read_bytes()[:3] == b"\xff\xd8\xff" and "(up axis z)" in out  # the part is flat
+    assert jpg.read_bytes()[:3] == b"\xff\xd8\xff"
+    assert "(up axis z, view 50 " in out  # the part is flat: seen as a scene
     assert_one_line_error(*pssd("render", path, "-o", tmp_path / "f.gif")[::2],
                           "cannot write a picture with extension '.gif'")
     assert_one_line_error(*pssd("render", path, "-o", tmp_path / "d.png", "--color",
@@ -183,6 +184,94 @@ def test_render_shades_a_file_without_normals(tmp_path):
     blue = image[..., 2][image[..., 2] - image[..., 0] > 0.05]  # plasma(0), not the title
     assert blue.size > 10000
     assert np.ptp(blue) > 0.3
+
+
+def survey_file(path, **fields):
+    """A small wide, flat scene (60 x 20, 1 of relief) as ``.npz``, with ``fields``."""
+    rng = np.random.default_rng(4)
+    u, v = rng.uniform(0, 60, 3000), rng.uniform(0, 20, 3000)
+    points = np.column_stack([u, v, 0.5 * np.sin(u / 6.0) + 0.5 * v / 20.0])
+    np.savez(path, points=points, **{k: f(points) for k, f in fields.items()})
+    return path
+
+
+SURVEY_FIELDS = {
+    "classification": lambda p: np.where(p[:, 0] < 30, 2, 6).astype(np.uint8),
+    "intensity": lambda p: (p[:, 1] * 3000).astype(np.uint16),
+    "red": lambda p: np.full(len(p), 200 * 257, np.uint16),
+    "green": lambda p: np.full(len(p), 40 * 257, np.uint16),
+    "blue": lambda p: np.full(len(p), 40 * 257, np.uint16),
+}
+
+
+@pytest.mark.parametrize("color", ["classification", "intensity", "rgb"])
+def test_render_colours_a_survey_by_its_own_fields(tmp_path, color):
+    import matplotlib.image
+
+    path = survey_file(tmp_path / "survey.npz", **SURVEY_FIELDS)
+    status, out, err = pssd("render", path, "-o", tmp_path / "s.png", "--color", color)
+    assert status == 0, err
+    assert "(up axis z, view 50 " in out  # flat: seen as a scene
+    image = np.rint(matplotlib.image.imread(tmp_path / "s.png")[..., :3] * 255).astype(int)
+    assert image.shape[0] < 0.6 * image.shape[1]  # a wide picture for a wide scene
+    pixels = image[(image < 255).any(axis=-1)]
+    spread = np.ptp(pixels, axis=1)  # 0 for greys (and the black text)
+    if color == "intensity":
+        assert (spread <= 1).mean() > 0.99
+    else:  # red (rgb), or earth and red (classes): shaded, never grey
+        assert (spread > 60).mean() > 0.5
+
+
+def test_render_offers_every_colouring_of_the_pictures():
+    from pssd_fast import pictures
+
+    assert cli.COLORS == pictures.COLOR_FIELDS
+
+
+def test_render_of_a_field_the_file_lacks_names_what_it_has(tmp_path):
+    path = survey_file(tmp_path / "survey.npz", intensity=SURVEY_FIELDS["intensity"])
+    status, _, err = pssd("render", path, "-o", tmp_path / "s.png", "--color", "classification")
+    assert_one_line_error(status, err, f"{path}: the cloud holds no classification; colour it by "
+                          "height, curvature, likelihood, feature, intensity (its per-point "
+                          "fields: intensity)")
+    assert not (tmp_path / "s.png").exists()
+    status, _, err = pssd("render", path, "-o", tmp_path / "s.png", "--color", "rgb")
+    assert_one_line_error(status, err, "holds no red, green and blue; colour it by")
+
+
+def test_render_names_a_las_file_s_units_on_the_colour_bar(tmp_path, monkeypatch):
+    from pssd_fast.pictures import draw
+
+    wkt = ('PROJCS["x",GEOGCS["g",UNIT["degree",0.0174532925199433]],'
+           'UNIT["foot",0.3048,AUTHORITY["EPSG","9002"]]]')
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.vlrs.append(laspy.vlrs.known.WktCoordinateSystemVlr(wkt))
+    header.scales = (0.01, 0.01, 0.01)
+    las = laspy.LasData(header)
+    rng = np.random.default_rng(5)
+    las.x, las.y, las.z = rng.uniform(0, 200, 2000), rng.uniform(0, 80, 2000), \
+        rng.uniform(0, 2, 2000)
+    las.write(tmp_path / "ft.las")
+    seen = []
+    render = draw.render
+    monkeypatch.setattr(draw, "render", lambda *a, **kw: seen.append(kw) or render(*a, **kw))
+    status, _, err = pssd("render", tmp_path / "ft.las", "-o", tmp_path / "ft.png")
+    assert status == 0, err
+    assert seen[0]["units"] == "ft" and seen[0]["field"] == "height"
+
+
+def test_render_size_takes_a_width_and_an_optional_height(tmp_path):
+    import matplotlib.image
+
+    path = survey_file(tmp_path / "survey.npz")
+    for size, shape in (([400], None), ([400, 300], (300, 400))):
+        status, _, err = pssd("render", path, "-o", tmp_path / "s.png", "--size", *size,
+                              "--force")
+        assert status == 0, err
+        got = matplotlib.image.imread(tmp_path / "s.png").shape[:2]
+        assert got == shape if shape else (got[1] == 400 and got[0] < 240)
+    assert_one_line_error(*pssd("render", path, "-o", tmp_path / "t.png", "--size", 1, 2,
+                                3)[::2], "--size takes WIDTH [HEIGHT]")
 
 
 def test_demo_writes_files_and_pictures(tmp_path):

@@ -112,3 +112,20 @@ def test_the_readme_shows_denoise_s_signature():
                       (ROOT / "README.md").read_text(), re.S | re.M).group(0)
     assert re.sub(r"\s+", "", shown) == re.sub(
         r"\s+", "", f"denoise{inspect.signature(pssd_fast.denoise)}").replace("'", '"')
+
+
+def test_every_extra_the_texts_name_is_one_of_pyproject_s():
+    toml = (ROOT / "pyproject.toml").read_text()
+    section = toml[toml.index("[project.optional-dependencies]"):]
+    section = section[:section.index("\n[", 1)]
+    extras = set(re.findall(r"^(\w+) = \[", section, re.M))
+    # pip install 'pssd_fast[viz]' or ".[io,viz]", and "the ``viz`` extra" (not "extra bytes").
+    install = re.compile(r"(?:pssd_fast|\.)\[([a-z_,]+)\]")
+    named = re.compile(r"[`'\"]+([a-z_]+)[`'\"]+ extras?\b(?! bytes)")
+    found = {(str(path.relative_to(ROOT)), name)
+             for path in TEXTS + CITING if path.is_file()
+             for text in [path.read_text(errors="replace")]
+             for name in [n for group in install.findall(text) for n in group.split(",")]
+             + named.findall(text)}
+    assert {"io", "viz", "dask"} <= extras and len(found) > 10
+    assert sorted(f"{path}: {name}" for path, name in found if name not in extras) == []

@@ -99,3 +99,40 @@ def test_the_package_refers_to_no_path_outside_itself():
         text = path.read_text(encoding="utf-8")
         assert "shared/" not in text and "shared\" /" not in text, path
         assert ".parent.parent.parent" not in text, path
+
+
+_SUBPACKAGE_PROBE = """
+import json, sys
+import pssd_fast
+loaded_by_import = sorted(name for name in pssd_fast.SUBPACKAGES
+                          if f"pssd_fast.{name}" in sys.modules)
+kinds = {name: type(getattr(pssd_fast, name)).__name__ for name in pssd_fast.SUBPACKAGES}
+try:
+    pssd_fast.no_such_thing
+    missing = None
+except AttributeError as exc:
+    missing = str(exc)
+print(json.dumps({"by_import": loaded_by_import, "kinds": kinds, "dir": dir(pssd_fast),
+                  "missing": missing, "render": callable(pssd_fast.pictures.render)}))
+"""
+
+
+def test_subpackages_load_on_attribute_access_not_on_import():
+    """In a fresh process: ``import pssd_fast`` loads none of them, ``pssd_fast.io`` (and the
+    others) loads each, ``dir`` lists them, and an unknown name is still an AttributeError."""
+    import json
+    import subprocess
+    import sys
+
+    from .conftest import PACKAGE_PARENT
+
+    run = subprocess.run([sys.executable, "-c", _SUBPACKAGE_PROBE], cwd=PACKAGE_PARENT,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    probe = json.loads(run.stdout.strip().splitlines()[-1])
+    assert pssd_fast.SUBPACKAGES == ("datasets", "io", "pictures", "tiled")
+    assert probe["by_import"] == []
+    assert probe["kinds"] == dict.fromkeys(pssd_fast.SUBPACKAGES, "module")
+    assert set(pssd_fast.SUBPACKAGES) <= set(probe["dir"]) and "denoise" in probe["dir"]
+    assert probe["missing"] == "module 'pssd_fast' has no attribute 'no_such_thing'"
+    assert probe["render"]
