@@ -10,13 +10,14 @@ The stages of the method are public too (:func:`neighbors`, :func:`estimate_norm
 :func:`mls_fit`, :func:`sampling_likelihood`, :func:`feature_intensity`,
 :func:`filter_normals`, :func:`outlier_score`), so other tools can use them as a backend.
 Kernels are compiled by numba on first use and cached on disk; :func:`warmup` compiles them
-ahead of time.
+ahead of time. :mod:`pssd_fast.interop` converts the point clouds of Open3D, trimesh and
+PDAL (structured arrays), which :func:`denoise` also takes as they are.
 
 The subpackages load on first use, so that ``import pssd_fast`` stays cheap: ``pssd_fast.io``
 (point-cloud files), ``pssd_fast.pictures`` (pictures of a cloud), ``pssd_fast.datasets``
 (generated clouds with their truth) and ``pssd_fast.tiled`` (tiled runs on Dask).
 """
-
+from . import interop
 from ._threads import configure_threads
 from .denoise import METHODS, DenoiseResult, denoise
 from .graph import NeighborGraph, morton_order, neighbors

@@ -3,6 +3,8 @@ import numbers
 
 import numpy as np
 
+from . import interop
+
 # The cubic of eq. (1) has 10 coefficients: fewer neighbours cannot determine it.
 MIN_K = 10
 
@@ -24,6 +26,11 @@ def as_points(points, name="points"):
         except (TypeError, ValueError) as exc:
             raise TypeError(f"{name} must be an array-like of shape (n, 3); got "
                             f"{type(points).__name__} ({exc})") from None
+    if arr.dtype.kind == "O" and arr.ndim == 0:
+        # An object numpy cannot read as numbers: say how to get its coordinates.
+        raise TypeError(f"{name} must be an (n, 3) array of real numbers; got "
+                        f"{interop.type_name(points)}"
+                        f"{interop.hint(points) if name == 'points' else ''}")
     if arr.dtype.kind not in "fiu":
         kind = {"c": "complex", "O": "object", "b": "boolean"}.get(arr.dtype.kind, str(arr.dtype))
         raise TypeError(f"{name} must hold real numbers; got dtype {arr.dtype} ({kind}); "

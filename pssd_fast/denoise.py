@@ -4,7 +4,7 @@ import time
 
 import numpy as np
 
-from . import core, duplicates
+from . import core, duplicates, interop
 from ._threads import threads
 from ._validation import (
     as_normals, as_points, auto, check_choice, check_flag, check_float, check_int, check_k,
@@ -44,7 +44,8 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     ----------
     points : array_like, shape (n, 3)
         Noisy coordinates, float32 or float64 (other real dtypes are computed as float64).
-        Never modified.
+        Never modified. Or an Open3D or trimesh point cloud, or a structured array with
+        fields ``X``, ``Y``, ``Z`` (:mod:`pssd_fast.interop`; their normals are not used).
     normals : array_like, shape (n, 3), optional
         Normals of the input points (any length but zero; only local sign consistency matters).
         Used in the first iteration (in every iteration with ``keep_normals=True``); otherwise
@@ -221,6 +222,7 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     .. [1] "Robust Denoising of Point-Sampled Surfaces" (the paper). ``docs/ALGORITHM.md``
        describes the method as implemented, with every ambiguity of the paper decided.
     """
+    points = interop.coordinates(points)  # Open3D, trimesh and structured arrays
     if classes is not None or classification is not None:
         return _only_classes(points, normals, classification, classes, {
             "method": method, "iterations": iterations, "k": k, "lam": lam, "preset": preset,

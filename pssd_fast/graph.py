@@ -3,6 +3,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import interop
 from ._threads import kdtree, threads
 from ._validation import as_points, check_k
 from .kernels.graph import put_self_first, refresh_lists
@@ -273,7 +274,7 @@ def neighbors(points, k=25, *, n_jobs=None):
     The query runs on the points reordered along a Morton curve (better memory locality in
     the tree and in later kernels); results are mapped back to the caller's order.
     """
-    pts, _ = as_points(points)
+    pts, _ = as_points(interop.coordinates(points))
     k = check_k(k, pts.shape[0])
     with threads(n_jobs):
         return caller_order_graph(pts, k)

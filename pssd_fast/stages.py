@@ -9,7 +9,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import core
+from . import core, interop
 from ._threads import threads
 from ._validation import (as_normals, as_points, auto, check_choice, check_float, check_k,
                           check_orient)
@@ -75,7 +75,7 @@ def _prepare(points, normals_, k, graph, n_jobs, orient=None, estimate=True):
     """Validate inputs, sort them along a Morton curve, build the graph (or sort the caller's)
     and, with ``estimate``, estimate normals where not given (oriented along ``orient``,
     default outward)."""
-    pts, dtype = as_points(points)
+    pts, dtype = as_points(interop.coordinates(points))
     n = pts.shape[0]
     hints = None if orient is None else as_points(orient, "orient")[0]
     if hints is not None and hints.shape[0] != n:
@@ -180,7 +180,7 @@ def outlier_score(points, *, k=core.OUTLIER_K, graph=None, n_jobs=None):
     diagonal; outliers within a few noise widths of the surface are not told apart).
     """
     if graph is None:
-        pts, dtype = as_points(points)
+        pts, dtype = as_points(interop.coordinates(points))
         return outlier_scores(pts, n_jobs, k).astype(dtype, copy=False)
     run = _prepare(points, None, k, graph, n_jobs, estimate=False)
     with threads(n_jobs):

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import atomic, core, duplicates
+from .. import atomic, core, duplicates, interop
 from .._threads import threads
 from .._validation import (
     as_normals, as_points, auto, check_choice, check_flag, check_float, check_int, check_orient,
@@ -60,7 +60,8 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method=
     ----------
     points : (n, 3) array_like
     normals : (n, 3) array_like, optional
-        As in :func:`pssd_fast.denoise`.
+        As in :func:`pssd_fast.denoise` (``points`` may be a cloud :mod:`pssd_fast.interop`
+        converts).
     tile_points : int
         The most points a tile holds (a tile is never smaller than one grid cell).
     client : None, str or distributed.Client
@@ -110,7 +111,7 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method=
             remove_outliers=remove_outliers, classification=classification, classes=classes,
             **method_params))
     report = reporter(progress)
-    pts, dtype = as_points(points)
+    pts, dtype = as_points(interop.coordinates(points))
     n = pts.shape[0]
     check_size(n)
     given = None if normals is None else as_normals(normals, n)
