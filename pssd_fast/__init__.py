@@ -13,6 +13,7 @@ Kernels are compiled by numba on first use and cached on disk; :func:`warmup` co
 ahead of time.
 """
 from ._threads import configure_threads
+from ._validation import DenoiseWarning
 from .denoise import METHODS, DenoiseResult, denoise
 from .graph import NeighborGraph, morton_order, neighbors
 from .stages import (
@@ -24,7 +25,7 @@ from .warmup import warmup
 __version__ = "0.1.0"
 
 __all__ = [
-    "METHODS", "DenoiseResult", "MLSFit", "NeighborGraph", "configure_threads", "denoise",
-    "estimate_normals", "feature_intensity", "filter_normals", "mls_fit", "morton_order",
-    "neighbors", "outlier_score", "sampling_likelihood", "warmup",
+    "METHODS", "DenoiseResult", "DenoiseWarning", "MLSFit", "NeighborGraph", "configure_threads",
+    "denoise", "estimate_normals", "feature_intensity", "filter_normals", "mls_fit",
+    "morton_order", "neighbors", "outlier_score", "sampling_likelihood", "warmup",
 ]
