@@ -19,6 +19,7 @@ The subpackages load on first use, so that ``import pssd_fast`` stays cheap: ``p
 """
 from . import interop
 from ._threads import configure_threads
+from ._validation import DenoiseWarning
 from .denoise import METHODS, DenoiseResult, denoise
 from .graph import NeighborGraph, morton_order, neighbors
 from .stages import (
@@ -30,9 +31,9 @@ from .warmup import warmup
 __version__ = "0.1.0"
 
 __all__ = [
-    "METHODS", "DenoiseResult", "MLSFit", "NeighborGraph", "configure_threads", "denoise",
-    "estimate_normals", "feature_intensity", "filter_normals", "mls_fit", "morton_order",
-    "neighbors", "outlier_score", "sampling_likelihood", "warmup",
+    "METHODS", "DenoiseResult", "DenoiseWarning", "MLSFit", "NeighborGraph", "configure_threads",
+    "denoise", "estimate_normals", "feature_intensity", "filter_normals", "mls_fit",
+    "morton_order", "neighbors", "outlier_score", "sampling_likelihood", "warmup",
 ]
 
 #: Subpackages imported on first access (PEP 562), not by ``import pssd_fast``.

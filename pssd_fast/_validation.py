@@ -1,5 +1,6 @@
 """Argument checks, run before any kernel: each error names the bad value and how to fix it."""
 import numbers
+import warnings
 
 import numpy as np
 
@@ -7,6 +8,16 @@ from . import interop
 
 # The cubic of eq. (1) has 10 coefficients: fewer neighbours cannot determine it.
 MIN_K = 10
+#: float32 coordinates warn where their step at the largest coordinate exceeds this fraction of
+#: the cloud's mean spacing (docs/DECISIONS.md, "float32 coordinates far from the origin").
+STEP_OF_SPACING = 0.01
+#: Rows of the sample that estimates the mean spacing, and of its queries.
+SPACING_SAMPLE = (20_000, 1_000)
+
+
+class DenoiseWarning(UserWarning):
+    """Something of a run the caller may not expect: coordinates whose float32 steps are coarse
+    against the cloud's spacing, or classes too small to denoise, left as they are."""
 
 
 def as_points(points, name="points"):
@@ -50,6 +61,45 @@ def as_points(points, name="points"):
         raise ValueError(f"{name} contains NaN or Inf in {int(bad.sum())} row(s); the first is "
                          f"row {first}: {arr[first].tolist()}; drop or repair those rows")
     return arr, out_dtype
+
+
+def check_precision(points, dtype, stacklevel=3):
+    """Warn (:class:`DenoiseWarning`) where ``points`` (float64, as :func:`as_points` returns
+    them) came as float32 whose step at their largest absolute coordinate exceeds
+    :data:`STEP_OF_SPACING` of the cloud's mean spacing (:func:`mean_spacing`)."""
+    if dtype != np.float32:
+        return
+    largest = float(np.abs(points).max())
+    step = float(np.spacing(np.float32(largest)))
+    spacing = mean_spacing(points)
+    if not step > STEP_OF_SPACING * spacing:
+        return
+    against = (f"{step / spacing:.0%} of the cloud's mean spacing ({spacing:.3g})" if spacing
+               else "more than the spacing of its points, which share positions")
+    warnings.warn(
+        f"points are float32 and reach {largest:.7g}, where float32 values are {step:.3g} "
+        f"apart: {against}, so the coordinates lost detail that denoising works at, and the "
+        f"float32 result is rounded to that step; pass float64 coordinates, or subtract an "
+        f"offset (such as the bounding box's low corner) before converting them to float32",
+        DenoiseWarning, stacklevel=stacklevel)
+
+
+def mean_spacing(points):
+    """The mean distance to the nearest other position, estimated cheaply: of up to 1,000 rows
+    among up to 20,000 rows taken at a fixed stride (:data:`SPACING_SAMPLE`), times the square
+    root of the fraction of rows taken (a surface's spacing goes as one over the square root
+    of its density); 0 where every sampled row has a copy only."""
+    from ._threads import kdtree  # _threads imports this module
+
+    n = points.shape[0]
+    sample = points[::max(1, n // SPACING_SAMPLE[0])]
+    queries = sample[::max(1, sample.shape[0] // SPACING_SAMPLE[1])]
+    if sample.shape[0] < 2:
+        return 0.0
+    distance, _ = kdtree(sample).query(queries, k=2)
+    # Copies are one position: the nearest other position is farther than 0.
+    found = distance[:, 1][distance[:, 1] > 0]
+    return float(found.mean() * np.sqrt(sample.shape[0] / n)) if found.size else 0.0
 
 
 def as_normals(normals, n, name="normals"):

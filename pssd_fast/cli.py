@@ -38,11 +38,10 @@ COLORS = ("height", "classification", "intensity", "rgb", "likelihood", "feature
 DEMO_FILES = ("noisy", "denoised", "curvature", "likelihood", "feature", "denoised_curvature",
               "denoised_displacement")
 STAGE_COUNT = {"robust": 7, "mls": 3, "bilateral": 3}
-#: What ``pssd denoise --fields`` may add; all of them by default (where the method has them).
+#: What ``pssd denoise --fields`` may add (none by default; ``all``: each the method computes
+#: and the output format can hold).
 RESULT_FIELDS = ("likelihood", "feature_intensity", "displacement", "outlier_score", "normals",
                  "held")
-#: Those added when ``--fields`` is not given (where the method computes them).
-DEFAULT_FIELDS = RESULT_FIELDS[:-1]
 
 
 class CommandError(Exception):
@@ -115,10 +114,14 @@ def _parser():
         description="Denoise IN and write OUT, or each IN into FOLDER under its own name. "
                     "Formats follow the extensions: .ply, .xyz, .pts, .txt, .csv, .obj (text, "
                     "PLY and OBJ also gzipped, e.g. .ply.gz), .npy, .npz, .las, .laz; '-' is "
-                    "standard input or output, in the format --format names. Every attribute "
-                    "of the input is written back unchanged; likelihood, feature_intensity, "
-                    "displacement, outlier_score (float32) and normals are added where the "
-                    "format can hold them (see --fields).")
+                    "standard input or output, in the format --format names. OUT has the "
+                    "input's attributes and nothing more: every one written back unchanged, "
+                    "the coordinates and (where IN has them) the normals denoised; --fields "
+                    "adds others. A classified file (a classification field, as LAS/LAZ "
+                    "files have) keeps its classes apart: by default each surface class "
+                    "(2 ground, 6 building, 9 water, 10 rail, 11 road surface, 17 bridge "
+                    "deck) is denoised on its own and the other points are kept as they are "
+                    "(see --classes).")
     den.add_argument("paths", metavar="PATH", nargs="+",
                      help="IN OUT, or with -o the inputs; '-' reads stdin or writes stdout")
     den.add_argument("-o", "--output-dir", type=Path, default=None, metavar="FOLDER",
@@ -128,9 +131,11 @@ def _parser():
                           "ply.gz, las...")
     _add_columns(den)
     den.add_argument("--fields", default=None, metavar="LIST",
-                     help=f"comma-separated fields to add: {', '.join(RESULT_FIELDS)}, or "
-                          f"none (default: all the method computes but held, where the output "
-                          f"format can hold them; an input's own normals are always updated)")
+                     help=f"comma-separated fields to add: {', '.join(RESULT_FIELDS)}; all "
+                          f"(each the method computes that the output format can hold), or "
+                          f"none (default: none, so that OUT has the input's attributes only; "
+                          f"an input's own normals are always updated, and normals are added "
+                          f"only when named)")
     den.add_argument("--method", choices=("robust", "bilateral", "mls"), default="robust",
                      help="robust (the paper's method), bilateral (BIL) or mls (default robust)")
     _add_common(den)
@@ -154,16 +159,20 @@ def _parser():
                           "centroid)")
     den.add_argument("--remove-outliers", action="store_true",
                      help="drop the points whose outlier score exceeds 1 before denoising "
-                          "(the score is written as outlier_score either way)")
+                          "(--fields outlier_score writes the score)")
     den.add_argument("--classes", type=_classes, default=None, metavar="LIST",
-                     help="denoise only the points of these classes of the input's "
-                          "classification field (LAS classes, e.g. 2,6 for ground and "
-                          "buildings); the other points keep their records as they are and are "
-                          "no point's neighbours (default: every point)")
+                     help="which classes of the input's classification field to denoise, "
+                          "each on its own: codes such as 2,6 (ground, buildings), each (every "
+                          "class), or all (every point as one cloud, classes ignored); the "
+                          "points of other classes keep their records and are no point's "
+                          "neighbours (default: the surface classes 2, 6, 9, 10, 11 and 17 "
+                          "present; a file of classes 0 and 1 only, never classified or "
+                          "unclassified, as one cloud)")
     den.add_argument("--tile-points", type=int, default=None, metavar="N",
                      help="run in tiles of at most N points on Dask (pip install "
                           "'pssd_fast[dask]'), with the same result; presets default and fast, "
-                          "where they work on cell means")
+                          "where they work on cell means; a classified input (LAS/LAZ) only "
+                          "with --classes all")
     den.add_argument("--scheduler", default=None, metavar="WHERE",
                      help="where the tiles run: threads (default), processes, sync, or a Dask "
                           "scheduler's address")
@@ -239,12 +248,15 @@ def _parser():
 
 
 def _classes(text):
-    """``--classes``: comma-separated class codes."""
+    """``--classes``: ``all``, ``each`` or comma-separated class codes."""
+    if text.strip() in ("all", "each"):
+        return text.strip()
     try:
         codes = tuple(int(c) for c in text.split(",") if c.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"want comma-separated class numbers such as 2,6; got {text!r}") from None
+            f"want comma-separated class numbers such as 2,6, each or all; got {text!r}"
+        ) from None
     if not codes:
         raise argparse.ArgumentTypeError("want at least one class number, such as 2")
     return codes
@@ -437,7 +449,7 @@ def _jobs(args):
     return jobs
 
 
-def _added_fields(args, result, cloud, out, say):
+def _added_fields(args, result, cloud, runs, out, say):
     """The fields ``--fields`` asks for (float32; ``held`` uint8) and whether to write the new
     normals. Any method's points have an outlier score, computed only when asked for
     (docs/DECISIONS.md, "The outlier score on request")."""
@@ -449,17 +461,15 @@ def _added_fields(args, result, cloud, out, say):
     computes = {name for name, values in have.items() if values is not None}
     computes.add("outlier_score")
     fmt = args.format if _is_stdio(out) else None
-    if args.fields is None:
-        scalars = [n for n in DEFAULT_FIELDS if n != "normals" and n in computes]
+    names = _field_names(args)
+    if names == "all":
+        scalars = [n for n in RESULT_FIELDS if n != "normals" and n in computes]
         names = [*io.storable(out, scalars, format=fmt), "normals"]
     else:
-        names = [n.strip() for n in args.fields.split(",") if n.strip()]
-        if names == ["none"]:
-            names = []
         unknown = [n for n in names if n not in RESULT_FIELDS]
         if unknown:
             raise CommandError(f"--fields: unknown field(s) {', '.join(unknown)}; choose from "
-                               f"{', '.join(RESULT_FIELDS)} or none")
+                               f"{', '.join(RESULT_FIELDS)}, all or none")
         missing = [n for n in names if n not in computes]
         if missing:
             raise CommandError(f"--fields: method {args.method!r} computes no "
@@ -470,25 +480,35 @@ def _added_fields(args, result, cloud, out, say):
             raise CommandError(f"--fields: {out} cannot hold {', '.join(refused)} (use .npz, "
                                f".ply, .las or text)")
     if "outlier_score" in names and have["outlier_score"] is None:
-        have["outlier_score"] = _outlier_score(args, cloud, say)
+        have["outlier_score"] = _outlier_score(args, cloud, runs, say)
     # ``held`` is a flag (0 or 1), the others are float32.
     fields = {n: np.asarray(have[n], dtype=np.uint8 if n == "held" else np.float32)
               for n in names if n != "normals"}
     return fields, "normals" in names or cloud.normals is not None
 
 
-def _outlier_score(args, cloud, say):
-    """:func:`pssd_fast.outlier_score` of ``cloud``'s points; with ``--classes``, of the
-    chosen points among themselves (NaN elsewhere), as the run saw them."""
+def _field_names(args):
+    """The names ``--fields`` gives (none by default), or ``"all"``."""
+    names = [] if args.fields is None else [n.strip() for n in args.fields.split(",")
+                                            if n.strip() and n.strip() != "none"]
+    return "all" if names == ["all"] else names
+
+
+def _outlier_score(args, cloud, runs, say):
+    """:func:`pssd_fast.outlier_score` of ``cloud``'s points; of a classified cloud, of each
+    class denoised (``runs``: their rows) among its own points, as the run saw them (NaN
+    elsewhere, and in a class of too few points to score)."""
+    from .core import OUTLIER_K
     from .stages import outlier_score
 
     started = time.perf_counter()
-    if args.classes is None:
+    if runs is None:
         score = outlier_score(cloud.points, n_jobs=args.n_jobs)
     else:
-        chosen = np.isin(cloud.fields["classification"], args.classes)
         score = np.full(len(cloud), np.nan)
-        score[chosen] = outlier_score(cloud.points[chosen], n_jobs=args.n_jobs)
+        for rows in runs:
+            if len(rows) > OUTLIER_K:
+                score[rows] = outlier_score(cloud.points[rows], n_jobs=args.n_jobs)
     if args.verbose:
         print(f"outlier score: {time.perf_counter() - started:.3f} s", file=say)
     return score
@@ -516,7 +536,7 @@ def _check_tiled(args, method_params, remove_outliers):
     unused = [name for name, given in (
         ("--method", args.method != "robust"), ("--k", args.k is not None),
         ("--lam", args.lam is not None), ("--rebuild-graph", args.rebuild_graph is not None),
-        ("--remove-outliers", remove_outliers), ("--classes", args.classes is not None),
+        ("--remove-outliers", remove_outliers),
         *((_flag(dest), True) for dest in method_params
           if dest not in ("sigma_n", "select_scales")))
         if given]
@@ -539,11 +559,10 @@ def _on_disk(args, inp, out):
     kind = FILE_KINDS.get(Path(inp).suffix.lower())
     if kind is None or kind != FILE_KINDS.get(Path(out).suffix.lower()):
         return False
-    names = [] if args.fields is None else [n.strip() for n in args.fields.split(",")
-                                            if n.strip() and n.strip() != "none"]
+    names = _field_names(args)
     if kind == "zarr":
         return True
-    if set(names) - set(ondisk.RESULT_FIELDS if kind == "las" else ()):
+    if names != "all" and set(names) - set(ondisk.RESULT_FIELDS if kind == "las" else ()):
         return False
     try:
         ondisk.NpyFile(inp) if kind == "npy" else ondisk.LasFile(inp)
@@ -560,9 +579,12 @@ def _denoise_on_disk(args, params, inp, out, say):
 
     _check_tiled(args, params, args.remove_outliers)
     las = FILE_KINDS[Path(inp).suffix.lower()] == "las"
-    default = ondisk.RESULT_FIELDS if las else ()
-    fields = default if args.fields is None else tuple(
-        n.strip() for n in args.fields.split(",") if n.strip() and n.strip() != "none")
+    if las and args.classes != "all":
+        _refuse_classes(inp)
+    if not las and args.classes not in (None, "all"):
+        raise CommandError(f"--classes: {inp} has no classification field")
+    names = _field_names(args)
+    fields = (ondisk.RESULT_FIELDS if las else ()) if names == "all" else tuple(names)
     if fields and not las:
         raise CommandError(f"--fields: {out} cannot hold {', '.join(fields)} (use .las/.laz, "
                            f"or .npz, .ply or text without --tile-points)")
@@ -634,13 +656,12 @@ def _denoise_file(args, params, inp, out, say):
         return
     fmt = args.format
     cloud = _read(inp, args, fmt if _is_stdio(inp) else None)
-    labels, chosen = {}, None
-    if args.classes is not None:
-        if "classification" not in cloud.fields:
-            raise CommandError(f"--classes: {inp} has no classification field (LAS/LAZ "
-                               "files have one; other formats need a 'classification' column)")
-        labels = {"classification": cloud.fields["classification"], "classes": args.classes}
-        chosen = np.isin(labels["classification"], args.classes)
+    labels, runs = _labels(args, cloud, inp)
+    chosen = None
+    if runs is not None:
+        chosen = np.zeros(len(cloud), np.bool_)
+        for rows in runs:
+            chosen[rows] = True
     given = _given_normals(cloud, inp, chosen)
     if given is None and cloud.normals is not None and params.get("keep_normals"):
         raise CommandError(f"--keep-normals needs a normal on every point to denoise; {inp} "
@@ -656,12 +677,14 @@ def _denoise_file(args, params, inp, out, say):
                                    **labels)
     if args.remove_outliers:
         cloud = io.select(cloud, result.kept)
-    fields, with_normals = _added_fields(args, result, cloud, out, say)
+    if chosen is not None and args.remove_outliers:
+        # The rows kept (the run gave their outlier scores, so the runs' rows serve no more).
+        chosen = chosen[result.kept]
+    fields, with_normals = _added_fields(args, result, cloud, runs, out, say)
     normals = result.normals.astype(np.float64) if with_normals else None
     if given is None and chosen is not None and cloud.normals is not None:
         # The points outside the classes keep the file's normals, as they keep their records.
-        untouched = ~np.isin(cloud.fields["classification"], args.classes)
-        normals[untouched] = cloud.normals[untouched]
+        normals[~chosen] = cloud.normals[~chosen]
     io.write(out, cloud, points=result.points.astype(np.float64), normals=normals,
              fields=fields, overwrite=args.force, format=fmt if _is_stdio(out) else None)
     if not args.quiet:
@@ -670,7 +693,53 @@ def _denoise_file(args, params, inp, out, say):
                    if args.remove_outliers else "")
         print(f"{inp} -> {out}: {len(disp):,} points{removed}, method {args.method}, "
               f"{result.stats['n_iterations']} iterations, {seconds:.2f} s; displacement max "
-              f"{disp.max():.4g}, mean {disp.mean():.4g}", file=say)
+              f"{disp.max():.4g}, mean {disp.mean():.4g}{_classes_done(result.stats)}", file=say)
+
+
+def _labels(args, cloud, name):
+    """The ``classification`` and ``classes`` that :func:`pssd_fast.denoise` takes for
+    ``cloud`` (none where every point is denoised as one cloud), and the rows of each class it
+    denoises on its own (None: one cloud)."""
+    from .classes import select
+
+    classification = cloud.fields.get("classification")
+    if classification is None:
+        if args.classes not in (None, "all"):
+            raise CommandError(f"--classes: {name} has no classification field (LAS/LAZ "
+                               "files have one; other formats need a 'classification' column)")
+        return {}, None
+    if args.classes == "all":
+        return {}, None
+    try:
+        runs, *_ = select(classification, args.classes, len(cloud),
+                          {"k": args.k, "preset": args.preset})
+    except (TypeError, ValueError) as exc:
+        raise CommandError(f"{name}: {_one_line(exc)}") from None
+    if runs[0][0] is None:
+        return {}, None  # the file's classes are 0 and 1 only: no classification
+    if args.tile_points is not None:
+        _refuse_classes(name)
+    return {"classification": classification, "classes": args.classes}, [r for _, r in runs]
+
+
+def _classes_done(stats):
+    """What a classified run denoised, for the line ``pssd denoise`` prints."""
+    done = stats.get("classes")
+    if done is None or done["classes"] == "all":
+        return ""
+    codes = done["classes"]
+    return (f"; class{'es' * (len(codes) > 1)} {', '.join(map(str, codes))} denoised"
+            f"{' each on its own' * (len(codes) > 1)}, {done['untouched']:,} points of other "
+            f"classes kept")
+
+
+def _refuse_classes(name):
+    """``--tile-points`` denoises every point as one cloud: a classified input needs ``--classes
+    all``."""
+    raise CommandError(f"--tile-points denoises every point as one cloud and cannot keep the "
+                       f"classes of {name} apart; pass --classes all to denoise it as one "
+                       f"cloud, or leave out --tile-points to denoise its classes each on its "
+                       f"own")
 
 
 def _read(path, args, fmt=None):

@@ -1,14 +1,14 @@
 """`denoise`: resolves the parameters, then runs the iterations of the chosen pipeline."""
-import numbers
 import time
 
 import numpy as np
 
+from . import classes as lidar
 from . import core, duplicates, interop
 from ._threads import threads
 from ._validation import (
     as_normals, as_points, auto, check_choice, check_flag, check_float, check_int, check_k,
-    check_orient, check_size,
+    check_orient, check_precision, check_size,
 )
 from .graph import bounds
 from .progress import Clock, reporter
@@ -43,9 +43,10 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     Parameters
     ----------
     points : array_like, shape (n, 3)
-        Noisy coordinates, float32 or float64 (other real dtypes are computed as float64).
-        Never modified. Or an Open3D or trimesh point cloud, or a structured array with
-        fields ``X``, ``Y``, ``Z`` (:mod:`pssd_fast.interop`; their normals are not used).
+        Noisy coordinates, float32 or float64 (other real dtypes are computed as float64);
+        the result has their dtype. float32 far from the origin warns (see Warns). Never
+        modified. Or an Open3D or trimesh point cloud, or a structured array with fields
+        ``X``, ``Y``, ``Z`` (:mod:`pssd_fast.interop`; their normals are not used).
     normals : array_like, shape (n, 3), optional
         Normals of the input points (any length but zero; only local sign consistency matters).
         Used in the first iteration (in every iteration with ``keep_normals=True``); otherwise
@@ -111,15 +112,32 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         box's longest side. Rows at different positions are never merged.
         ``stats["duplicates"]`` counts the rows merged.
     classification : array_like of int, shape (n,), optional
-        A class code per point, such as the LAS ``classification`` (2 ground, 6 building...);
-        only with ``classes``.
-    classes : iterable of int, optional
-        Denoise only the points whose ``classification`` is one of these. The others are no
-        point's neighbours and keep their exact coordinates (and their normals as given, NaN
-        allowed; else NaN normals), NaN ``likelihood``, ``feature_intensity`` and (with
-        ``remove_outliers``) ``outlier_score``, and zero ``displacement``; ``remove_outliers``
-        drops outliers among the chosen points only. ``stats["classes"]`` counts both.
-        Default: every point.
+        A class code per point, such as the LAS ``classification`` (ASPRS LAS 1.4: 0 never
+        classified, 1 unclassified, 2 ground, 3-5 vegetation, 6 building, 7 and 18 noise, 9
+        water...). Points of two classes are never each other's neighbours: each class
+        denoised runs on its own, as ``denoise(points[rows of the class])`` (the call's other
+        parameters apply to each run; ``remove_outliers`` drops outliers within each class).
+        By default (``classes`` not given) the surface classes present are denoised, each on
+        its own: 2 ground, 6 building, 9 water, 10 rail, 11 road surface and 17 bridge deck
+        (``pssd_fast.classes.SURFACE_CLASSES``), and every other point is kept as it is; a
+        classification of 0 and 1 only carries no class, and the cloud is denoised as one.
+        Where no point is of a surface class, ValueError (name the classes). A class chosen
+        by default (or by ``"each"``) with fewer points than a run needs (``k + 1``; 11, or
+        26 with preset "paper", where ``k`` is not given) is kept as it is, with a
+        :class:`pssd_fast.DenoiseWarning` (docs/DECISIONS.md, "LiDAR classes").
+    classes : iterable of int, "each" or "all", optional
+        Which classes of ``classification`` to denoise, each on its own: these codes (codes no
+        point has are ignored), or ``"each"``: every class present. ``"all"``: every point, as
+        one cloud, the classification ignored (as without it). The points of the classes not
+        denoised are no point's neighbours and keep their exact coordinates (and their
+        normals as given, NaN allowed; else NaN normals), NaN ``likelihood``,
+        ``feature_intensity`` and (with ``remove_outliers``) ``outlier_score``, and zero
+        ``displacement``. ``stats`` are those of the largest class's run but ``n_points``,
+        ``duplicates``, ``held_points`` and ``outliers`` (sums over the runs) and
+        ``total_seconds`` (the call's); ``stats["classes"]`` says what was denoised
+        (``"classes"``: the codes, or ``"all"``), counts the points ``"denoised"`` and
+        ``"untouched"``, lists the classes ``"too_small"`` and holds each class's own
+        ``stats`` in ``"runs"``.
     n_jobs : int or None, default None
         Threads for the kernels: ``None`` or -1 use every thread numba may use (by default one
         per core), a positive number that many (capped at that maximum). Numba's setting is
@@ -188,6 +206,17 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         ``k`` not given the message names the cloud's size and the preset's ``k``), parameters
         out of range, and parameters the method or the preset's pipeline does not use.
 
+    Warns
+    -----
+    DenoiseWarning
+        Once a call, where ``points`` are float32 and their step at the largest absolute
+        coordinate exceeds 1% of the cloud's mean spacing (UTM coordinates as float32 are 3 cm
+        to 1 m apart): the coordinates lost detail that denoising works at, and the
+        float32 result is rounded to that step. Pass float64, or subtract an offset before
+        converting to float32 (docs/DECISIONS.md, "float32 coordinates far from the origin").
+        And where classes chosen by default are too small to denoise (see
+        ``classification``).
+
     Notes
     -----
     One robust iteration (paper Sections 2-4): kNN graph; normals; MLS cubic fit giving the
@@ -224,7 +253,7 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     """
     points = interop.coordinates(points)  # Open3D, trimesh and structured arrays
     if classes is not None or classification is not None:
-        return _only_classes(points, normals, classification, classes, {
+        return _by_class(points, normals, classification, classes, {
             "method": method, "iterations": iterations, "k": k, "lam": lam, "preset": preset,
             "rebuild_graph": rebuild_graph, "orient": orient, "remove_outliers": remove_outliers,
             "duplicate_tolerance": duplicate_tolerance, "n_jobs": n_jobs, "progress": progress,
@@ -243,6 +272,7 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         params.pop("select_scales", None)
     report = reporter(progress)
     pts, dtype = as_points(points)
+    check_precision(pts, dtype)
     n = pts.shape[0]
     iterations = auto(iterations, lambda v: check_int(v, "iterations", minimum=1))
     k = auto(k)
@@ -337,76 +367,29 @@ def _cells_route(fine, fine_given, plan, request, order):
                          extra=tuple(x[nearest] for x in extra), held=held)
 
 
-def _only_classes(points, normals, classification, classes, options):
-    """:func:`denoise` of the points whose ``classification`` is in ``classes``, the others
-    kept as they are (see its ``classes``)."""
+def _by_class(points, normals, classification, classes, options):
+    """:func:`denoise` of each class that ``classification`` and ``classes`` choose on its
+    own, the other points kept as they are (see its ``classification``)."""
+    started = time.perf_counter()
     pts, dtype = as_points(points)
+    check_precision(pts, dtype, stacklevel=4)
     n = pts.shape[0]
-    chosen, wanted = check_classes(classification, classes, n)
-    given = None
-    if normals is not None:
-        given = np.asarray(normals)
-        if given.shape != (n, 3):
-            as_normals(normals, n)  # names what is wrong
-        # Only the chosen points' normals are used, and checked; the others are kept as given,
-        # NaN included (as a classes run returns them where none were given).
-        used = as_normals(given[chosen], int(chosen.sum()), "normals (of the chosen classes)")
-        given = given.astype(np.float64)
-        given[chosen] = used
-    part = denoise(pts[chosen], None if given is None else given[chosen], **options)
-    denoised = np.flatnonzero(chosen)[part.kept]
-    holds = ~chosen
-    holds[denoised] = True
-    kept = np.flatnonzero(holds)
-    at = np.searchsorted(kept, denoised)
-    out_points = pts[kept].astype(dtype)
-    out_points[at] = part.points
-    nan = np.full((kept.shape[0], 3), np.nan, dtype)
-    out_normals = nan.copy() if given is None else given[kept].astype(dtype)
-    out_normals[at] = part.normals
-
-    def spread(values, fill=np.nan):
-        if values is None:
-            return None
-        out = np.full(kept.shape[0], fill, values.dtype)
-        out[at] = values
-        return out
-
-    stats = {**part.stats, "classes": {
-        "classes": wanted, "denoised": int(chosen.sum()), "untouched": int(n - chosen.sum())}}
-    return DenoiseResult(
-        points=out_points, normals=out_normals, likelihood=spread(part.likelihood),
-        feature_intensity=spread(part.feature_intensity),
-        displacement=spread(part.displacement, 0), held=spread(part.held, False), kept=kept,
-        outlier_score=spread(part.outlier_score), stats=stats)
-
-
-def check_classes(classification, classes, n):
-    """The mask of the points whose ``classification`` is in ``classes``, and the sorted
-    classes; ValueError or TypeError naming what is wrong."""
-    if classes is None or classification is None:
-        raise ValueError("classes and classification go together: classification=... gives "
-                         "each point's class, classes=... those to denoise")
-    labels = np.asarray(classification)
-    if labels.shape != (n,):
-        raise ValueError(f"classification must have one value per point, shape ({n},); got "
-                         f"shape {labels.shape}")
-    if labels.dtype.kind not in "iu":
-        raise TypeError(f"classification must hold integers; got dtype {labels.dtype}")
-    if isinstance(classes, numbers.Integral):
-        classes = [classes]
-    try:
-        wanted = sorted({check_int(c, "a class") for c in classes})
-    except TypeError as exc:
-        raise TypeError(f"classes must be integers; got {classes!r}") from exc
-    if not wanted:
-        raise ValueError("classes is empty: name at least one class to denoise")
-    chosen = np.isin(labels, wanted)
-    if not chosen.any():
-        present = ", ".join(str(c) for c in np.unique(labels)[:20])
-        raise ValueError(f"no point is of class {', '.join(map(str, wanted))}; the classes "
-                         f"present are {present}")
-    return chosen, wanted
+    runs, small, described, least = lidar.select(classification, classes, n, options)
+    lidar.warn_small(small, least, stacklevel=3)
+    chosen = np.zeros(n, np.bool_)
+    for _, rows in runs:
+        chosen[rows] = True
+    given = lidar.given_normals(normals, n, chosen)
+    done = []
+    for code, rows in runs:
+        try:
+            part = denoise(pts[rows], None if given is None else given[rows], **options)
+        except ValueError as exc:
+            if code is None:
+                raise
+            raise ValueError(f"the points of class {code}: {exc}") from exc
+        done.append((code, rows, part))
+    return lidar.merge(pts, dtype, given, done, small, described, started)
 
 
 def _check_pipeline_params(method, preset, pipeline, explicit, lam):

@@ -1,4 +1,5 @@
-"""Denoising only some LAS classes: ``classes=`` and ``pssd denoise --classes``."""
+"""LiDAR classes kept apart: ``classification=``, ``classes=`` and ``pssd denoise
+--classes``."""
 import numpy as np
 import pytest
 
@@ -18,6 +19,98 @@ def labelled():
     return points, labels
 
 
+@pytest.fixture(scope="module")
+def survey():
+    """A small airborne survey: rolling ground (class 2), tree crowns standing on it (5), a
+    flat roof (6), low noise points (7) and five points of a bridge deck (17)."""
+    rng = np.random.default_rng(11)
+    xy = rng.uniform(0, 40, (3000, 2))
+    ground = np.column_stack([xy, 0.5 * np.sin(xy[:, 0] / 6) + rng.normal(0, 0.03, 3000)])
+    centres = rng.uniform(5, 35, (12, 2))
+    crown = rng.normal(0, 1.2, (1200, 3)) + np.column_stack(
+        [centres[np.arange(1200) % 12], np.full(1200, 3.0)])
+    crown[:, 2] = np.maximum(crown[:, 2], 0.4)  # the lowest branches touch the ground
+    roof = np.column_stack([rng.uniform(25, 35, (600, 2)), 4 + rng.normal(0, 0.03, 600)])
+    low = np.column_stack([rng.uniform(0, 40, (8, 2)), np.full(8, -3.0)])
+    deck = np.column_stack([rng.uniform(0, 2, (5, 2)), np.full(5, 2.0)])
+    points = np.vstack([ground, crown, roof, low, deck])
+    labels = np.repeat(np.array([2, 5, 6, 7, 17], np.uint8), [3000, 1200, 600, 8, 5])
+    order = rng.permutation(len(points))  # classes interleaved, as in a file
+    return points[order], labels[order]
+
+
+#: A short run: one iteration at k, so that every comparison below takes a fraction of a second.
+QUICK = {"iterations": 1, "select_scales": False}
+
+
+def test_ground_never_takes_a_tree_point_as_neighbour(survey):
+    """By default each surface class runs on its own, exactly as a cloud of its points alone;
+    the other classes keep their coordinates, and a class too small to denoise says so."""
+    points, labels = survey
+    with pytest.warns(pssd_fast.DenoiseWarning, match=r"class 17 \(5 points\): fewer points "
+                                                       r"than a run needs \(11\)"):
+        result = pssd_fast.denoise(points, classification=labels, **QUICK)
+    for code in (2, 6):
+        rows = labels == code
+        alone = pssd_fast.denoise(points[rows], **QUICK)
+        for name in ("points", "normals", "likelihood", "feature_intensity", "displacement"):
+            np.testing.assert_array_equal(getattr(result, name)[rows], getattr(alone, name),
+                                          err_msg=f"class {code}: {name}")
+    kept = ~np.isin(labels, (2, 6))
+    np.testing.assert_array_equal(result.points[kept], points[kept])
+    assert (result.displacement[kept] == 0).all() and np.isnan(result.likelihood[kept]).all()
+    classes = result.stats["classes"]
+    assert (classes["classes"], classes["too_small"], sorted(classes["runs"])) == (
+        [2, 6], [17], [2, 6])
+    assert (classes["denoised"], classes["untouched"]) == (3600, 1213)
+    assert result.stats["n_points"] == 3600
+    assert result.stats["k"] == classes["runs"][2]["k"]  # the largest class's run
+    # As one cloud, the crowns pull the ground under them.
+    one = pssd_fast.denoise(points, **QUICK)
+    ground = labels == 2
+    assert np.abs(one.points[ground] - result.points[ground]).max() > 0.1
+
+
+def test_each_all_and_a_classification_that_holds_no_class(survey):
+    points, labels = survey
+    with pytest.warns(pssd_fast.DenoiseWarning,
+                      match=r"classes 7 \(8 points\), 17 \(5 points\): fewer"):
+        each = pssd_fast.denoise(points, classification=labels, classes="each", **QUICK)
+    assert each.stats["classes"]["classes"] == [2, 5, 6]
+    trees = labels == 5
+    np.testing.assert_array_equal(each.points[trees],
+                                  pssd_fast.denoise(points[trees], **QUICK).points)
+    np.testing.assert_array_equal(each.points[labels == 7], points[labels == 7])
+    # Named classes run each on its own too; "all" and a classification of 0 and 1 only run
+    # every point as one cloud.
+    named = pssd_fast.denoise(points, classification=labels, classes=[5, 6], **QUICK)
+    np.testing.assert_array_equal(named.points[trees], each.points[trees])
+    np.testing.assert_array_equal(named.points[labels == 2], points[labels == 2])
+    whole = pssd_fast.denoise(points, **QUICK)
+    unclassified = np.where(labels == 2, 0, 1).astype(np.uint8)
+    for classification, classes in ((labels, "all"), (unclassified, None), (None, "all")):
+        got = pssd_fast.denoise(points, classification=classification, classes=classes, **QUICK)
+        np.testing.assert_array_equal(got.points, whole.points)
+        assert got.stats["classes"]["classes"] == "all"
+    # A class named is denoised or named in the error.
+    with pytest.raises(ValueError, match="the points of class 7: the cloud has 8 points; "
+                                         "denoising needs at least 11"):
+        pssd_fast.denoise(points, classification=labels, classes=[2, 7], **QUICK)
+
+
+def test_the_class_split_costs_one_sort(survey):
+    """A million points of 200 classes are split in one sort, not one pass per class."""
+    from pssd_fast import classes
+
+    labels = np.random.default_rng(3).integers(0, 200, 1_000_000).astype(np.uint8)
+    runs, small, codes, _ = classes.select(labels, "each", len(labels), {})
+    assert codes == list(range(200)) and small == []
+    rows = np.concatenate([r for _, r in runs])
+    np.testing.assert_array_equal(np.sort(rows), np.arange(len(labels)))
+    for code, r in runs[:3]:
+        np.testing.assert_array_equal(r, np.flatnonzero(labels == code))
+
+
 def test_only_the_named_classes_move(labelled):
     points, labels = labelled
     result = pssd_fast.denoise(points, classification=labels, classes=[2])
@@ -32,8 +125,10 @@ def test_only_the_named_classes_move(labelled):
     assert np.isnan(result.normals[~ground]).all() and np.isnan(result.likelihood[~ground]).all()
     assert (result.displacement[~ground] == 0).all() and not result.held[~ground].any()
     assert result.outlier_score is None and alone.outlier_score is None  # none asked for
-    assert result.stats["classes"] == {"classes": [2], "denoised": int(ground.sum()),
-                                       "untouched": int((~ground).sum())}
+    assert result.stats["classes"] == {
+        "classes": [2], "denoised": int(ground.sum()), "untouched": int((~ground).sum()),
+        "too_small": [], "runs": {2: result.stats["classes"]["runs"][2]}}
+    assert result.stats["classes"]["runs"][2]["n_points"] == ground.sum()
     np.testing.assert_array_equal(result.kept, np.arange(len(points)))
 
 
@@ -43,9 +138,10 @@ def test_classes_keep_given_normals_and_work_with_outlier_removal(labelled):
     at_k = {"select_scales": False}
     normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
     result = pssd_fast.denoise(points, normals, classification=labels, classes=(1, 2, 9), **at_k)
-    whole = pssd_fast.denoise(points, normals, **at_k)
-    np.testing.assert_array_equal(result.points, whole.points)  # every point chosen
     one = labels == 1
+    for rows in (one, ~one):  # every point chosen, each class on its own
+        alone = pssd_fast.denoise(points[rows], normals[rows], **at_k)
+        np.testing.assert_array_equal(result.points[rows], alone.points)
     result = pssd_fast.denoise(points, normals, classification=labels, classes=2, **at_k)
     np.testing.assert_array_equal(result.normals[one], normals[one])
     removed = pssd_fast.denoise(points, classification=labels, classes=[2],
@@ -81,9 +177,10 @@ def test_normals_outside_the_classes_are_kept_as_given(labelled):
 
 @pytest.mark.parametrize("ext", [".las", ".ply", ".xyz"])
 def test_a_classes_output_denoises_and_renders_again(tmp_path, labelled, ext):
-    """What ``--classes`` writes (NaN normals outside the classes) reads back: denoised again
-    whole (every normal estimated, after a note), with the same classes, with the other class
-    (whose points keep the file's normals) and drawn."""
+    """What ``--classes`` writes with ``--fields normals`` (NaN normals outside the classes)
+    reads back: denoised again whole (every normal estimated, after a note), with the same
+    classes (the default's), with the other class (whose points keep the file's normals) and
+    drawn."""
     if ext != ".xyz":
         pytest.importorskip({".las": "laspy", ".ply": "plyfile"}[ext])
     from pssd_fast import io
@@ -93,13 +190,15 @@ def test_a_classes_output_denoises_and_renders_again(tmp_path, labelled, ext):
     io.write(source, io.PointCloud(points, None, {"classification": labels}))
     fast = ("--preset", "fast", "--iterations", "1", "--quiet")
     first = tmp_path / f"first{ext}"
-    status, _, err = pssd("denoise", source, first, "--classes", "2", *fast)
+    status, _, err = pssd("denoise", source, first, "--classes", "2", "--fields", "normals",
+                          *fast)
     assert status == 0, err
     written = io.read(first)
     one = written.fields["classification"] == 1
     assert np.isnan(written.normals[one]).all() and np.isfinite(written.normals[~one]).all()
     note = "have no normal (NaN or zeros); every normal is estimated, none read from the file"
-    for name, extra, warned in (("whole", (), True), ("again", ("--classes", "2"), False),
+    # "again": the default, the surface class 2 (the file's classes are 1 and 2).
+    for name, extra, warned in (("whole", ("--classes", "all"), True), ("again", (), False),
                                 ("other", ("--classes", "1"), True)):
         out = tmp_path / f"{name}{ext}"
         status, _, err = pssd("denoise", first, out, *extra, *fast)
@@ -122,7 +221,12 @@ def test_a_classes_output_denoises_and_renders_again(tmp_path, labelled, ext):
 
 @pytest.mark.parametrize("kwargs, error, match", [
     ({"classes": [2]}, ValueError, "classes and classification go together"),
-    ({"classification": np.zeros(4000, np.uint8)}, ValueError, "go together"),
+    ({"classes": "each"}, ValueError, "go together"),
+    ({"classification": np.zeros(4000, np.uint8), "classes": "some"}, ValueError,
+     "class codes, 'each' or 'all'"),
+    ({"classification": np.full(4000, 5, np.uint8)}, ValueError,
+     "no point is of a surface class .2 ground, 6 building, 9 water, 10 rail, 11 road "
+     "surface, 17 bridge deck.*the classes present are 5"),
     ({"classification": np.zeros(10, np.uint8), "classes": [2]}, ValueError, r"shape \(4000,\)"),
     ({"classification": np.zeros(4000), "classes": [2]}, TypeError, "integers"),
     ({"classification": np.zeros(4000, np.uint8), "classes": ["2"]}, TypeError, "integers"),
@@ -135,29 +239,113 @@ def test_bad_classes_are_named(labelled, kwargs, error, match):
         pssd_fast.denoise(labelled[0], **kwargs)
 
 
-@pytest.mark.slow
-def test_pssd_denoise_classes_leaves_other_records_byte_for_byte(tmp_path):
-    """The issue's check, on the shared airborne survey: ``--classes 2`` leaves every class-1
-    record as it was, byte for byte (the records' own bytes; the added fields follow them)."""
+def _survey_las(path, points, labels):
     laspy = pytest.importorskip("laspy")
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = [0.001, 0.001, 0.001]
+    header.offsets = [500_000.0, 4_000_000.0, 0.0]
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = (points + header.offsets).T
+    las.classification = labels
+    las.intensity = np.arange(len(points)) % 65535
+    las.write(str(path))
+    return laspy
+
+
+def test_pssd_denoise_keeps_the_classes_of_a_las_file_apart(tmp_path, survey):
+    """With no option, a classified LAS file: each surface class denoised on its own (as the
+    library does), every record of the other classes byte for byte, the input's dimensions
+    only; ``--classes all`` runs every point as one cloud; ``--tile-points`` needs it."""
+    points, labels = survey
+    source = tmp_path / "survey.las"
+    laspy = _survey_las(source, points, labels)
+    quick = ("--iterations", "1", "--no-select-scales")
+    status, out, err = pssd("denoise", source, tmp_path / "out.las", *quick)
+    assert status == 0, err
+    assert err == ("pssd: note: class 17 (5 points): fewer points than a run needs (11); left as "
+                   "they are\n")
+    assert "classes 2, 6 denoised each on its own, 1,213 points of other classes kept" in out
+    before, after = (laspy.read(str(p)) for p in (source, tmp_path / "out.las"))
+    assert list(after.point_format.dimension_names) == list(before.point_format.dimension_names)
+    kept = ~np.isin(labels, (2, 6))
+    np.testing.assert_array_equal(after.points.array[kept], before.points.array[kept])
+    read = np.column_stack([before.x, before.y, before.z])
+    with pytest.warns(pssd_fast.DenoiseWarning, match="class 17"):
+        expected = pssd_fast.denoise(read, classification=labels, orient="up", **QUICK).points
+    moved = np.column_stack([after.x, after.y, after.z])
+    assert np.abs(moved - expected).max() <= 0.5e-3 + 1e-9
+    status, _, err = pssd("denoise", source, tmp_path / "all.las", *quick, "--classes", "all")
+    assert status == 0 and err == "", err
+    trees = labels == 5
+    assert (laspy.read(str(tmp_path / "all.las")).points.array[trees]
+            != before.points.array[trees]).any()
+    status, _, err = pssd("denoise", source, tmp_path / "tiles.las", "--tile-points", "2000")
+    assert status == 1 and "pass --classes all to denoise it as one cloud" in err, err
+    # The outlier score of each class among its own points, as --remove-outliers takes it.
+    status, _, err = pssd("denoise", source, tmp_path / "scored.las", *quick, "--fields",
+                          "outlier_score")
+    assert status == 0, err
+    score = np.asarray(laspy.read(str(tmp_path / "scored.las"))["outlier_score"])
+    ground = labels == 2
+    np.testing.assert_array_equal(score[ground],
+                                  pssd_fast.outlier_score(read[ground]).astype(np.float32))
+    assert np.isnan(score[kept]).all()
+    status, _, err = pssd("denoise", source, tmp_path / "clean.las", *quick, "--fields",
+                          "outlier_score,normals", "--remove-outliers")
+    assert status == 0, err
+    clean = laspy.read(str(tmp_path / "clean.las"))
+    other = ~np.isin(np.asarray(clean.classification), (2, 6))
+    assert other.sum() == kept.sum()  # only the classes denoised lose outliers
+    assert np.isnan(np.asarray(clean["outlier_score"])[other]).all()
+    assert np.isnan(np.asarray(clean["nz"])[other]).all()
+    assert (np.asarray(clean["nz"])[~other] > 0).all()  # up, as LAS input is oriented
+
+
+def _autzen():
     source = DEFAULT_LIDAR_DIR / "autzen_trim.laz"
     if not source.is_file():
         pytest.skip(f"LiDAR file {source} not found")
-    out = tmp_path / "out.laz"
-    status, _, err = pssd("denoise", source, out, "--classes", "2", "--fields",
-                          "displacement,held", "--quiet")
+    return source
+
+
+@pytest.fixture(scope="module")
+def autzen_denoised(tmp_path_factory):
+    """``pssd denoise autzen_trim.laz out.laz`` with no option: the input, the output."""
+    laspy = pytest.importorskip("laspy")
+    source = _autzen()
+    out = tmp_path_factory.mktemp("autzen") / "out.laz"
+    status, text, err = pssd("denoise", source, out)
     assert status == 0, err
-    before, after = laspy.read(str(source)), laspy.read(str(out))
-    size = before.points.array.dtype.itemsize
-    old = before.points.array.view(np.uint8).reshape(len(before.points), size)
-    new = after.points.array.view(np.uint8).reshape(len(after.points), -1)[:, :size]
+    assert "class 2 denoised, 83,893 points of other classes kept" in text
+    return source, out, laspy.read(str(source)), laspy.read(str(out))
+
+
+@pytest.mark.slow
+def test_pssd_denoise_of_a_survey_is_like_its_input(autzen_denoised):
+    """The issue's check on the shared airborne survey (feet): with no option the class-1
+    records stay byte for byte, no ground point moves more than 3 units, and the output has
+    the input's dimensions in a file within 5% of the input's size."""
+    source, out, before, after = autzen_denoised
+    assert list(after.point_format.dimension_names) == list(before.point_format.dimension_names)
     other = np.asarray(before.classification) != 2
-    assert other.sum() > 10_000
-    np.testing.assert_array_equal(new[other], old[other])
-    assert (np.asarray(after["displacement"])[other] == 0).all()
-    ground = ~other
-    assert (new[ground] != old[ground]).any(axis=1).mean() > 0.5  # the ground moved
-    assert set(np.unique(after["held"])) <= {0, 1}
+    assert other.sum() == 83_893
+    np.testing.assert_array_equal(after.points.array[other], before.points.array[other])
+    moves = np.linalg.norm(np.column_stack([after.x - before.x, after.y - before.y,
+                                            after.z - before.z]), axis=1)[~other]
+    assert np.median(moves) > 0.01 and moves.max() < 3.0
+    assert abs(out.stat().st_size / source.stat().st_size - 1) < 0.05
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="the default method moves 28 of the 26,107 ground points "
+                                       "(0.107%) more than 1 unit; the class split is not the "
+                                       "cause: the ground alone gives the same moves")
+def test_pssd_denoise_of_a_survey_moves_few_ground_points_far(autzen_denoised):
+    _, _, before, after = autzen_denoised
+    ground = np.asarray(before.classification) == 2
+    moves = np.linalg.norm(np.column_stack([after.x - before.x, after.y - before.y,
+                                            after.z - before.z]), axis=1)[ground]
+    assert (moves > 1.0).mean() < 0.001
 
 
 def test_pssd_denoise_classes_needs_a_classification(tmp_path):
@@ -168,4 +356,4 @@ def test_pssd_denoise_classes_needs_a_classification(tmp_path):
     assert status == 1 and "Traceback" not in err and "has no classification field" in err
     status, _, err = pssd("denoise", tmp_path / "in.xyz", tmp_path / "out.xyz", "--classes",
                           "ground")
-    assert status == 2 and "comma-separated class numbers" in err
+    assert status == 2 and "comma-separated class numbers such as 2,6, each or all" in err

@@ -71,7 +71,8 @@ def test_help_offers_every_parameter_of_the_library():
 def test_denoise_ply_keeps_every_other_attribute(tmp_path, ply_with_extras):
     path, vertex = ply_with_extras
     out = tmp_path / "clean.ply"
-    status, stdout, err = pssd("denoise", path, out, "--iterations", "1", "--verbose")
+    status, stdout, err = pssd("denoise", path, out, "--iterations", "1", "--verbose",
+                               "--fields", "all")
     assert status == 0, err
     assert "iteration 1: truncate" in stdout
     xyz = np.column_stack([vertex[a] for a in "xyz"]).astype(np.float64)
@@ -84,7 +85,8 @@ def test_denoise_ply_keeps_every_other_attribute(tmp_path, ply_with_extras):
     for name in ("red", "green", "blue", "quality"):
         np.testing.assert_array_equal(written[name], vertex[name])
     np.testing.assert_array_equal(data["face"].data["vertex_indices"][1], [2, 3, 4])
-    for name in ("likelihood", "feature_intensity", "displacement", "nx", "ny", "nz"):
+    for name in ("likelihood", "feature_intensity", "displacement", "outlier_score", "held",
+                 "nx", "ny", "nz"):
         assert name in written.dtype.names
     moved = np.column_stack([written[a] for a in "xyz"])
     original = np.column_stack([vertex[a] for a in "xyz"])
@@ -118,7 +120,9 @@ def test_denoise_las_keeps_records_and_georeference(tmp_path, cloud):
     assert ("LAS 1.2, point format 3, scale (0.001, 0.001, 0.001), offset (500000, 4000000, "
             "300)") in out
     out = tmp_path / "clean.las"
-    status, _, err = pssd("denoise", path, out, "--iterations", "1", "--quiet")
+    # Its classes 0 to 9 are random: denoised as one cloud.
+    status, _, err = pssd("denoise", path, out, "--iterations", "1", "--quiet", "--classes",
+                          "all")
     assert status == 0, err
     before, after = laspy.read(str(path)), laspy.read(str(out))
     np.testing.assert_array_equal(after.header.scales, before.header.scales)
@@ -131,7 +135,32 @@ def test_denoise_las_keeps_records_and_georeference(tmp_path, cloud):
     moved = np.column_stack([after.x, after.y, after.z])
     assert np.abs(moved - expected).max() <= 0.5e-3 + 1e-9
     assert np.abs(moved - read_back).mean() > 1e-2
-    assert "likelihood" in after.point_format.extra_dimension_names
+    assert list(after.point_format.dimension_names) == list(before.point_format.dimension_names)
+
+
+def test_output_has_the_input_attributes_only(tmp_path, ply_with_extras):
+    """By default PLY, text and LAS outputs hold the input's attributes and nothing more (an
+    input's own normals updated); ``--fields normals`` adds normals."""
+    path, vertex = ply_with_extras
+    fast = ("--preset", "fast", "--quiet")
+    assert pssd("denoise", path, tmp_path / "out.ply", *fast)[0] == 0
+    written = plyfile.PlyData.read(str(tmp_path / "out.ply"))
+    assert written["vertex"].data.dtype == vertex.dtype
+    assert written["face"].count == 2
+    cloud = pssd_fast.io.read(path)
+    np.savetxt(tmp_path / "in.xyz", cloud.points, header="x y z", comments="# ")
+    assert pssd("denoise", tmp_path / "in.xyz", tmp_path / "out.xyz", *fast)[0] == 0
+    lines = (tmp_path / "out.xyz").read_text().splitlines()
+    assert lines[0] == "# x y z" and len(lines[1].split()) == 3
+    assert pssd("denoise", tmp_path / "in.xyz", tmp_path / "n.xyz", *fast, "--fields",
+                "normals")[0] == 0
+    assert (tmp_path / "n.xyz").read_text().splitlines()[0] == "# x y z nx ny nz"
+    normals = np.tile([0.0, 0.0, 1.0], (len(cloud.points), 1))
+    pssd_fast.io.write(tmp_path / "with.las", pssd_fast.io.PointCloud(cloud.points, normals))
+    assert pssd("denoise", tmp_path / "with.las", tmp_path / "with_out.las", *fast)[0] == 0
+    before, after = (laspy.read(str(tmp_path / name)) for name in ("with.las", "with_out.las"))
+    assert list(after.point_format.dimension_names) == list(before.point_format.dimension_names)
+    assert np.abs(np.asarray(after["nz"]) - 1).max() > 1e-3  # the normals were updated
 
 
 def test_info_and_render(tmp_path, ply_with_extras):
@@ -156,7 +185,8 @@ def test_render_computes_the_fields_pssd_denoise_stores(tmp_path, ply_with_extra
     from pssd_fast.pictures.fields import field_values
 
     path, _ = ply_with_extras
-    status, _, err = pssd("denoise", path, tmp_path / "out.ply", "--iterations", "2", "--quiet")
+    status, _, err = pssd("denoise", path, tmp_path / "out.ply", "--iterations", "2", "--quiet",
+                          "--fields", "feature_intensity,likelihood")
     assert status == 0, err
     raw, out = io.read(path), io.read(tmp_path / "out.ply")
     assert "feature_intensity" not in raw.fields and "feature_intensity" in out.fields
@@ -520,10 +550,8 @@ def test_xyzrgb_keeps_its_colours(tmp_path, small):
                            "read as red, green, blue (integers); name the columns to read them "
                            "otherwise (columns=, --columns)")
     out = (tmp_path / "out.xyz").read_text().splitlines()
-    assert out[0].split()[1:7] == ["x", "y", "z", "nx", "ny", "nz"]
-    assert out[0].split()[7:10] == ["red", "green", "blue"]
-    rows = [line.split() for line in out[1:]]
-    assert [row[6:9] for row in rows] == [line.split()[3:] for line in lines]
+    rows = [line.split() for line in out if not line.startswith("#")]
+    assert [row[3:6] for row in rows] == [line.split()[3:] for line in lines]
     moved = np.array([row[:3] for row in rows], dtype=float)
     assert (np.abs(moved - small).max(axis=1) > 0).mean() > 0.9
 
@@ -568,8 +596,7 @@ def test_stdin_to_stdout_in_a_subprocess(small):
                           capture_output=True, timeout=600)
     assert done.returncode == 0, done.stderr
     lines = done.stdout.decode().splitlines()
-    assert lines[0] == "# x y z nx ny nz likelihood feature_intensity displacement outlier_score"
-    assert len(lines) == len(small) + 1
+    assert lines[0] == "# x y z" and len(lines) == len(small) + 1
     assert "- -> -: 800 points" in done.stderr.decode()
 
 
@@ -579,13 +606,13 @@ def test_stdin_csv_to_stdout_ply_in_process(small, monkeypatch, capsys):
     out = Stdio()
     monkeypatch.setattr(sys, "stdout", out)
     status = cli.main(["denoise", "-", "-", "--format", "csv", "--iterations", "1",
-                       "--verbose"])
+                       "--verbose", "--fields", "all"])
     err = capsys.readouterr().err
     assert status == 0, err
     assert "iteration 1:" in err and "- -> -" in err  # messages on stderr, data on stdout
     lines = out.buffer.getvalue().decode().splitlines()
     assert lines[0] == ("x,y,z,nx,ny,nz,red,green,blue,likelihood,feature_intensity,"
-                        "displacement,outlier_score")
+                        "displacement,outlier_score,held")
     assert [row.split(",")[6:9] for row in lines[1:3]] == [list(map(str, c)) for c in rgb[:2]]
 
 
@@ -622,24 +649,27 @@ def test_fields_choose_what_is_added(tmp_path, small, capsys):
     np.savetxt(tmp_path / "in.xyz", small)
     base = ["denoise", str(tmp_path / "in.xyz"), "--iterations", "1", "--quiet"]
     assert cli.main([*base[:2], str(tmp_path / "none.las"), *base[2:], "--fields", "none"]) == 0
+    assert cli.main([*base[:2], str(tmp_path / "default.las"), *base[2:]]) == 0
     assert cli.main([*base[:2], str(tmp_path / "some.las"), *base[2:], "--fields",
                      "displacement,normals"]) == 0
-    assert cli.main([*base[:2], str(tmp_path / "all.las"), *base[2:]]) == 0
+    assert cli.main([*base[:2], str(tmp_path / "all.las"), *base[2:], "--fields", "all"]) == 0
     dims = {name: list(laspy.read(tmp_path / f"{name}.las").point_format.extra_dimension_names)
-            for name in ("none", "some", "all")}
-    assert dims == {"none": [], "some": ["displacement", "nx", "ny", "nz"],
+            for name in ("none", "default", "some", "all")}
+    assert dims == {"none": [], "default": [], "some": ["displacement", "nx", "ny", "nz"],
                     "all": ["likelihood", "feature_intensity", "displacement", "outlier_score",
-                            "nx", "ny", "nz"]}
+                            "held", "nx", "ny", "nz"]}
     las = laspy.read(tmp_path / "all.las")
-    assert {las[d].dtype for d in dims["all"]} == {np.dtype(np.float32)}
-    # .npy holds points only: the default adds nothing, and says nothing.
-    assert cli.main([*base[:2], str(tmp_path / "out.npy"), *base[2:]]) == 0
+    assert {las[d].dtype for d in dims["all"] if d != "held"} == {np.dtype(np.float32)}
+    assert las["held"].dtype == np.uint8
+    # .npy holds points only: all adds nothing, and says nothing.
+    assert cli.main([*base[:2], str(tmp_path / "out.npy"), *base[2:], "--fields", "all"]) == 0
     assert np.load(tmp_path / "out.npy").shape == (len(small), 3)
     assert capsys.readouterr().err == ""
 
 
 @pytest.mark.parametrize("name, extra, match", [
-    ("out.ply", ["--fields", "likelihood,color"], "unknown field(s) color"),
+    ("out.ply", ["--fields", "likelihood,color"], "unknown field(s) color; choose from "
+     "likelihood, feature_intensity, displacement, outlier_score, normals, held, all or none"),
     ("out.ply", ["--fields", "likelihood", "--method", "mls"],
      "method 'mls' computes no likelihood"),
     ("out.npy", ["--fields", "likelihood"], "out.npy cannot hold likelihood"),
@@ -675,7 +705,7 @@ def test_obj_and_gzip_end_to_end(tmp_path, small, capsys):
         lines = fh.read().splitlines()
     assert lines[0] == "o scan" and lines[-3:] == faces.splitlines()
     assert sum(line.startswith("v ") for line in lines) == len(small)
-    assert sum(line.startswith("vn ") for line in lines) == len(small)
+    assert not any(line.startswith("vn ") for line in lines)  # the input had no normals
     assert capsys.readouterr().err == ""
 
 
@@ -702,7 +732,7 @@ def test_las_normals_point_up_and_outliers_are_dropped(tmp_path):
     _terrain_las(tmp_path / "scan.las", outliers=40)
     out = tmp_path / "clean.las"
     status, text, err = pssd("denoise", tmp_path / "scan.las", out, "--preset", "fast",
-                             "--remove-outliers")
+                             "--remove-outliers", "--fields", "normals,outlier_score")
     assert status == 0, err
     after = laspy.read(str(out))
     assert (np.asarray(after["nz"]) > 0).all()
@@ -712,7 +742,7 @@ def test_las_normals_point_up_and_outliers_are_dropped(tmp_path):
     assert (np.asarray(after["outlier_score"]) <= 1).all()
     assert "outliers removed" in text
     status, _, err = pssd("denoise", tmp_path / "scan.las", tmp_path / "all.las",
-                          "--preset", "fast", "--orient", "0,0,-1000")
+                          "--preset", "fast", "--orient", "0,0,-1000", "--fields", "normals")
     assert status == 0, err
     every = laspy.read(str(tmp_path / "all.las"))
     # The terrain faces the viewpoint below it; the 40 scattered points have no surface.
@@ -818,7 +848,9 @@ def test_tile_points_on_npy_and_las_run_out_of_core_with_the_in_core_file(tmp_pa
     cloud = datasets.cad_part(n_points=10000, noise=0.002, seed=3)
     path = tmp_path / f"in{ext}"
     io.write(path, io.PointCloud(cloud.points * 10, None, {}, "npy", None))
-    fields = ("--fields", "likelihood,displacement,normals") if ext == ".las" else ()
+    # A LAS file has a classification (here 0 everywhere): the tiles take --classes all.
+    fields = (("--fields", "likelihood,displacement,normals", "--classes", "all")
+              if ext == ".las" else ())
     # The fit at k: tiles this small would widen their halos to the walks' long lists.
     fields += ("--no-select-scales",)
     assert pssd("denoise", path, tmp_path / f"in_core{ext}", *fields)[0] == 0

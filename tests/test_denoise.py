@@ -178,6 +178,53 @@ def test_float32_result_is_the_float64_result_rounded(noisy, preset):
                                                              iterations=2).points)
 
 
+def _warnings(points, **kwargs):
+    """The :class:`pssd_fast.DenoiseWarning` messages of a short denoise of ``points``."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        pssd_fast.denoise(points, iterations=1, select_scales=False, **kwargs)
+    return [str(w.message) for w in caught if w.category is pssd_fast.DenoiseWarning]
+
+
+def test_float32_far_from_the_origin_warns_once(noisy):
+    """UTM-like offsets as float32: one warning a call (classes or not) that says what was lost
+    and how to avoid it; float64 at the same offset says nothing."""
+    far = noisy + [500_000.0, 4_000_000.0, 0.0]  # float32 steps of 0.25 there
+    messages = _warnings(far.astype(np.float32))
+    assert len(messages) == 1
+    assert messages[0].startswith("points are float32 and reach 4000001, where float32 values are "
+                                  "0.25 apart: ")
+    assert "of the cloud's mean spacing" in messages[0]
+    assert "pass float64 coordinates, or subtract an offset" in messages[0]
+    labels = np.where(np.arange(len(far)) % 2, 2, 6).astype(np.uint8)
+    assert len(_warnings(far.astype(np.float32), classification=labels)) == 1
+    assert _warnings(far) == []
+
+
+def test_float32_near_the_origin_does_not_warn(noisy):
+    from pssd_fast._validation import STEP_OF_SPACING, mean_spacing
+
+    for offset in (0.0, 100.0):
+        assert _warnings((noisy + offset).astype(np.float32)) == []
+    # The rule: the step at the largest coordinate against 1% of the sampled mean spacing,
+    # which is close to the mean distance to the nearest other point.
+    spacing = mean_spacing(noisy)
+    assert 0.5 < spacing / _nearest(noisy) < 2
+    offset = 0.9 * 2**23 * STEP_OF_SPACING * spacing  # float32 steps just below 1% of it
+    assert _warnings((noisy + offset).astype(np.float32)) == []
+    assert len(_warnings((noisy + 4 * offset).astype(np.float32))) == 1
+
+
+def _nearest(points):
+    """The mean distance to the nearest other point."""
+    from pykdtree.kdtree import KDTree
+
+    distance, _ = KDTree(points).query(points, k=2)
+    return distance[:, 1].mean()
+
+
 def test_stats_describe_the_default_run(noisy):
     result = pssd_fast.denoise(noisy)
     stats = result.stats
@@ -674,7 +721,8 @@ def test_held_points_are_counted(noisy, monkeypatch, preset):
 
 def test_float32_with_large_offsets_is_computed_in_float64(noisy):
     single = (noisy * 100 + [5e5, 4e6, 300.0]).astype(np.float32)
-    result = pssd_fast.denoise(single)
+    with pytest.warns(pssd_fast.DenoiseWarning, match="10% of the cloud's mean spacing"):
+        result = pssd_fast.denoise(single)
     expected = pssd_fast.denoise(single.astype(np.float64)).points
     assert result.points.dtype == np.float32
     # No worse than float32 itself: within one rounding of the float64 result.
@@ -702,7 +750,9 @@ def test_float32_with_large_offsets_is_as_accurate_as_float64(preset):
         return np.abs(points[:, 2] - _wavy_surface(points[:, :2])).mean()
 
     single = (noisy * scale + offset).astype(np.float32)
-    result = pssd_fast.denoise(single, preset=preset)
+    # Steps of 1.1% of the spacing warn, though the noise here is 20 times the step.
+    with pytest.warns(pssd_fast.DenoiseWarning, match=" 1% of the cloud's mean spacing"):
+        result = pssd_fast.denoise(single, preset=preset)
     assert result.points.dtype == np.float32
     got = (result.points.astype(np.float64) - offset) / scale
     reference_error = surface_error(pssd_fast.denoise(noisy, preset=preset).points)

@@ -6,6 +6,7 @@ import pytest
 
 import pssd_fast
 from pssd_fast import datasets, tiled
+from pssd_fast.tiled import ondisk
 from pssd_fast.denoise import PRESETS
 
 pytest.importorskip("dask")
@@ -367,8 +368,6 @@ def test_tiled_runs_take_denoise_s_parameters_at_their_defaults():
 @pytest.fixture
 def small_chunks(monkeypatch):
     """Chunks, buckets and tiles of a few thousand points: every pass crosses boundaries."""
-    from pssd_fast.tiled import ondisk
-
     monkeypatch.setattr(ondisk, "CHUNK_POINTS", 6_000)
 
 
@@ -412,7 +411,8 @@ def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, request, ext
                                                           route, normals):
     """Records, scale, offset, VLRs and EVLRs as read; the coordinates, normals, likelihood,
     feature intensity and displacement those of denoise, as the in-core writer stores them
-    (``route``: the tiles', or the plan's edges route)."""
+    (``route``: the tiles', or the plan's edges route). A file with normals, by default: its
+    normals updated and nothing added; without: every field asked for."""
     laspy = pytest.importorskip("laspy")
     from pssd_fast import io
 
@@ -442,11 +442,12 @@ def test_a_las_file_tiled_out_of_core_is_the_in_core_file(tmp_path, request, ext
     expected = tmp_path / f"in_core{ext}"
     assert (read.normals is not None) == normals
     result = pssd_fast.denoise(read.points, read.normals)
+    fields = () if normals else ondisk.RESULT_FIELDS
     io.write(expected, read, points=result.points, normals=result.normals, fields={
         name: getattr(result, name).astype(np.float32)
-        for name in ("likelihood", "feature_intensity", "displacement")})
+        for name in ("likelihood", "feature_intensity", "displacement") if name in fields})
     stats = tiled.denoise_file(source, tmp_path / f"tiled{ext}", tile_points=5_000,
-                               client="sync")
+                               client="sync", **({} if normals else {"fields": fields}))
     assert stats["tiles"]["count"] >= 8
     assert route in (stats["tiles"]["route"], stats["plan"]["route"])
     assert stats["plan"] == result.stats["plan"]

@@ -155,13 +155,13 @@ class LasFile:
             self._cursor[0].close()
             self._cursor = None
 
-    def write(self, path, table, fields=RESULT_FIELDS):
+    def write(self, path, table, fields=()):
         """A copy of this file with the columns of ``table`` (an ``(n, 9)`` array-like read
         by row slices: :data:`TABLE`) in its records: the coordinates quantised into ``X``,
-        ``Y``, ``Z`` and, of ``fields``, the normals into ``nx``, ``ny``, ``nz`` and the
-        likelihood, feature intensity and displacement into dimensions of those names
-        (float32 extra bytes where the file has none), as :func:`pssd_fast.io.write` stores
-        them; every other byte of
+        ``Y``, ``Z``; the normals into ``nx``, ``ny``, ``nz`` where the file has them or
+        ``fields`` names them; of ``fields``, the likelihood, feature intensity and
+        displacement into dimensions of those names (float32 extra bytes where the file has
+        none), as :func:`pssd_fast.io.write` stores them; every other byte of
         the records, the header, the VLRs and the EVLRs as read (the point count, the bounds
         and the extra-bytes VLR as laspy writes them)."""
         from ..io._common import NORMALS
@@ -170,7 +170,7 @@ class LasFile:
         compress = Path(path).suffix.lower() == ".laz"
         backend = self.laspy.LazBackend.LazrsParallel if compress else None
         scalars = [name for name in FIELDS if name in fields]
-        normals = NORMALS if "normals" in fields else ()
+        normals = NORMALS if "normals" in fields or self.has_normals else ()
         names = (*scalars, *normals)  # the order pssd denoise adds them in
         with self.laspy.open(self.path) as reader:
             header = copy.deepcopy(reader.header)

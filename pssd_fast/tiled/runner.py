@@ -215,7 +215,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
                  iterations="auto", k="auto", lam=None, preset="default",
                  rebuild_graph="auto", orient=None, remove_outliers=False,
                  duplicate_tolerance=0.0, classification=None, classes=None,
-                 fields=ondisk.RESULT_FIELDS, n_jobs=None, progress=None, scratch=None,
+                 fields=(), n_jobs=None, progress=None, scratch=None,
                  overwrite=False, **method_params):
     """Denoise the points of an ``.npy``, Zarr or LAS/LAZ file into another, out of core, tile
     by tile on Dask.
@@ -251,7 +251,8 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
         As in :func:`denoise`: their defaults only.
     fields : sequence of str
         LAS/LAZ output: which of ``"likelihood"``, ``"feature_intensity"``,
-        ``"displacement"`` and ``"normals"`` to write (default all).
+        ``"displacement"`` and ``"normals"`` to add (default none: the output has the input's
+        dimensions only; a file's own normals are always updated).
     scratch : path-like, optional
         Where the scratch folder goes (default: beside ``destination``); with a cluster, a
         folder every worker reads and writes. It is removed on success, on failure and on

@@ -1,0 +1,188 @@
+"""LiDAR classes kept apart: which classes a :func:`pssd_fast.denoise` call with
+``classification=`` denoises, and the one result of their runs, each class on its own."""
+import numbers
+import time
+import warnings
+
+import numpy as np
+
+from ._validation import MIN_K, DenoiseWarning, as_normals, check_int
+from .routes.plan import PRESETS
+from .run import DenoiseResult
+
+#: The ASPRS LAS 1.4 classes that are surfaces, denoised by default: each on its own.
+SURFACE_CLASSES = {2: "ground", 6: "building", 9: "water", 10: "rail", 11: "road surface",
+                   17: "bridge deck"}
+#: Classes that say a point was never classified (0) or not assigned a class (1): a
+#: classification of these alone is no classification.
+UNCLASSIFIED = (0, 1)
+#: What ``classes=`` takes besides class codes.
+NAMED = ("all", "each")
+#: The entries of a run's ``stats`` that a classes call sums over its runs.
+SUMMED = ("n_points", "duplicates", "held_points")
+
+
+def select(classification, classes, n, options):
+    """The runs of a call of :func:`pssd_fast.denoise` with ``classification`` and
+    ``classes`` on ``n`` points: ``(code, rows)`` for each class to denoise on its own (rows
+    increasing; code None and every row for one cloud); ``(code, points)`` of the classes too
+    small to denoise; what ``stats["classes"]["classes"]`` says; and the fewest points a run
+    takes. ValueError or TypeError naming what is wrong. ``options``: the call's other
+    options (``k`` and ``preset`` decide what is too small)."""
+    least = _least(options)
+    whole = [(None, np.arange(n))], [], "all", least
+    if isinstance(classes, str) and classes not in NAMED:
+        raise ValueError(f"classes must be class codes, 'each' or 'all'; got {classes!r}")
+    if classification is None and classes != "all":
+        raise ValueError("classes and classification go together: classification=... gives "
+                         "each point's class, classes=... those to denoise")
+    labels = None if classification is None else _labels(classification, n)
+    if labels is None or classes == "all":
+        return whole
+    codes, rows = _by_class(labels)
+    present = ", ".join(str(c) for c in codes[:20]) + (", ..." if len(codes) > 20 else "")
+    if classes is None:
+        if np.isin(codes, UNCLASSIFIED).all():
+            return whole
+        wanted = np.isin(codes, list(SURFACE_CLASSES))
+        if not wanted.any():
+            raise ValueError(
+                f"no point is of a surface class ({_named(SURFACE_CLASSES)}), which a "
+                f"classification denoises by default; the classes present are {present}: name "
+                f"the classes to denoise (classes= or --classes: codes, each, or all for every "
+                f"point as one cloud)")
+    elif classes == "each":
+        wanted = np.ones(len(codes), np.bool_)
+    else:
+        asked = _codes(classes)
+        wanted = np.isin(codes, asked)
+        if not wanted.any():
+            raise ValueError(f"no point is of class {', '.join(map(str, asked))}; the classes "
+                             f"present are {present}")
+    chosen = [(int(c), r) for c, r, w in zip(codes, rows, wanted) if w]
+    small = []
+    if classes is None or classes == "each":
+        # Classes the library chose: those too small for a run are left as they are.
+        small = [(c, len(r)) for c, r in chosen if len(r) < least]
+        chosen = [(c, r) for c, r in chosen if len(r) >= least]
+        if not chosen:
+            raise ValueError(f"no class to denoise has the {least} points a run needs; the "
+                             f"classes present are {present}")
+    return chosen, small, [c for c, _ in chosen], least
+
+
+def warn_small(small, least, stacklevel):
+    """One :class:`DenoiseWarning` naming the classes too small to denoise, if any."""
+    if small:
+        sizes = ", ".join(f"{code} ({size:,} points)" for code, size in small)
+        warnings.warn(f"class{'es' * (len(small) > 1)} {sizes}: fewer points than a run needs "
+                      f"({least}); left as they are", DenoiseWarning, stacklevel=stacklevel + 1)
+
+
+def merge(pts, dtype, given, done, small, described, started):
+    """One :class:`DenoiseResult` from the runs ``done`` (``(code, rows, result)``) on the
+    float64 ``pts`` (``given``: the caller's float64 normals, or None): the rows of no run keep
+    their coordinates and normals (else NaN), NaN fields and zero displacement."""
+    n = pts.shape[0]
+    holds = np.ones(n, np.bool_)
+    chosen = np.zeros(n, np.bool_)
+    for _, rows, part in done:
+        chosen[rows] = True
+        holds[rows] = False
+        holds[rows[part.kept]] = True
+    kept = np.flatnonzero(holds)
+    # Each row's place among the kept rows.
+    place = np.cumsum(holds) - 1
+    out_points = pts[kept].astype(dtype)
+    out_normals = (np.full((kept.shape[0], 3), np.nan, dtype) if given is None
+                   else given[kept].astype(dtype))
+    first = done[0][2]
+    arrays = {name: None if getattr(first, name) is None else np.full(
+        kept.shape[0], fill, dtype if name != "held" else np.bool_)
+        for name, fill in (("likelihood", np.nan), ("feature_intensity", np.nan),
+                           ("displacement", 0), ("held", False), ("outlier_score", np.nan))}
+    for _, rows, part in done:
+        at = place[rows[part.kept]]
+        out_points[at] = part.points
+        out_normals[at] = part.normals
+        for name, values in arrays.items():
+            if values is not None:
+                values[at] = getattr(part, name)
+    by_size = max(done, key=lambda run: run[1].shape[0])[2].stats
+    stats = {**by_size, **{name: sum(part.stats[name] for _, _, part in done)
+                           for name in SUMMED}}
+    stats["outliers"] = _outliers([part.stats["outliers"] for _, _, part in done])
+    stats["total_seconds"] = time.perf_counter() - started
+    stats["classes"] = {
+        "classes": described, "denoised": int(chosen.sum()), "untouched": int(n - chosen.sum()),
+        "too_small": [code for code, _ in small],
+        "runs": {} if described == "all" else {code: part.stats for code, _, part in done}}
+    return DenoiseResult(points=out_points, normals=out_normals, kept=kept, stats=stats,
+                         **arrays)
+
+
+def given_normals(normals, n, chosen):
+    """The caller's ``normals`` as float64, those of the ``chosen`` rows checked; the others
+    are kept as given, NaN included (as a classes run returns them where none were given)."""
+    if normals is None:
+        return None
+    given = np.asarray(normals)
+    if given.shape != (n, 3):
+        as_normals(normals, n)  # names what is wrong
+    name = "normals" if chosen.all() else "normals (of the chosen classes)"
+    used = as_normals(given[chosen], int(chosen.sum()), name)
+    given = given.astype(np.float64)
+    given[chosen] = used
+    return given
+
+
+def _labels(classification, n):
+    """``classification`` as an array of ``n`` integers, checked."""
+    labels = np.asarray(classification)
+    if labels.shape != (n,):
+        raise ValueError(f"classification must have one value per point, shape ({n},); got "
+                         f"shape {labels.shape}")
+    if labels.dtype.kind not in "iu":
+        raise TypeError(f"classification must hold integers; got dtype {labels.dtype}")
+    return labels
+
+
+def _by_class(labels):
+    """The classes present, increasing, and the rows of each, increasing: one sort in all."""
+    order = np.argsort(labels, kind="stable")
+    codes, starts = np.unique(labels[order], return_index=True)
+    return codes, np.split(order, starts[1:])
+
+
+def _codes(classes):
+    """The class codes ``classes`` names, sorted, checked."""
+    if isinstance(classes, numbers.Integral):
+        classes = [classes]
+    try:
+        wanted = sorted({check_int(c, "a class") for c in classes})
+    except TypeError as exc:
+        raise TypeError(f"classes must be integers, 'each' or 'all'; got {classes!r}") from exc
+    if not wanted:
+        raise ValueError("classes is empty: name at least one class to denoise")
+    return wanted
+
+
+def _least(options):
+    """The fewest points a run with ``options`` takes: ``k + 1``, the preset's."""
+    k = options.get("k")
+    if isinstance(k, numbers.Integral) and not isinstance(k, bool):
+        return int(k) + 1
+    preset = PRESETS.get(options.get("preset"), {})
+    return (preset.get("k") or MIN_K) + 1
+
+
+def _named(classes):
+    """``2 ground, 6 building...``"""
+    return ", ".join(f"{code} {name}" for code, name in classes.items())
+
+
+def _outliers(records):
+    """What ``remove_outliers`` did over the runs, or None where it did not run."""
+    if records[0] is None:
+        return None
+    return {name: sum(record[name] for record in records) for name in records[0]}
