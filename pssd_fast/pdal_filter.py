@@ -28,12 +28,7 @@ from pathlib import Path
 import numpy as np
 
 import pssd_fast
-
-#: The LAS 1.4 classes (ASPRS) denoised by default, where present: ground 2, building 6,
-#: water 9, road surface 11 and bridge deck 17, the classes that are surfaces. Vegetation
-#: (3-5), noise (7, 18), wires and towers (13-16), rail (10), unclassified (0, 1) and the
-#: others keep their coordinates.
-SURFACE_CLASSES = (2, 6, 9, 11, 17)
+from pssd_fast.classes import SURFACE_CLASSES
 #: The fewest points of a class that are denoised (the library's least cloud); a smaller
 #: class in a view keeps its coordinates, with a line in PDAL's log.
 MIN_POINTS = 11
@@ -66,7 +61,9 @@ def denoise(ins, outs):
     -----
     The module global ``pdalargs`` (PDAL's ``pdalargs`` option) may hold ``classes``: a list
     of class codes, each denoised as a cloud of its own, so that no point of one class is
-    another's neighbour (default: :data:`SURFACE_CLASSES` present in the view), or ``"all"``:
+    another's neighbour (default: the surface classes present in the view,
+    :data:`pssd_fast.classes.SURFACE_CLASSES`, as :func:`pssd_fast.denoise` takes them; a view
+    with none is left as it is), or ``"all"``:
     every point as one cloud, whatever its class. Without a ``Classification`` dimension
     every point is one cloud. Any other key is a keyword of :func:`pssd_fast.denoise`
     (``preset``, ``k``, ``iterations``, ``duplicate_tolerance``, ``n_jobs``...), except

@@ -708,3 +708,20 @@ def test_describe_says_nothing_where_the_format_has_nothing_more(tmp_path):
     np.save(tmp_path / "a.npy", np.zeros((4, 3)))
     assert pio.describe(pio.read(tmp_path / "a.npy")) == []
     assert pio.describe(PointCloud(np.zeros((4, 3)), format="ply")) == []
+
+
+def test_a_compressed_las_1_2_file_reads_after_its_header_checks(tmp_path):
+    """The LAZ chunk checks read beyond the header: laspy must start from byte 0 anyway (a
+    LAS 1.2 file has no EVLRs to check after them)."""
+    laspy = pytest.importorskip("laspy")
+    pytest.importorskip("lazrs")
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([0.01, 0.01, 0.01])
+    las = laspy.LasData(header)
+    xyz = np.random.default_rng(0).random((500, 3)) * 10
+    las.x, las.y, las.z = xyz.T
+    path = tmp_path / "v12.laz"
+    las.write(path)
+    cloud = pio.read(path)
+    assert cloud.points.shape == (500, 3)
+    assert np.allclose(cloud.points, xyz, atol=0.006)

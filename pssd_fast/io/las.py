@@ -47,13 +47,22 @@ def _need_laspy(ext, what):
 
 
 def check_header(path, fh, size):
-    """Refuse a LAS header whose sizes and counts do not fit the ``size`` bytes of the file.
+    """Refuse a LAS header whose sizes and counts do not fit the ``size`` bytes of the file;
+    ``fh`` is left at its start.
 
     laspy reads the header, the VLRs and the EVLRs where and as many as the header says: a
     wrong offset makes it allocate that many bytes, and a wrong count loops that many times.
     Uncompressed points must fit too; compressed ones are read in growing pieces instead
     (docs/DECISIONS.md, "Readers that survive any file").
     """
+    try:
+        _check_header(path, fh, size)
+    finally:
+        fh.seek(0)
+
+
+def _check_header(path, fh, size):
+    """:func:`check_header`, leaving ``fh`` anywhere."""
     head = fh.read(_LAS_HEADER_SIZES[4])
     fh.seek(0)
     if len(head) < _LAS_HEADER_SIZES[0] or not head.startswith(b"LASF"):
@@ -92,7 +101,6 @@ def check_header(path, fh, size):
         if start > size:
             raise PointCloudFileError(f"{path}: EVLR {i + 1} of {evlrs:,} ends beyond the end "
                                       f"of the file (truncated file or wrong header)")
-    fh.seek(0)
 
 
 def _laszip_vlr(fh, header_size, vlrs):
