@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 
 from ._validation import MIN_K, DenoiseWarning, as_normals, check_int
-from .routes.plan import PRESETS
+from .plan import PRESETS
 from .run import DenoiseResult
 
 #: The ASPRS LAS 1.4 classes that are surfaces, denoised by default: each on its own.

@@ -146,6 +146,17 @@ def shifted_normals(points, nrm, graph, planes, candidates, tolerance):
     return out
 
 
+def local_noise(points, graph, lengths):
+    """What the noise probe reads at each point (``kernels.noise.local_noise``): the robust
+    spread of its neighbours about their quadratic and the list radius, for each prefix of
+    ``lengths`` of ``graph``'s equal-length lists; two ``(n, len(lengths))`` arrays."""
+    n = points.shape[0]
+    scale = np.empty((n, lengths.shape[0]))
+    radius = np.empty((n, lengths.shape[0]))
+    kernels.noise.local_noise(points, graph.indices.reshape(n, -1), lengths, scale, radius)
+    return scale, radius
+
+
 def mls_fit(points, nrm, graph, h):
     """MLS cubic of every point: projections, residuals, fitted degree, mean curvature."""
     n = points.shape[0]
@@ -187,69 +198,25 @@ def robust_fits(points, nrm, graph, sigma_n):
     return height, rms, degree, coef, taken
 
 
-def scale_fits(points, nrm, lists, scales, sigma_n, k, coef, across):
-    """The nested plane, quadratic and cubic of each point's ``lists`` at each of ``scales``
-    (prefix lengths): the columns of :func:`pssd_fast.kernels.scales.scale_fits` as a
-    :class:`ScaleFits`."""
-    shape = (points.shape[0], scales.shape[0])
-    fits = ScaleFits(*(np.empty(shape) for _ in ScaleFits._fields))
-    kernels.scales.scale_fits(points, nrm, lists.indptr, lists.indices, scales, sigma_n, k, coef,
-                              across, *fits)
-    return fits
-
-
-class ScaleFits(NamedTuple):
-    """Per point and scale (columns): the heights of the quadratic and the plane, the
-    residual sums of squares of the quadratic, the plane and the cubic, the summed weight, the
-    prefix's radius and the height of the tapered quadratic
-    (:func:`pssd_fast.kernels.scales.scale_fits`)."""
-
-    quad: np.ndarray
-    plane: np.ndarray
-    rss: np.ndarray
-    rss_plane: np.ndarray
-    rss_cubic: np.ndarray
-    weight: np.ndarray
-    radius: np.ndarray
-    tapered: np.ndarray
-
-    def variance(self):
-        """The quadratic's residual variance per point and scale, ``rss / (weight - 6)``."""
-        return self.rss / np.maximum(self.weight - 6.0, 1.0)
-
-
-def walk_scales(fits, first, noise2, tests, fallback, fallback_rms):
-    """Each point's scale and its height there (:func:`pssd_fast.kernels.scales.walk_scales`):
-    ``tests`` holds the margins ``tau``, ``tau_cubic`` and ``tau_plane``. Returns the height,
-    the RMS residual, the column kept and whether the plane was taken."""
-    n = fits.quad.shape[0]
-    height, rms = np.empty(n), np.empty(n)
-    pick = np.empty(n, np.int64)
-    flat = np.empty(n, np.bool_)
-    kernels.scales.walk_scales(fits.quad, fits.plane, fits.rss, fits.rss_plane, fits.rss_cubic,
-                               fits.weight, fits.tapered, first, noise2, tests["tau"],
-                               tests["tau_cubic"], tests["tau_plane"], fallback, fallback_rms,
-                               height, rms, pick, flat)
-    return height, rms, pick, flat
-
-
-def surface_fits(surface, nrm, lists, sigma_n):
-    """Feature-aware quadratic of each ``surface`` point's lists (unit normals ``nrm``), kept
-    for :func:`evaluate_fits`: coefficients and inverse list radius ``(m, 7)``, RMS residual,
-    degree."""
+def surface_fits(surface, nrm, lists, sigma_n, mass=None):
+    """Feature-aware quadratic of each ``surface`` point's lists (unit normals ``nrm``; each
+    neighbour's weight times its ``mass`` if given), kept for :func:`evaluate_fits`:
+    coefficients and inverse list radius ``(m, 7)``, RMS residual, degree."""
     m = surface.shape[0]
     rms = np.empty(m)
     degree = np.empty(m, np.int8)
     coef = np.empty((m, 7))
-    kernels.mls.aware_fit(surface, surface, nrm, np.empty(0), lists.indptr, lists.indices,
-                          sigma_n, False, np.empty(m), rms, degree, coef, _NO_TAKEN)
+    kernels.mls.aware_fit(surface, surface, nrm, np.empty(0) if mass is None else mass,
+                          lists.indptr, lists.indices, sigma_n, False, np.empty(m), rms, degree,
+                          coef, _NO_TAKEN)
     return coef, rms, degree
 
 
 def evaluate_fits(points, surface, nrm, coef, nearest, distance):
     """Each point moved onto the fits ``coef`` of its ``nearest`` surface points (at
-    ``distance``), along their normals, by the inverse-distance-weighted mean of those steps;
-    and which points stayed because no step was finite."""
+    ``distance``; rows past the surface's are none), along their normals, by the
+    inverse-distance-weighted mean of those steps; and which points stayed because no step
+    was finite and within its fit's support."""
     moved = np.empty_like(points)
     held = np.empty(points.shape[0], np.bool_)
     kernels.mls.evaluate_fits(points, surface, nrm, coef, nearest, distance, moved, held)

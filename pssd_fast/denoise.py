@@ -4,17 +4,16 @@ import time
 import numpy as np
 
 from . import classes as lidar
-from . import core, duplicates, interop
+from . import core, duplicates, executor, interop
+from . import plan as planning
 from ._threads import threads
 from ._validation import (
     as_normals, as_points, auto, check_choice, check_flag, check_float, check_int, check_k,
     check_orient, check_precision, check_size,
 )
 from .graph import bounds
-from .progress import Clock, reporter
-from .routes import coarse, edges
-from .routes import plan as planning
-from .routes.plan import PRESETS
+from .plan import PRESETS
+from .progress import reporter
 from .run import (
     DenoiseResult, Input, Request, check_distinct, iterate, outlier_scores, result, stats,
 )
@@ -22,22 +21,22 @@ from .run import (
 #: Parameters of each method beyond the common ones, with their defaults.
 METHOD_DEFAULTS = {
     "robust": {"h": "auto", **core.FEATURE_DEFAULTS, "likelihood": "exp", "sigma_n": 0.05,
-               "shift_normals": True, "select_scales": "auto", "keep_normals": False},
+               "shift_normals": True, "keep_normals": False},
     "bilateral": {"sigma_c": "auto", "sigma_s": "auto", "keep_normals": False},
     "mls": {"h": "auto", "keep_normals": False},
 }
 #: Methods :func:`denoise` offers.
 METHODS = tuple(METHOD_DEFAULTS)
-#: Robust-method parameters that only the paper's pipeline uses, and those only the
-#: feature-aware pipeline uses.
+#: Robust-method parameters that only the paper's pipeline uses, and those only the default
+#: method uses.
 PAPER_ONLY = ("h", "radius_factor", "delta", "alpha", "beta", "likelihood")
-AWARE_ONLY = ("sigma_n", "shift_normals", "select_scales")
+DEFAULT_ONLY = ("sigma_n", "shift_normals")
 
 
 def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto", lam=None,
             preset="default", rebuild_graph="auto", orient=None, remove_outliers=False,
-            duplicate_tolerance=0.0, classification=None, classes=None, n_jobs=None,
-            progress=None, **method_params):
+            extras=False, duplicate_tolerance=0.0, classification=None, classes=None,
+            n_jobs=None, progress=None, **method_params):
     """Denoise a point-sampled surface while keeping its sharp features.
 
     Parameters
@@ -97,6 +96,11 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         :func:`pssd_fast.estimate_normals`). ``None`` (default): each normal away from the
         cloud's centroid, as before (docs/DECISIONS.md, "Normal orientation"). Not with
         ``normals``, whose signs are the caller's. The positions do not depend on it.
+    extras : bool, default False
+        Also return the sampling likelihood and the feature intensity under presets "default"
+        and "fast", whose moves use neither (a pass of the paper's voting over the cell means;
+        docs/ALGORITHM.md, "The default method"); without it they are None. The paper's
+        pipeline always returns them, the baselines never.
     remove_outliers : bool, default False
         Drop the points whose :func:`pssd_fast.outlier_score` exceeds 1 before denoising;
         ``kept`` says which input rows the result holds, ``outlier_score`` their scores.
@@ -256,35 +260,33 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         return _by_class(points, normals, classification, classes, {
             "method": method, "iterations": iterations, "k": k, "lam": lam, "preset": preset,
             "rebuild_graph": rebuild_graph, "orient": orient, "remove_outliers": remove_outliers,
-            "duplicate_tolerance": duplicate_tolerance, "n_jobs": n_jobs, "progress": progress,
+            "extras": extras, "duplicate_tolerance": duplicate_tolerance, "n_jobs": n_jobs,
+            "progress": progress,
             **method_params})
     check_choice(method, "method", METHODS)
     check_choice(preset, "preset", tuple(PRESETS))
     setting = PRESETS[preset]
-    pipeline = setting["pipeline"] if method == "robust" else "paper"
+    pipeline = setting["pipeline"] if method == "robust" else method
     explicit = {name for name, value in method_params.items() if auto(value) is not None}
     rebuild_graph = check_flag(rebuild_graph, "rebuild_graph")
     params = _method_params(method, method_params)
-    _check_pipeline_params(method, preset, pipeline, explicit, lam)
-    if pipeline != "aware":
-        # The paper's pipeline keeps its PCA normals and its fits.
-        params.pop("shift_normals", None)
-        params.pop("select_scales", None)
+    _check_pipeline_params(method, preset, pipeline, explicit, lam, rebuild_graph)
     report = reporter(progress)
     pts, dtype = as_points(points)
     check_precision(pts, dtype)
     n = pts.shape[0]
     iterations = auto(iterations, lambda v: check_int(v, "iterations", minimum=1))
     k = auto(k)
-    from_noise = k is None and setting["k"] is None
-    if k is None:
+    if k is None and setting["k"] is not None and pipeline == "paper":
         # The caller chose no k: the message is about the cloud's size, not about k.
         check_size(n)
         k = setting["k"]
-        if not from_noise and n < k + 1:
+        if n < k + 1:
             raise ValueError(f"the cloud has {n} points; preset {preset!r} uses k = {k} "
                              f"neighbours and needs at least {k + 1}; pass a smaller k")
-    k = None if from_noise else check_k(k, n)
+    elif k is None:
+        check_size(n)
+    k = None if k is None else check_k(k, n)
     lam = setting["lam"] if lam is None else lam
     lam = None if lam is None else check_float(lam, "lam", low=0.0, high=1.0)
     given = None if normals is None else as_normals(normals, n)
@@ -295,8 +297,9 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         if given is not None:
             raise ValueError("orient applies to estimated normals; the given normals keep their "
                              "signs (pass normals=None or drop orient)")
-    if not isinstance(remove_outliers, (bool, np.bool_)):
-        raise TypeError(f"remove_outliers must be True or False; got {remove_outliers!r}")
+    for name, flag in (("remove_outliers", remove_outliers), ("extras", extras)):
+        if not isinstance(flag, (bool, np.bool_)):
+            raise TypeError(f"{name} must be True or False; got {flag!r}")
     duplicate_tolerance = duplicates.check_tolerance(duplicate_tolerance)
 
     started = time.perf_counter()
@@ -320,51 +323,24 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     distinct = check_distinct(order.shape[0], n, k)
     # Work relative to the bounding-box centre: georeferenced coordinates (1e6 m offsets) would
     # otherwise cost the kNN distances most of their digits.
-    centre = 0.5 * np.add(*bounds(pts))
+    low, high = bounds(pts)
+    centre = 0.5 * (low + high)
     current = core.relative_rows(pts, order, centre)
     given = None if given is None else given[order]
-    request = Request(method, preset, pipeline, lam, params, orient, centre, report, started)
+    request = Request(method, preset, pipeline, lam, params, orient, centre, report, started,
+                      bool(extras))
     with threads(n_jobs) as n_threads:
-        plan = planning.make(
-            current, given, preset, distinct=distinct, k=None if from_noise else k,
-            iterations=iterations, layout=lambda noise, key: coarse.layout(current, noise, key),
-            aware_pipeline="select_scales" in params, rebuild_graph=rebuild_graph,
-            select_scales=params.get("select_scales"), sigma_n=params.get("sigma_n"),
-            shift_normals=params.get("shift_normals"))
-        if "select_scales" in params:
-            params["select_scales"] = plan.select_scales
-        if plan.cells is None:
-            done = iterate(current, given, plan, request)
+        plan, lists = planning.make(current, given, preset, pipeline, distinct=distinct,
+                                    low=low - centre, k=k, iterations=iterations,
+                                    rebuild_graph=rebuild_graph)
+        if pipeline == "default":
+            done = executor.run(current, given, plan, request)
         else:
-            # Iterate on the cell means; the input points are projected onto them last.
-            done = _cells_route(current, given, plan, request, order)
+            done = iterate(current, given, plan, request, lists)
     return result(Input(pts, dtype, order, groups), done, centre, kept,
                   None if score is None else score.astype(dtype, copy=False),
                   stats(request, plan, n, distinct, n_threads, done.records,
                         int(done.held.sum()), outliers=outliers))
-
-
-def _cells_route(fine, fine_given, plan, request, order):
-    """The coarse-to-fine route (``plan.cells``) on the distinct positions ``fine`` (Morton
-    ``order`` of the input rows): the iterations on the cell means, then every point moved
-    onto their fits (and, on the edges route, the points near features on their own)."""
-    cells = coarse.cells_of(fine, fine_given, plan.layout, plan.cells)
-    done = iterate(cells.points, cells.normals, plan, request, cells.counts)
-    iterations, sigma_n = plan.iterations, request.params["sigma_n"]
-    clock = Clock(request.report, iterations - 1, iterations)
-    surface, surface_normals, extra = coarse.collapse(cells, done.points, done.normals,
-                                                      done.extra)
-    current, out_normals, nearest, fit, held = coarse.refine(
-        fine, surface, surface_normals, cells.surface_k, sigma_n, clock)
-    if plan.edges is not None:
-        edges.finish(plan.edges, fine, current, out_normals, held, nearest,
-                     edges.zones(surface, extra[1], plan.edges["radius"]), order,
-                     fine_given, request.params["keep_normals"], sigma_n, clock)
-    done.records[-1]["times"].update(clock.times)
-    plan.probe["coarse"] = coarse.describe(plan.noise, cells.edge, cells.counts, surface,
-                                           cells.surface_k, fit)
-    return done._replace(points=current, normals=out_normals,
-                         extra=tuple(x[nearest] for x in extra), held=held)
 
 
 def _by_class(points, normals, classification, classes, options):
@@ -392,25 +368,28 @@ def _by_class(points, normals, classification, classes, options):
     return lidar.merge(pts, dtype, given, done, small, described, started)
 
 
-def _check_pipeline_params(method, preset, pipeline, explicit, lam):
+def _check_pipeline_params(method, preset, pipeline, explicit, lam, rebuild_graph):
     """Refuse parameters that the chosen method or pipeline would silently ignore."""
+    if pipeline == "default" and rebuild_graph is not None:
+        raise ValueError(f"rebuild_graph applies to the paper's pipeline and the baselines; "
+                         f"preset {preset!r} queries its lists in every step")
     if method != "robust":
         if lam is not None:
             raise ValueError(f"lam only applies to the robust method; method {method!r} does "
                              "not use it")
         return
-    if pipeline == "aware":
+    if pipeline == "default":
         unused = sorted(explicit & set(PAPER_ONLY)) + (["lam"] if lam is not None else [])
         if unused:
             raise ValueError(f"{', '.join(unused)} only appl{'ies' if len(unused) == 1 else 'y'}"
                              f" to the paper's pipeline; pass preset='paper' to use "
                              f"{'it' if len(unused) == 1 else 'them'} (preset {preset!r} runs "
-                             "the feature-aware pipeline)")
+                             "the default method)")
     else:
-        unused = sorted(explicit & set(AWARE_ONLY))
+        unused = sorted(explicit & set(DEFAULT_ONLY))
         if unused:
-            raise ValueError(f"{', '.join(unused)} only applies to the feature-aware presets "
-                             f"'default' and 'fast', not to preset {preset!r}")
+            raise ValueError(f"{', '.join(unused)} only applies to the default method (presets "
+                             f"'default' and 'fast'), not to preset {preset!r}")
 
 
 def _method_params(method, method_params):
@@ -434,6 +413,4 @@ def _method_params(method, method_params):
             if not isinstance(params[name], (bool, np.bool_)):
                 raise TypeError(f"{name} must be True or False; got {params[name]!r}")
             params[name] = bool(params[name])
-    if "select_scales" in params:
-        params["select_scales"] = check_flag(params["select_scales"], "select_scales")
     return params

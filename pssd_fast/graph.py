@@ -6,7 +6,7 @@ import numpy as np
 from . import interop
 from ._threads import kdtree, threads
 from ._validation import as_points, check_k
-from .kernels.graph import put_self_first, refresh_lists
+from .kernels.graph import keep_nearest, put_self_first, refresh_lists
 from .kernels.knn import grid_knn
 from .kernels.order import morton_codes
 
@@ -158,6 +158,71 @@ def knn_graph(points, k, keep_distances=True):
     if keep_distances:
         return NeighborGraph(indptr, indices.reshape(-1), dists.reshape(-1))
     return ListScales(indptr, indices.reshape(-1), radius, nearest)
+
+
+def nearest_within(data, queries, k, bound, tree=None):
+    """The ``k`` nearest of ``data`` within distance ``bound`` of each of ``queries``: ``(rows,
+    distances, lengths)``, ``(q, k)`` arrays of indices (``len(data)`` where fewer were kept)
+    and distances, by distance then index, and how many each kept.
+
+    A row holds the points nearer than the ``k + 1``-th nearest (none of several tied at that
+    distance; :func:`pssd_fast.kernels.graph.keep_nearest`) and within ``bound``: it depends
+    only on the data within ``bound``, whichever others the query saw, so that a tile with a
+    halo ``bound`` wide gets the whole cloud's rows. The query runs in chunks of
+    ``QUERY_ENTRIES // (k + 1)`` rows; ``tree``: a tree of ``data`` already built.
+    """
+    n = data.shape[0]
+    m = queries.shape[0]
+    q = min(k + 1, n)
+    # Long lists of the data's own points come from the grid query (pykdtree's cost grows as
+    # k^2); it finds the same points at the same distances.
+    grid = queries is data and q >= GRID_K
+    query = _grid_query(data, q) if grid else None
+    if not grid:
+        tree = kdtree(data) if tree is None else tree
+    rows = np.empty((m, k), np.int64)
+    distances = np.empty((m, k))
+    lengths = np.empty(m, np.int64)
+    chunk = max(1, QUERY_ENTRIES // (k + 1))
+    for start in range(0, m, chunk):
+        stop = min(m, start + chunk)
+        if grid:
+            found = np.empty((stop - start, q), np.int64)
+            dists = query(start, stop, found)
+            dists[dists > bound] = np.inf
+            found[dists > bound] = n
+        else:
+            dists, found = tree.query(queries[start:stop], k=q, distance_upper_bound=bound)
+            dists = np.asarray(dists, np.float64).reshape(-1, q)
+            found = np.asarray(found, np.int64).reshape(-1, q)
+        if q < k + 1:  # as if the k + 1-th were beyond the bound
+            pad = k + 1 - q
+            dists = np.column_stack((dists, np.full((stop - start, pad), np.inf)))
+            found = np.column_stack((found, np.full((stop - start, pad), n)))
+        keep_nearest(dists, found, n, rows[start:stop], distances[start:stop],
+                     lengths[start:stop])
+    return rows, distances, lengths
+
+
+def bounded_graph(points, k, bound, rows=None):
+    """Lists of the ``k`` nearest points within distance ``bound`` of each of ``rows`` (all
+    points by default), the point itself first (:func:`nearest_within`), as a
+    :class:`ListScales`; every other point's list is the point alone."""
+    n = points.shape[0]
+    queries = points if rows is None else points[rows]
+    rows = np.arange(n) if rows is None else np.asarray(rows, np.int64)
+    found, dists, counts = nearest_within(points, queries, k, bound)
+    lengths = np.ones(n, np.int64)
+    lengths[rows] = counts
+    indptr = np.concatenate(([0], np.cumsum(lengths)))
+    indices = np.arange(n, dtype=np.int32 if n < 2**31 else np.int64).repeat(lengths)
+    keep = np.arange(k) < counts[:, None]
+    indices[np.repeat(indptr[rows], counts) + np.nonzero(keep)[1]] = found[keep]
+    radius = np.zeros(n)
+    nearest = np.zeros(n)
+    radius[rows] = dists[np.arange(rows.shape[0]), counts - 1]
+    nearest[rows] = np.where(counts > 1, dists[:, min(1, k - 1)], 0.0)
+    return ListScales(indptr, indices, radius, nearest)
 
 
 def _tree_query(points, k):

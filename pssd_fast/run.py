@@ -101,12 +101,12 @@ class Request:
     Attributes
     ----------
     method, preset, pipeline : str
-        The method, the preset and the pipeline the two choose (``"paper"`` or ``"aware"``).
+        The method, the preset and the pipeline the two choose (``"default"``, ``"paper"``,
+        ``"bilateral"`` or ``"mls"``).
     lam : float or None
         The paper's pipeline's ``lambda`` (else None).
     params : dict
-        The method's parameters (:data:`pssd_fast.denoise.METHOD_DEFAULTS`), checked; the
-        plan sets ``select_scales``.
+        The method's parameters (:data:`pssd_fast.denoise.METHOD_DEFAULTS`), checked.
     orient : str, (3,) ndarray or None
         The first iteration's sign of the normals.
     centre : (3,) ndarray
@@ -115,6 +115,8 @@ class Request:
         The progress callback (:func:`pssd_fast.progress.reporter`).
     started : float
         ``time.perf_counter()`` when the run started.
+    extras : bool
+        Whether the default method returns the likelihood and the feature intensity.
     """
 
     method: str
@@ -126,11 +128,12 @@ class Request:
     centre: np.ndarray
     report: Optional[Callable]
     started: float
+    extras: bool = True
 
     @property
     def step(self):
-        """The pipeline's step (:data:`pssd_fast.pipelines.STEPS`)."""
-        return STEPS[self.pipeline if self.method == "robust" else self.method]
+        """The step of the paper's pipeline or a baseline (:data:`pssd_fast.pipelines.STEPS`)."""
+        return STEPS[self.pipeline]
 
 
 class Iterated(NamedTuple):
@@ -145,60 +148,38 @@ class Iterated(NamedTuple):
     held: np.ndarray
 
 
-def iterate(current, given, plan, request, counts=None):
-    """The ``plan.iterations`` of ``request``'s pipeline step on ``current`` (Morton order,
-    relative to ``request.centre``): an :class:`Iterated`.
+def iterate(current, given, plan, request, lists=None):
+    """The ``plan.iterations`` of ``request``'s pipeline step on the points ``current``
+    (Morton order, relative to ``request.centre``): an :class:`Iterated`. The paper's pipeline
+    and the baselines.
 
-    ``given``: the caller's normals in that order, or None; ``counts``: the points each of
-    ``current`` stands for (the cell means of the coarse-to-fine route), a factor on its
-    weight in the fits, or None. The plan gives ``k``, ``rebuild_graph``, the lists the first
-    iteration takes over (``plan.lists``, handed over: the plan keeps no reference) and the
-    walks' :class:`~pssd_fast.routes.scales.ScalePlan` (``plan.walks``).
+    ``given``: the caller's normals in that order, or None. The plan gives ``k`` and
+    ``rebuild_graph``; ``lists``: the baselines' noise probe's lists, which the first
+    iteration cuts to ``k`` instead of querying (handed over: not kept past their use).
     """
-    k, iterations, rebuild_graph, scale_plan = (plan.k, plan.iterations, plan.rebuild_graph,
-                                                plan.walks)
+    k, iterations, rebuild_graph = plan.k, plan.iterations, plan.rebuild_graph
     params, step, centre = request.params, request.step, request.centre
-    probe, plan.lists = plan.lists, None
-    # A cell mean weighs as many points as it stands for in the fits.
-    weighting = {} if counts is None else {"mass": counts.astype(np.float64)}
     records = []
-    out_normals = graph = extra = lists = held = None
+    out_normals = graph = extra = held = None
     for iteration in range(iterations):
         clock = Clock(request.report, iteration, iterations)
-        walk = None
-        if scale_plan is not None:
-            # The walks' longest lists, cut to k, are the iteration's: one query for both.
-            if probe is not None:
-                lists = probe
-            elif lists is None or rebuild_graph:
-                graph = lists = None  # the last lists go before the new ones are built
-                lists = clock.run("neighbors", knn_graph, current, int(scale_plan.lengths[-1]),
-                                  False)
-            else:
-                lists = clock.run("neighbors", refresh_graph, lists, current)
-            graph = clock.run("truncate", truncate_graph, lists, current, k)
-            walk = {"scale_plan": scale_plan.at(iteration), "scale_lists": lists}
-        elif probe is not None:
+        if lists is not None:
             # The probe's lists, cut to k, are this iteration's: no second query.
-            graph = clock.run("neighbors", truncate_graph, probe, current, k)
+            graph = clock.run("neighbors", truncate_graph, lists, current, k)
         elif graph is None or rebuild_graph:
             graph = None  # the last lists go before the new ones are built, not after
             graph = clock.run("neighbors", knn_graph, current, k, False)
         else:
             graph = clock.run("neighbors", refresh_graph, graph, current)
-        probe = None  # its lists (4 bytes x 96 a point) are not kept past their use
+        lists = None  # its lists (4 bytes x 96 a point) are not kept past their use
         if given is not None:
             nrm, degenerate = clock.run("normals", _given_normals, given)
         else:
             first = request.orient if out_normals is None else None
-            # Shifted normals in the first iteration only: later ones follow the moved points.
-            shift_k = k if out_normals is None and params.get("shift_normals") else None
             nrm, degenerate = clock.run("normals", estimated_normals, current, graph,
-                                        out_normals, first, centre, shift_k)
-        step_params = params if walk is None else {**params, **walk}
+                                        out_normals, first, centre, None)
         moved, out_normals, extra, record, held_now = step(
-            current, nrm, graph, request.lam, step_params, clock,
-            iteration == iterations - 1, **weighting)
+            current, nrm, graph, request.lam, params, clock, iteration == iterations - 1)
         held = held_now if held is None else held | held_now
         record["degenerate_normals"] = int(degenerate.sum())
         record["mean_step"] = float(np.linalg.norm(moved - current, axis=1).mean())
@@ -264,8 +245,8 @@ def stats(request, plan, n, distinct, n_threads, records, held, outliers=None, *
         "pipeline": request.pipeline,
         "plan": plan.describe(),
         "auto_k": plan.probe,
-        "noise": None if plan.probe is None else plan.probe["noise"],
-        "scales": plan.walks_record(),
+        "noise": plan.noise.sigma if plan.noise is not None else (
+            None if plan.probe is None else plan.probe["noise"]),
         "rebuild_graph": plan.rebuild_graph,
         "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
         "outliers": outliers,

@@ -3,11 +3,8 @@ import time
 
 import numpy as np
 
-from . import core
 from .denoise import METHODS, denoise
 from .graph import GRID_K, knn_graph
-from .progress import Clock
-from .routes import coarse
 from .stages import outlier_score
 
 
@@ -31,18 +28,14 @@ def warmup():
     for method in METHODS:
         denoise(points, method=method, k=10, iterations=1)
     denoise(points, k=10, iterations=1, preset="paper")
-    # Two passes on one graph: the second re-sorts the first's lists (refresh_lists).
-    denoise(points, k=10, iterations=2, preset="fast")
-    denoise(points.astype(np.float32), points, k=10, iterations=1)
-    denoise(points, k=10, iterations=1, preset="fast", orient="outward")
-    denoise(points, k=10, iterations=1, select_scales=True)
+    # Two passes of a baseline on one graph: the second re-sorts the first's lists.
+    denoise(points, method="mls", k=10, iterations=2, rebuild_graph=False)
+    # The default method with and without given normals, and a float32 cloud.
+    denoise(points.astype(np.float32), points, iterations=1)
+    denoise(points, iterations=1, orient="outward")
+    denoise(points, iterations=1, preset="fast")
     outlier_score(points, k=10)
-    # Lists as long as the default's at scan sizes come from the grid query.
+    # Lists as long as the baselines' at scan sizes come from the grid query.
     sphere = rng.normal(size=(GRID_K + 1, 3))
     knn_graph(sphere / np.linalg.norm(sphere, axis=1)[:, None], GRID_K, False)
-    # The coarse-to-fine default: cell means (with and without normals), fits onto them.
-    order, starts = coarse.group_cells(points, 0.5)
-    for normals in (None, points):
-        core.cell_means(points, normals, order, starts)
-    coarse.refine(points, points, points, 16, 0.05, Clock(None, 0, 1))
     return time.perf_counter() - started

@@ -85,3 +85,50 @@ def refresh_lists(points, indptr, indices, radius, nearest):
                 indices[start + s] = j
             radius[i] = dist[count - 1]
             nearest[i] = dist[1] if count > 1 else 0.0
+
+
+@parallel_kernel
+def keep_nearest(dists, found, missing, kept, kept_dists, lengths):
+    """The nearest entries of each distance-sorted row of a ``k + 1``-nearest query: those
+    nearer than the row's last entry, ordered by distance, then index.
+
+    Which of several points at one distance a tree returns depends on the tree; the set of the
+    points nearer than the ``k + 1``-th distance does not (the distances are exact). So a tie at
+    the cut keeps none of the tied points, and the rows are the same whichever points the tree
+    held beyond them (a tile and its halo, or the whole cloud). Entries the query did not find
+    (beyond its bound) are infinite.
+
+    Parameters
+    ----------
+    dists, found : (m, k + 1) float64, int64
+        The query's distances and indices, each row sorted by distance.
+    missing : int
+        The index written where fewer than ``k`` entries are kept.
+    kept, kept_dists : (m, k) int64, float64
+        Output: the kept entries first, then ``missing`` and infinity.
+    lengths : (m,) int64
+        Output: how many entries each row kept.
+    """
+    m, q = dists.shape
+    for c in prange((m + CHUNK - 1) // CHUNK):
+        for r in range(c * CHUNK, min(m, (c + 1) * CHUNK)):
+            cut = dists[r, q - 1]
+            count = 0
+            for t in range(q - 1):
+                d = dists[r, t]
+                if not d < cut:
+                    break
+                j = found[r, t]
+                s = count
+                while s > 0 and (kept_dists[r, s - 1] > d
+                                 or (kept_dists[r, s - 1] == d and kept[r, s - 1] > j)):
+                    kept_dists[r, s] = kept_dists[r, s - 1]
+                    kept[r, s] = kept[r, s - 1]
+                    s -= 1
+                kept_dists[r, s] = d
+                kept[r, s] = j
+                count += 1
+            for t in range(count, q - 1):
+                kept[r, t] = missing
+                kept_dists[r, t] = np.inf
+            lengths[r] = count

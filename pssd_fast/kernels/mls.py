@@ -473,7 +473,8 @@ def evaluate_fits(points, origins, normals, coef, nearest, distance, moved, held
         The fits' coefficients and inverse list radii (``coef`` of :func:`aware_fit`); a fit of
         no coefficients is the plane through its origin.
     nearest : (n, b) int64
-        Rows of ``origins`` whose fits each point moves onto.
+        Rows of ``origins`` whose fits each point moves onto; a row past ``origins``' is
+        none.
     distance : (n, b) float64
         Distance from the point to each of those origins; the weight of a fit is its inverse.
     moved : (n, 3) float64
@@ -493,6 +494,8 @@ def evaluate_fits(points, origins, normals, coef, nearest, distance, moved, held
             sw = 0.0
             for t in range(nearest.shape[1]):
                 j = nearest[i, t]
+                if j >= origins.shape[0]:
+                    continue  # none found there (beyond the query's bound)
                 nx, ny, nz = normals[j, 0], normals[j, 1], normals[j, 2]
                 ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
                 dx = points[i, 0] - origins[j, 0]

@@ -10,6 +10,6 @@ than the radius of the list behind it: docs/DECISIONS.md, "No point flung").
 from . import aware, bilateral, mls, paper
 
 #: The step of each pipeline: the robust method's two pipelines and the two baselines.
-STEPS = {"paper": paper.step, "aware": aware.step, "bilateral": bilateral.step, "mls": mls.step}
+STEPS = {"paper": paper.step, "bilateral": bilateral.step, "mls": mls.step}
 
 __all__ = ["STEPS", "aware", "bilateral", "mls", "paper"]

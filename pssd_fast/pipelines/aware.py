@@ -1,5 +1,6 @@
-"""The feature-aware pipeline of the presets "default" and "fast" (docs/ALGORITHM.md, "The
-feature-aware pipeline"; docs/DECISIONS.md, "Beyond the paper")."""
+"""The feature-aware fit of the default method's points (docs/ALGORITHM.md, "The feature-aware
+fit"; docs/DECISIONS.md, "Beyond the paper"), the paper's voting that the default method gives
+on request, and the noise probe behind the baselines' ``k``."""
 import time
 
 import numpy as np
@@ -7,9 +8,9 @@ import numpy as np
 from .. import core
 from .._validation import check_k
 from ..graph import knn_graph
-from . import walks
 
-#: The noise-driven choice of ``k`` (preset "default"). A probe fit with ``probe_k``
+#: The noise-driven choice of the baselines' ``k`` (``method="bilateral"`` or ``"mls"`` under
+#: presets "default" and "fast"). A probe fit with ``probe_k``
 #: neighbours measures the noise ``sigma`` (median RMS residual of the unweighted quadratic
 #: fits) relative to the probe's mean list radius ``r``; ``k`` is interpolated, linearly in
 #: ``log(sigma / r)`` and ``log k``, between the anchors ``(ratio, k)`` and held at the end
@@ -22,9 +23,6 @@ AUTO_K = {"probe_k": 96, "anchors": ((0.133, 64), (0.227, 96), (0.304, 160))}
 #: its Morton order (an evenly spread subsample), its list radius scaled by ``sqrt(1 / s)`` as on
 #: a surface.
 PROBE_POINTS = 100_000
-#: When :func:`noise_sigma` probes again, and how: above ``ratio`` (noise over the sample's list
-#: radius) it thins the sample towards ``target``, keeping at least ``points`` points.
-NOISE_PROBE = {"ratio": 0.15, "target": 0.12, "points": 10_000}
 
 
 def interpolated_k(x, anchors):
@@ -34,54 +32,21 @@ def interpolated_k(x, anchors):
     return int(round(np.exp(np.interp(np.log(max(x, 1e-12)), logs[:, 0], logs[:, 1]))))
 
 
-def step(points, nrm, graph, lam, params, clock, last=True, mass=None):
-    """One feature-aware iteration once the graph and normals exist.
-
-    Bilateral filter of the normals to ``n*_i``, a quadratic fitted in the frame of ``p_i`` and
-    ``n*_i`` with each neighbour weighted by distance and normal agreement (``sigma_n``), and
-    the projection ``p_i + g_i(0, 0) n*_i``; where a robust refit to the residuals explains a
-    list better, it replaces the quadratic (a list reaching across a thin wall; not on cell
-    means). ``mass`` (or None) multiplies each neighbour's weight in the fit (the points a cell
-    mean stands for). The move uses neither the likelihood nor the feature intensity; the last
-    iteration still computes both (from the fit's RMS residual, and by the paper's voting at
-    the paper's constants) so that every preset returns them.
-    """
-    walk = params.get("scale_plan")
-    moved, filtered, rms, degree, held, kept = fit_and_move(
-        points, nrm, graph, params["sigma_n"], clock, mass, walk, params.get("scale_lists"))
-    extra = None
-    if last:
-        lik, _ = clock.run("likelihood", core.sampling_likelihood, rms, "exp")
-        feat = clock.run("feature", voted_feature, points, nrm, graph,
-                         region_radius(core.mean_spacing(graph)))
-        extra = (lik, feat)
-    record = step_record(clock.times, held.sum(), rms.sum(), rms.shape[0],
-                         np.bincount(degree, minlength=7))
-    if kept is not None:
-        record["scales"] = walks.kept_counts(walk.lengths, *kept)
-    return moved, filtered, extra, record, held
-
-
-def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None, walk=None, lists=None):
-    """The move of :func:`step`: the moved points, the filtered normals, the fit's RMS
-    residual and degree, the points held in place (their step was not finite, or longer than
-    the radius of the list it was fitted over) and, with a
-    ``walk`` (the iteration's :class:`~pssd_fast.routes.scales.ScalePlan`, and ``lists``
-    of its longest length), what the walks kept: each point's column and whether it took the
-    plane (:func:`~pssd_fast.pipelines.walks.fit`; else None)."""
+def fit_and_move(points, nrm, graph, sigma_n, clock, mass=None):
+    """One feature-aware move: the normals ``nrm`` filtered (eq. (4)), a quadratic fitted in
+    the frame of each point and its filtered normal, its neighbours weighted by distance and
+    normal agreement (``sigma_n``; times ``mass`` if given), with the robust alternative that
+    keeps a thin wall's sides apart (not where ``mass`` is given: cell means have averaged the
+    sides already, and there it only costs accuracy; docs/DECISIONS.md, "Thin walls"), and the
+    projection along the filtered normal. Returns the moved points, the filtered normals, the
+    fit's RMS residual and degree, and the points held in place (their step was not finite, or
+    longer than the radius of the list it was fitted over)."""
     filtered = clock.run("filter", core.filter_normals, points, nrm, graph)
-    kept = None
-    if walk is None:
-        # The robust fit keeps a thin wall's sides apart; cell means (``mass``) have averaged
-        # them already, and on them it only costs accuracy (docs/DECISIONS.md, "Thin walls").
-        height, rms, degree = clock.run("mls", core.aware_fit, points, filtered, graph, sigma_n,
-                                        mass, mass is None)
-        support = graph.list_radius()
-    else:
-        height, rms, degree, support, *kept = clock.run("mls", walks.fit, points, filtered,
-                                                        graph, lists, sigma_n, walk)
-    moved, held = clock.run("update", core.project, points, filtered, height, support)
-    return moved, filtered, rms, degree, held, kept
+    height, rms, degree = clock.run("mls", core.aware_fit, points, filtered, graph, sigma_n,
+                                    mass, mass is None)
+    moved, held = clock.run("update", core.project, points, filtered, height,
+                            graph.list_radius())
+    return moved, filtered, rms, degree, held
 
 
 def region_radius(spacing):
@@ -137,28 +102,6 @@ def choose_k(points, given, probe_points=PROBE_POINTS, probe_k=AUTO_K["probe_k"]
               "noise": sigma, "probe_radius": radius, "ratio": ratio,
               "seconds": time.perf_counter() - started}
     return check_k(k, n), scales, graph if stride == 1 else None
-
-
-def noise_sigma(points, given, scales):
-    """The noise's standard deviation, for the cells of the coarse-to-fine default.
-
-    The probe of :func:`choose_k` underestimates a noise that is large against its lists
-    (their ball cuts off the tails: by a third at 1% noise on the CAD part at 100,000 points).
-    Where its noise is above ``NOISE_PROBE["ratio"]`` times its list radius, the probe runs
-    again on a sparser subsample, whose longer lists bring the ratio down to about
-    ``NOISE_PROBE["target"]``, but on no fewer than ``NOISE_PROBE["points"]`` points (their
-    lists would bend with the surface).
-    """
-    n = points.shape[0]
-    stride = scales["probe_stride"]
-    ratio = scales["ratio"] / np.sqrt(stride)  # noise over the sample's own list radius
-    if ratio <= NOISE_PROBE["ratio"]:
-        return scales["noise"]
-    sparser = int(stride * min((ratio / NOISE_PROBE["target"]) ** 2,
-                               scales["probe_points"] / NOISE_PROBE["points"]))
-    if sparser <= stride or -(-n // sparser) <= scales["probe_k"]:
-        return scales["noise"]
-    return _probe(points, given, sparser, scales["probe_k"])[0]
 
 
 def _probe(points, given, stride, probe_k):

@@ -1,0 +1,117 @@
+"""The noise probe: the standard deviation of a cloud's noise and its point spacing, read on an
+evenly spread sample before the method's first step (docs/ALGORITHM.md, "The noise probe";
+docs/DECISIONS.md, "One noise probe").
+
+At each sample point the robust spread of its nearest neighbours about their local quadratic
+is read for three list lengths (:func:`pssd_fast.core.local_noise`). What such a spread reads
+depends on the list's radius against the noise: a list a few noise widths across cuts the
+noise's tails off and reads too little; a long one on a curved, edged or thin surface reads its
+shape as noise. The first is known exactly, from a noisy plane (:data:`CALIBRATION`); each
+length's median reading is mapped back through it to a noise, and the least of the lengths
+whose lists span at least ``min_ratio`` noise widths is taken: the shortest list that is wide
+enough sees the least of the shape.
+"""
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from . import core
+from .graph import knn_graph
+
+#: ``points``: the most points the probe reads (a larger cloud: every ``s``-th point of its
+#: Morton order; a sparser sample would read a smaller cloud's curvature as noise);
+#: ``lengths``: the list lengths read; ``min_ratio``: the fewest noise widths a length's mean
+#: list radius must span for its reading to count.
+PROBE = {"points": 20_000, "lengths": (12, 24, 48), "min_ratio": 2.0}
+
+#: What each list length reads on a plane with Gaussian noise of standard deviation ``sigma``:
+#: ``(mean list radius / sigma, median reading / sigma)``, from 80,000 uniformly random points
+#: of the unit square at 14 noise levels (``python -m benchmarks.noise_probe --calibrate``
+#: measures it again; tests/test_noise.py checks a few rows).
+CALIBRATION = {
+    12: ((1.06, 0.1791), (1.3, 0.2172), (1.62, 0.2645), (2.02, 0.3178), (2.55, 0.3782),
+         (3.29, 0.43), (4.32, 0.4709), (5.76, 0.4905), (7.78, 0.502), (10.6, 0.5079),
+         (14.4, 0.5099), (19.7, 0.5113), (27, 0.5115), (37, 0.5121)),
+    24: ((1.36, 0.3728), (1.69, 0.4477), (2.11, 0.5328), (2.67, 0.6173), (3.45, 0.6879),
+         (4.55, 0.7346), (6.09, 0.7598), (8.24, 0.7736), (11.2, 0.7795), (15.3, 0.7821),
+         (20.9, 0.784), (28.7, 0.7852), (39.2, 0.7856), (53.7, 0.7859)),
+    48: ((1.74, 0.5496), (2.18, 0.6409), (2.77, 0.7287), (3.59, 0.8006), (4.74, 0.8496),
+         (6.36, 0.8758), (8.62, 0.8887), (11.7, 0.8952), (16, 0.8983), (21.9, 0.8998),
+         (30, 0.9006), (41.1, 0.901), (56.3, 0.9011), (77.1, 0.9013)),
+}
+
+
+class Noise(NamedTuple):
+    """What the probe measured.
+
+    Attributes
+    ----------
+    sigma : float
+        The noise's standard deviation, in the cloud's units (0 on an exact sample).
+    spacing : float
+        The point spacing: the side of the area each point covers on the surface.
+    stride : int
+        Every ``stride``-th point of the Morton order was read.
+    readings : dict
+        For each list length: its median reading, its mean list radius (of the sample) and the
+        noise it maps to.
+    """
+
+    sigma: float
+    spacing: float
+    stride: int
+    readings: dict
+
+    def record(self):
+        """The probe for ``stats["plan"]`` (JSON-serialisable)."""
+        return {"sigma": self.sigma, "spacing": self.spacing, "stride": self.stride,
+                "readings": {str(k): v for k, v in self.readings.items()}}
+
+
+def probe(points):
+    """The :class:`Noise` of ``points`` (distinct positions in Morton order; a ``(n, 3)`` array
+    or what offers ``shape`` and ``[::step]`` as one)."""
+    n = points.shape[0]
+    stride = -(-n // PROBE["points"])
+    sample = np.ascontiguousarray(points[::stride], dtype=np.float64)
+    lengths = [k for k in PROBE["lengths"] if k < sample.shape[0]] or [sample.shape[0] - 1]
+    graph = knn_graph(sample, lengths[-1], False)
+    scale, radius = core.local_noise(sample, graph, np.array(lengths, np.int64))
+    readings = {}
+    for col, length in enumerate(lengths):
+        read, mean_radius = float(np.median(scale[:, col])), float(np.mean(radius[:, col]))
+        table = CALIBRATION[min(CALIBRATION, key=lambda k: abs(k - length))]
+        readings[length] = {"read": read, "radius": mean_radius,
+                            "sigma": invert(read, mean_radius, table)}
+    usable = [r["sigma"] for r in readings.values()
+              if r["radius"] >= PROBE["min_ratio"] * r["sigma"]]
+    sigma = min(usable) if usable else readings[lengths[-1]]["sigma"]
+    # On a surface a list of k points covers about pi r^2 = k s^2 (s the sample's spacing).
+    spacing = readings[lengths[-1]]["radius"] * math.sqrt(math.pi / lengths[-1]) / math.sqrt(
+        stride)
+    return Noise(sigma, spacing, stride, readings)
+
+
+def invert(read, radius, table):
+    """The noise ``sigma`` whose reading, by lists of mean ``radius``, is ``read``: the root of
+    ``sigma * f(radius / sigma) = read``, ``f`` the ``table`` (log-linear between its rows and
+    held at its ends). 0 where nothing was read."""
+    if not read > 0.0:
+        return 0.0
+    xs, fs = (np.log(np.array(column)) for column in zip(*table))
+
+    def reads(log_sigma):
+        x = math.log(radius) - log_sigma
+        return log_sigma + float(np.interp(x, xs, fs))
+
+    # ``reads`` grows with sigma (the tabulated f falls slower than 1 / x): bisect in log.
+    low, high = math.log(read) - 1.0, math.log(read) + 10.0
+    target = math.log(read)
+    for _ in range(80):
+        mid = 0.5 * (low + high)
+        if reads(mid) < target:
+            low = mid
+        else:
+            high = mid
+    return math.exp(0.5 * (low + high))

@@ -1,0 +1,141 @@
+"""What a run does, decided once before its first step, for :func:`pssd_fast.denoise`,
+:func:`pssd_fast.tiled.denoise` and :func:`pssd_fast.tiled.denoise_file` alike
+(docs/ALGORITHM.md, "The plan").
+
+The default method (presets "default" and "fast") reads the noise and the spacing from a probe
+(:mod:`pssd_fast.noise`) and sizes from them its cells, its lists and the radius every step
+reads (:mod:`pssd_fast.method`). The paper's pipeline and the baselines iterate on the points
+over lists of ``k`` nearest neighbours.
+"""
+import time
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from . import method
+from .noise import Noise, probe
+from .pipelines import aware
+
+#: Presets: the pipeline of the robust method and, where the caller gives none, the
+#: iterations, ``k`` and ``rebuild_graph`` of the paper's pipeline and of the baselines
+#: (``k`` None: from the baselines' noise probe, ``probe``), and whether the default method
+#: refines the points that fail its test. "fast" is the default method without that pass.
+PRESETS = {
+    "default": {"pipeline": "default", "iterations": 4, "k": None, "lam": None,
+                "rebuild_graph": True, "probe": (100_000, 96), "refine": True},
+    "fast": {"pipeline": "default", "iterations": 2, "k": None, "lam": None,
+             "rebuild_graph": False, "probe": (5_000, 32), "baseline_k": 48, "refine": False},
+    "paper": {"pipeline": "paper", "iterations": 2, "k": 25, "lam": 0.5, "rebuild_graph": True,
+              "probe": (100_000, 96)},
+}
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What a run does. Frozen: built by :func:`make` before the first step, never changed.
+
+    Attributes
+    ----------
+    pipeline : str
+        ``"default"`` (the default method), ``"paper"``, ``"bilateral"`` or ``"mls"``.
+    iterations : int
+        The default method's iterations on the cell means; the others' on the points.
+    k : int
+        The default method's list length on the cell means; the others' ``k``.
+    noise : Noise or None
+        The default method's probe.
+    edge : float or None
+        The cells' edge (default method).
+    bound : float or None
+        How far the lists on the cell means reach (default method).
+    low : (3,) ndarray or None
+        The grid's corner: the cloud's low corner (default method).
+    refine : tuple or None
+        ``(k, bound)`` of the failing points' own lists; None: no refinement ("fast").
+    rebuild_graph : bool
+        The paper's pipeline and the baselines: whether each iteration queries its lists
+        anew.
+    probe : dict or None
+        The baselines' noise probe behind a ``k`` chosen from the data, or the default
+        method's probe's ``seconds``; else None.
+    """
+
+    pipeline: str
+    iterations: int
+    k: int
+    noise: Optional[Noise] = None
+    edge: Optional[float] = None
+    bound: Optional[float] = None
+    low: Optional[np.ndarray] = field(default=None, compare=False)
+    refine: Optional[tuple] = None
+    rebuild_graph: bool = False
+    probe: Optional[dict] = None
+
+    def describe(self):
+        """The plan for ``stats["plan"]`` (JSON-serialisable)."""
+        if self.pipeline != "default":
+            return {"method": self.pipeline, "k": self.k, "iterations": self.iterations,
+                    "rebuild_graph": self.rebuild_graph}
+        return {"method": "default", "iterations": self.iterations, "k": self.k,
+                "cell_edge": self.edge, "bound": self.bound, "noise": self.noise.record(),
+                "refine": None if self.refine is None else
+                {"k": self.refine[0], "bound": self.refine[1]}}
+
+
+def make(points, given, preset, pipeline, *, distinct, low, k=None, iterations=None,
+         rebuild_graph=None):
+    """The :class:`Plan` of a run on ``points`` (distinct positions in Morton order, relative
+    to the run's centre; or what offers ``shape`` and ``[::step]`` as one, out of core), and
+    the lists of the baselines' noise probe that the first iteration can take over (or None).
+
+    Parameters
+    ----------
+    points, given
+        The positions and the caller's normals or None.
+    preset : str
+        A key of :data:`PRESETS`.
+    pipeline : str
+        ``"default"``, ``"paper"``, ``"bilateral"`` or ``"mls"``.
+    distinct : int
+        The number of distinct positions.
+    low : (3,) ndarray
+        The cloud's low corner, relative to the centre (the default method's grid).
+    k, iterations, rebuild_graph
+        The caller's, or None (the preset's; ``k`` of the default method from its probe, of
+        the baselines under "default" and "fast" from their own noise probe).
+    """
+    setting = PRESETS[preset]
+    if pipeline == "default":
+        return _default(points, setting, distinct, low, k, iterations), None
+    iterations = setting["iterations"] if iterations is None else iterations
+    probe = lists = None
+    if k is None and setting["k"] is None:
+        k, probe, lists = aware.choose_k(points, given, *setting["probe"])
+        k = min(setting.get("baseline_k") or k, distinct - 1)
+        if lists is not None and k > probe["probe_k"]:
+            lists = None  # too short to serve
+    elif k is None:
+        k = setting["k"]
+    rebuild = setting["rebuild_graph"] if rebuild_graph is None else rebuild_graph
+    return Plan(pipeline, iterations, k, rebuild_graph=bool(rebuild), probe=probe), lists
+
+
+def _default(points, setting, distinct, low, k, iterations):
+    """The default method's plan: its probe and the sizes of its steps (``k``: the caller's
+    list length on the means, or None)."""
+    started = time.perf_counter()
+    found = probe(points)
+    seconds = time.perf_counter() - started
+    edge = method.cell_edge(found.sigma, found.spacing)
+    if k is None:
+        k = min(method.list_length(found.sigma, found.spacing, edge), distinct - 1)
+    bound = method.list_bound(k, found.spacing, edge)
+    refine = None
+    if setting["refine"]:
+        k_r = min(method.list_length(found.sigma, found.spacing, 0.0, method.REFINE["radius"],
+                                     method.REFINE["k"]), distinct - 1)
+        refine = (k_r, method.list_bound(k_r, found.spacing, 0.0))
+    return Plan("default", method.ITERATIONS if iterations is None else iterations, k,
+                noise=found, edge=edge, bound=bound, low=np.asarray(low, np.float64),
+                refine=refine, probe={"seconds": seconds})
