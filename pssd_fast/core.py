@@ -84,6 +84,18 @@ def orient_normals(points, nrm, graph, orient):
     return count
 
 
+def orient_pointwise(points, nrm, orient, centroid):
+    """``nrm`` (in place) each turned on its own towards ``orient``: ``"up"`` (``+z``),
+    ``"outward"`` (away from ``centroid``) or a viewpoint."""
+    if isinstance(orient, str) and orient == "up":
+        agree = nrm[:, 2]
+    elif isinstance(orient, str):
+        agree = np.einsum("ij,ij->i", nrm, points - centroid)
+    else:
+        agree = np.einsum("ij,ij->i", nrm, orient - points)
+    nrm *= np.where(agree < 0.0, -1.0, 1.0)[:, None]
+
+
 def outlier_score(points, graph):
     """Per-point outlier score: flagged where it exceeds 1 (docs/DECISIONS.md, "Outliers").
 

@@ -334,7 +334,7 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
                                     low=low - centre, k=k, iterations=iterations,
                                     rebuild_graph=rebuild_graph)
         if pipeline == "default":
-            done = executor.run(current, given, plan, request)
+            done, _ = executor.run(current, given, plan, request)
         else:
             done = iterate(current, given, plan, request, lists)
     return result(Input(pts, dtype, order, groups), done, centre, kept,

@@ -122,6 +122,8 @@ class ListScales(NamedTuple):
 QUERY_ENTRIES = 2**21
 
 
+_NO_IDS = np.empty(0, np.int64)
+
 #: From this list length on, lists come from the grid query (:mod:`pssd_fast.kernels.knn`)
 #: instead of pykdtree, whose cost grows about as ``k^2`` (docs/DECISIONS.md, "Long lists").
 GRID_K = 128
@@ -160,7 +162,7 @@ def knn_graph(points, k, keep_distances=True):
     return ListScales(indptr, indices.reshape(-1), radius, nearest)
 
 
-def nearest_within(data, queries, k, bound, tree=None):
+def nearest_within(data, queries, k, bound, ids=None):
     """The ``k`` nearest of ``data`` within distance ``bound`` of each of ``queries``: ``(rows,
     distances, lengths)``, ``(q, k)`` arrays of indices (``len(data)`` where fewer were kept)
     and distances, by distance then index, and how many each kept.
@@ -168,8 +170,9 @@ def nearest_within(data, queries, k, bound, tree=None):
     A row holds the points nearer than the ``k + 1``-th nearest (none of several tied at that
     distance; :func:`pssd_fast.kernels.graph.keep_nearest`) and within ``bound``: it depends
     only on the data within ``bound``, whichever others the query saw, so that a tile with a
-    halo ``bound`` wide gets the whole cloud's rows. The query runs in chunks of
-    ``QUERY_ENTRIES // (k + 1)`` rows; ``tree``: a tree of ``data`` already built.
+    halo ``bound`` wide gets the whole cloud's rows. Tied points are ordered by index, or by
+    ``ids`` (each data point's place in the whole cloud) where given. The query runs in chunks
+    of ``QUERY_ENTRIES // (k + 1)`` rows.
     """
     n = data.shape[0]
     m = queries.shape[0]
@@ -178,8 +181,8 @@ def nearest_within(data, queries, k, bound, tree=None):
     # k^2); it finds the same points at the same distances.
     grid = queries is data and q >= GRID_K
     query = _grid_query(data, q) if grid else None
-    if not grid:
-        tree = kdtree(data) if tree is None else tree
+    tree = None if grid else kdtree(data)
+    ids = _NO_IDS if ids is None else np.ascontiguousarray(ids, np.int64)
     rows = np.empty((m, k), np.int64)
     distances = np.empty((m, k))
     lengths = np.empty(m, np.int64)
@@ -199,19 +202,20 @@ def nearest_within(data, queries, k, bound, tree=None):
             pad = k + 1 - q
             dists = np.column_stack((dists, np.full((stop - start, pad), np.inf)))
             found = np.column_stack((found, np.full((stop - start, pad), n)))
-        keep_nearest(dists, found, n, rows[start:stop], distances[start:stop],
+        keep_nearest(dists, found, n, ids, rows[start:stop], distances[start:stop],
                      lengths[start:stop])
     return rows, distances, lengths
 
 
-def bounded_graph(points, k, bound, rows=None):
+def bounded_graph(points, k, bound, rows=None, ids=None):
     """Lists of the ``k`` nearest points within distance ``bound`` of each of ``rows`` (all
-    points by default), the point itself first (:func:`nearest_within`), as a
-    :class:`ListScales`; every other point's list is the point alone."""
+    points by default), the point itself first (:func:`nearest_within`; ties ordered by
+    ``ids`` where given), as a :class:`ListScales`; every other point's list is the point
+    alone."""
     n = points.shape[0]
     queries = points if rows is None else points[rows]
     rows = np.arange(n) if rows is None else np.asarray(rows, np.int64)
-    found, dists, counts = nearest_within(points, queries, k, bound)
+    found, dists, counts = nearest_within(points, queries, k, bound, ids)
     lengths = np.ones(n, np.int64)
     lengths[rows] = counts
     indptr = np.concatenate(([0], np.cumsum(lengths)))

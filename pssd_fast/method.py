@@ -22,7 +22,7 @@ import numpy as np
 from . import core
 from .graph import bounded_graph, grid_codes, nearest_within
 from .pipelines import aware
-from .pipelines.normals import estimated_normals
+from .pipelines.normals import pca, shifted
 from .progress import Clock
 
 #: The cell edge: the larger of ``spacing`` point spacings and ``noise`` noise widths.
@@ -60,6 +60,8 @@ class Cells(NamedTuple):
         Points each cell holds.
     order, starts : int64 arrays
         Cell ``c`` holds the points ``order[starts[c]:starts[c + 1]]``.
+    owner : (n,) int64
+        The cell of each point.
     """
 
     points: np.ndarray
@@ -67,6 +69,7 @@ class Cells(NamedTuple):
     counts: np.ndarray
     order: np.ndarray
     starts: np.ndarray
+    owner: np.ndarray
 
 
 def list_length(sigma, spacing, edge, radius=None, shortest=None):
@@ -100,107 +103,161 @@ def cells_of(points, normals, edge, low):
     starts = np.flatnonzero(np.concatenate(([True], codes[1:] != codes[:-1])))
     starts = np.concatenate((starts, [codes.shape[0]])).astype(np.int64)
     means, mean_normals = core.cell_means(points, normals, order, starts)
-    return Cells(means, mean_normals, np.diff(starts), order, starts)
+    counts = np.diff(starts)
+    owner = np.empty(points.shape[0], np.int64)
+    owner[order] = np.repeat(np.arange(counts.shape[0]), counts)
+    return Cells(means, mean_normals, counts, order, starts, owner)
+
+
+class Fits(NamedTuple):
+    """One iteration's outputs on the means (or a tile's own means): the ``moved`` means, the
+    ``filtered`` normals, the fits ``coef`` (:func:`pssd_fast.core.surface_fits`, ``(m, 7)``),
+    their ``rms`` residual and ``degree``, the means ``held`` in place and the ``lists``."""
+
+    moved: np.ndarray
+    filtered: np.ndarray
+    coef: np.ndarray
+    rms: np.ndarray
+    degree: np.ndarray
+    held: np.ndarray
+    lists: object
+
+
+def iteration(current, mass, k, bound, sigma_n, normals, clock, first, ids=None):
+    """One feature-aware iteration on the cell means ``current`` (weighted by the points they
+    hold, ``mass``), each fitted over its ``k`` nearest means within ``bound`` (ties ordered by
+    ``ids``, the means' places in the whole cloud, where given): a :class:`Fits`.
+
+    ``normals``: the caller's (given) normals, or the hints that sign the PCA normals (the
+    previous iteration's filtered normals, or the directions away from the centroid of the
+    whole cloud); ``first``: whether they are hints of the first iteration, whose normals are
+    shifted (docs/ALGORITHM.md, "Shifted normals"); None when ``normals`` are given.
+    """
+    lists = clock.run("neighbors", bounded_graph, current, k, bound, None, ids)
+    if first is None:
+        nrm = normals
+    else:
+        nrm = clock.run("normals", _normals, current, lists, normals, k if first else None)
+    filtered = clock.run("filter", core.filter_normals, current, nrm, lists)
+    coef, rms, degree = clock.run("mls", core.surface_fits, current, filtered, lists, sigma_n,
+                                  mass)
+    moved, held = clock.run("update", core.project, current, filtered, coef[:, 0],
+                            lists.radius)
+    return Fits(moved, filtered, coef, rms, degree, held, lists)
+
+
+def _normals(points, lists, hints, shift_k):
+    """PCA normals signed along ``hints``, shifted where ``shift_k`` is given."""
+    nrm, _, planes = pca(points, lists, hints, shift_k is not None)
+    return nrm if shift_k is None else shifted(points, nrm, lists, planes, shift_k)
 
 
 class Iterated(NamedTuple):
     """The cell means after the iterations, and the last iteration's fits: ``origins`` (where
-    the means were at its start), their ``lists``, ``normals`` (their filtered normals),
-    ``coef`` (the fits of :func:`pssd_fast.core.surface_fits`, ``(m, 7)``), ``rms`` and
-    ``degree``; the means ``held`` in some iteration; one record per iteration."""
+    the means were at its start), the last :class:`Fits` (``last``), the means ``held`` in
+    some iteration, and one record per iteration."""
 
     points: np.ndarray
     origins: np.ndarray
-    lists: object
-    normals: np.ndarray
-    coef: np.ndarray
-    rms: np.ndarray
-    degree: np.ndarray
+    last: Fits
     held: np.ndarray
     records: list
 
 
 def iterate(cells, k, bound, iterations, sigma_n, given, keep_normals, report=None):
-    """The feature-aware iterations on the cell means, each fitted over its ``k`` nearest means
-    within ``bound``, weighted by the points they hold; the last iteration keeps its fits.
-
-    ``given``: the means' normals from the caller's (the first iteration's; every one's with
-    ``keep_normals``), else None: PCA normals, shifted in the first iteration.
-    """
+    """The feature-aware iterations (:func:`iteration`) on the cell means; the last keeps its
+    fits. ``given``: the means' normals from the caller's (the first iteration's; every one's
+    with ``keep_normals``), else None: PCA normals, shifted in the first iteration."""
     current = cells.points
     mass = cells.counts.astype(np.float64)
-    previous = None
+    hints = core.outward_hints(current)
     held = np.zeros(current.shape[0], np.bool_)
     records = []
-    for iteration in range(iterations):
-        clock = Clock(report, iteration, iterations)
-        lists = clock.run("neighbors", bounded_graph, current, k, bound)
-        if given is not None and (iteration == 0 or keep_normals):
-            nrm = given
-        else:
-            nrm, _ = clock.run("normals", estimated_normals, current, lists, previous, None,
-                               np.zeros(3), k if previous is None else None)
-        filtered = clock.run("filter", core.filter_normals, current, nrm, lists)
-        coef, rms, degree = clock.run("mls", core.surface_fits, current, filtered, lists,
-                                      sigma_n, mass)
-        moved, held_now = clock.run("update", core.project, current, filtered, coef[:, 0],
-                                    lists.radius)
-        held |= held_now
-        records.append(aware.step_record(clock.times, held_now.sum(), rms.sum(), rms.shape[0],
-                                         np.bincount(degree, minlength=7)))
-        origins, current, previous = current, moved, filtered
-    return Iterated(current, origins, lists, previous, coef, rms, degree, held, records)
+    for t in range(iterations):
+        clock = Clock(report, t, iterations)
+        own = given is not None and (t == 0 or keep_normals)
+        fits = iteration(current, mass, k, bound, sigma_n, given if own else hints, clock,
+                         None if own else t == 0)
+        held |= fits.held
+        records.append(record(clock.times, fits))
+        origins, current, hints = current, fits.moved, fits.filtered
+    return Iterated(current, origins, fits, held, records)
 
 
-def project(points, done, bound):
-    """Each point moved onto the fits of its :data:`BLEND` nearest means (their positions at
-    the last iteration's start, within ``bound``), by the inverse-distance mean of its steps
-    along their normals (:func:`pssd_fast.core.evaluate_fits`); its normal is its nearest
-    mean's. Returns the moved points, their normals, the points held (no fit within its
-    support) and each point's nearest mean."""
-    nearest, distance, _ = nearest_within(done.origins, points,
-                                          min(BLEND, done.origins.shape[0]), bound)
-    moved, held = core.evaluate_fits(points, done.origins, done.normals, done.coef, nearest,
+def record(times, fits):
+    """An iteration's record for ``stats``."""
+    return aware.step_record(times, fits.held.sum(), fits.rms.sum(), fits.rms.shape[0],
+                             np.bincount(fits.degree, minlength=7))
+
+
+def project(points, origins, fits, bound, ids=None):
+    """Each point moved onto the fits of its :data:`BLEND` nearest means (``origins``, their
+    positions at the last iteration's start, within ``bound``; ties ordered by ``ids`` where
+    given), by the inverse-distance mean of its steps along their normals
+    (:func:`pssd_fast.core.evaluate_fits`); its normal is its nearest mean's. Returns the moved
+    points, their normals and the points held (no fit within its support)."""
+    nearest, distance, counts = nearest_within(origins, points, min(BLEND, origins.shape[0]),
+                                               bound, ids)
+    moved, held = core.evaluate_fits(points, origins, fits.filtered, fits.coef, nearest,
                                      distance)
-    return moved, done.normals[nearest[:, 0]], held, nearest[:, 0]
+    first = nearest[:, 0]
+    normals = fits.filtered[np.minimum(first, origins.shape[0] - 1)]
+    normals[counts == 0] = np.nan
+    return moved, normals, held
 
 
-def failing(cells, residual2, sigma, bound):
-    """The cells whose neighbourhood fails the chi-square test (:data:`TEST`): the mean square
+def cell_sums(cells, values):
+    """The sum of ``values`` (one per point, in the points' order) over each cell's points."""
+    return np.add.reduceat(values[cells.order], cells.starts[:-1])
+
+
+def failing(means, sums, counts, sigma, bound, ids=None):
+    """Which cells' neighbourhoods fail the chi-square test (:data:`TEST`): the mean square
     residual of the points of the cell and its ``TEST_CELLS - 1`` nearest cells within
-    ``bound``, against ``sigma^2``. ``residual2``: each point's squared step onto the surface,
-    in the order of the points."""
-    sums = np.add.reduceat(residual2[cells.order], cells.starts[:-1])
-    lists = bounded_graph(cells.points, TEST_CELLS, bound)
+    ``bound`` (``means``: the cells' input means; ``sums``: each cell's sum of its points'
+    squared steps onto the surface; ``counts``: its points), against ``sigma^2``."""
+    lists = bounded_graph(means, TEST_CELLS, bound, None, ids)
     total = np.add.reduceat(sums[lists.indices], lists.indptr[:-1])
-    points = np.add.reduceat(cells.counts[lists.indices], lists.indptr[:-1]).astype(np.float64)
+    points = np.add.reduceat(counts[lists.indices], lists.indptr[:-1]).astype(np.float64)
     noise2 = max(sigma * sigma, np.finfo(np.float64).tiny)
     return total / np.maximum(points, 1.0) > noise2 * (1.0 + TEST * np.sqrt(
         2.0 / np.maximum(points, 1.0)))
 
 
-def refine(start, normals, flagged, k, bound, sigma_n, given, keep_normals, clock):
-    """The flagged points' own feature-aware iterations (:data:`REFINE`), from ``start`` (the
-    flagged points' input positions, every other point where the surface put it), each over
-    its ``k`` nearest points within ``bound``; the other points lend their positions and
-    ``normals``. Returns the flagged points' positions, filtered normals and held mask; the
-    stages are timed on ``clock`` (``refine_*``, summed over the iterations)."""
+def refine_step(current, normals, flagged, k, bound, sigma_n, given, clock, first, ids=None):
+    """One of the flagged points' own feature-aware iterations (:data:`REFINE`): each flagged
+    point fitted over its ``k`` nearest points within ``bound`` (ties ordered by ``ids`` where
+    given), the others lending their positions and ``normals``. ``given``: the flagged points'
+    normals from the caller's, else None (PCA signed like ``normals``, shifted where
+    ``first``). Returns every point's position and normal after it, and the flagged points
+    held in place."""
     rows = np.flatnonzero(flagged)
-    current = start.copy()
-    normals = normals.copy()
-    held = np.zeros(rows.shape[0], np.bool_)
-    for iteration in range(REFINE["iterations"]):
-        lists = clock.run("refine_neighbors", bounded_graph, current, k, bound, rows)
-        if given is not None and (iteration == 0 or keep_normals):
-            nrm = given.copy()
-        else:
-            nrm, _ = clock.run("refine_normals", estimated_normals, current, lists, normals,
-                               None, np.zeros(3), k if iteration == 0 else None)
-        nrm[~flagged] = normals[~flagged]
-        moved, filtered, _, _, held_now = clock.run(
-            "refine_fit", aware.fit_and_move, current, nrm, lists, sigma_n,
-            Clock(None, iteration, REFINE["iterations"]))
-        current[rows] = moved[rows]
-        normals[rows] = filtered[rows]
-        held |= held_now[rows]
-    return current[rows], normals[rows], held
+    lists = clock.run("refine_neighbors", bounded_graph, current, k, bound, rows, ids)
+    if given is not None:
+        nrm = given.copy()
+    else:
+        nrm = clock.run("refine_normals", _normals, current, lists, normals,
+                        k if first else None)
+    nrm[~flagged] = normals[~flagged]
+    moved, filtered, _, _, held = clock.run("refine_fit", aware.fit_and_move, current, nrm,
+                                            lists, sigma_n, Clock(None, 0, 1))
+    out = current.copy()
+    out[rows] = moved[rows]
+    out_normals = normals.copy()
+    out_normals[rows] = filtered[rows]
+    return out, out_normals, held & flagged
+
+
+def refine(start, normals, flagged, k, bound, sigma_n, given, keep_normals, clock):
+    """The flagged points' own iterations (:func:`refine_step`, ``REFINE["iterations"]`` of
+    them) from ``start`` (the flagged points' input positions, every other point where the
+    surface put it). Returns every point's position and normal, and the flagged points held
+    in some iteration."""
+    held = np.zeros(start.shape[0], np.bool_)
+    current = start
+    for t in range(REFINE["iterations"]):
+        own = given if given is not None and (t == 0 or keep_normals) else None
+        current, normals, held_now = refine_step(current, normals, flagged, k, bound, sigma_n,
+                                                 own, clock, t == 0)
+        held |= held_now
+    return current, normals, held

@@ -88,7 +88,7 @@ def refresh_lists(points, indptr, indices, radius, nearest):
 
 
 @parallel_kernel
-def keep_nearest(dists, found, missing, kept, kept_dists, lengths):
+def keep_nearest(dists, found, missing, ids, kept, kept_dists, lengths):
     """The nearest entries of each distance-sorted row of a ``k + 1``-nearest query: those
     nearer than the row's last entry, ordered by distance, then index.
 
@@ -104,6 +104,9 @@ def keep_nearest(dists, found, missing, kept, kept_dists, lengths):
         The query's distances and indices, each row sorted by distance.
     missing : int
         The index written where fewer than ``k`` entries are kept.
+    ids : (n,) int64 or (0,)
+        The order of tied entries: by ``ids[j]`` (a tile's points keep their place in the whole
+        cloud), or with no entries by ``j``.
     kept, kept_dists : (m, k) int64, float64
         Output: the kept entries first, then ``missing`` and infinity.
     lengths : (m,) int64
@@ -119,9 +122,11 @@ def keep_nearest(dists, found, missing, kept, kept_dists, lengths):
                 if not d < cut:
                     break
                 j = found[r, t]
+                key = ids[j] if ids.shape[0] > 0 else j
                 s = count
-                while s > 0 and (kept_dists[r, s - 1] > d
-                                 or (kept_dists[r, s - 1] == d and kept[r, s - 1] > j)):
+                while s > 0 and (kept_dists[r, s - 1] > d or (
+                        kept_dists[r, s - 1] == d
+                        and (ids[kept[r, s - 1]] if ids.shape[0] > 0 else kept[r, s - 1]) > key)):
                     kept_dists[r, s] = kept_dists[r, s - 1]
                     kept[r, s] = kept[r, s - 1]
                     s -= 1
