@@ -15,8 +15,10 @@ from .graph import bounds
 from .plan import PRESETS
 from .progress import reporter
 from .run import (
-    DenoiseResult, Input, Request, check_distinct, iterate, outlier_scores, result, stats,
+    DenoiseResult, Input, Iterated, Request, check_distinct, iterate, outlier_scores, result,
+    stats,
 )
+from .store import Memory
 
 #: Parameters of each method beyond the common ones, with their defaults.
 METHOD_DEFAULTS = {
@@ -255,14 +257,43 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     .. [1] "Robust Denoising of Point-Sampled Surfaces" (the paper). ``docs/ALGORITHM.md``
        describes the method as implemented, with every ambiguity of the paper decided.
     """
+    return run(points, normals, dict(
+        method=method, iterations=iterations, k=k, lam=lam, preset=preset,
+        rebuild_graph=rebuild_graph, orient=orient, remove_outliers=remove_outliers,
+        extras=extras, duplicate_tolerance=duplicate_tolerance, classification=classification,
+        classes=classes, n_jobs=n_jobs, progress=progress, **method_params))
+
+
+def run(points, normals, options, runner=None, tile_points=None, store=None):
+    """:func:`denoise` with its keyword arguments as ``options``; the default method's tile
+    tasks run on ``runner`` (None: here) in tiles of at most ``tile_points`` points (None: one),
+    their arrays kept in ``store`` (None: in memory), as :func:`pssd_fast.tiled.denoise` asks.
+    The result does not depend on the tiles."""
     points = interop.coordinates(points)  # Open3D, trimesh and structured arrays
+    options = dict(options)
+    classification, classes = options.pop("classification", None), options.pop("classes", None)
     if classes is not None or classification is not None:
-        return _by_class(points, normals, classification, classes, {
-            "method": method, "iterations": iterations, "k": k, "lam": lam, "preset": preset,
-            "rebuild_graph": rebuild_graph, "orient": orient, "remove_outliers": remove_outliers,
-            "extras": extras, "duplicate_tolerance": duplicate_tolerance, "n_jobs": n_jobs,
-            "progress": progress,
-            **method_params})
+        return _by_class(points, normals, classification, classes, options, runner,
+                         tile_points, store)
+    return _run(points, normals, runner, tile_points, store, **options)
+
+
+def _default(current, given, plan, request, runner, tile_points, store):
+    """The default method's run (:mod:`pssd_fast.executor`) as an :class:`Iterated`, and its
+    number of tiles."""
+    store = Memory() if store is None else store
+    tiles = executor.group(current, given, plan, store, tile_points)
+    _, records = executor.run(plan, request, tiles, store, runner)
+    out = executor.collect(store, tiles, current.shape[0])
+    extra = (out["likelihood"], out["feature"]) if request.extras else None
+    return Iterated(out["xyz"], out["normals"], extra, records, out["held"]), len(tiles)
+
+
+def _run(points, normals, runner, tile_points, store, *, method="robust", iterations="auto",
+         k="auto", lam=None, preset="default", rebuild_graph="auto", orient=None,
+         remove_outliers=False, extras=False, duplicate_tolerance=0.0, n_jobs=None,
+         progress=None, **method_params):
+    """:func:`run` of a cloud without classes."""
     check_choice(method, "method", METHODS)
     check_choice(preset, "preset", tuple(PRESETS))
     setting = PRESETS[preset]
@@ -273,7 +304,7 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     _check_pipeline_params(method, preset, pipeline, explicit, lam, rebuild_graph)
     report = reporter(progress)
     pts, dtype = as_points(points)
-    check_precision(pts, dtype)
+    check_precision(pts, dtype, stacklevel=5)
     n = pts.shape[0]
     iterations = auto(iterations, lambda v: check_int(v, "iterations", minimum=1))
     k = auto(k)
@@ -329,29 +360,33 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     given = None if given is None else given[order]
     request = Request(method, preset, pipeline, lam, params, orient, centre, report, started,
                       bool(extras))
+    more = {}
     with threads(n_jobs) as n_threads:
         plan, lists = planning.make(current, given, preset, pipeline, distinct=distinct,
                                     low=low - centre, k=k, iterations=iterations,
                                     rebuild_graph=rebuild_graph)
         if pipeline == "default":
-            done, _ = executor.run(current, given, plan, request)
+            done, count = _default(current, given, plan, request, runner, tile_points, store)
         else:
-            done = iterate(current, given, plan, request, lists)
+            done, count = iterate(current, given, plan, request, lists), 1
+        if runner is not None:
+            more["tiles"] = {"count": count, "scheduler": runner.name,
+                             "threads": runner.threads}
     return result(Input(pts, dtype, order, groups), done, centre, kept,
                   None if score is None else score.astype(dtype, copy=False),
                   stats(request, plan, n, distinct, n_threads, done.records,
-                        int(done.held.sum()), outliers=outliers))
+                        int(done.held.sum()), outliers=outliers, **more))
 
 
-def _by_class(points, normals, classification, classes, options):
+def _by_class(points, normals, classification, classes, options, runner, tile_points, store):
     """:func:`denoise` of each class that ``classification`` and ``classes`` choose on its
     own, the other points kept as they are (see its ``classification``)."""
     started = time.perf_counter()
     pts, dtype = as_points(points)
-    check_precision(pts, dtype, stacklevel=4)
+    check_precision(pts, dtype, stacklevel=5)
     n = pts.shape[0]
     runs, small, described, least = lidar.select(classification, classes, n, options)
-    lidar.warn_small(small, least, stacklevel=3)
+    lidar.warn_small(small, least, stacklevel=4)
     chosen = np.zeros(n, np.bool_)
     for _, rows in runs:
         chosen[rows] = True
@@ -359,7 +394,8 @@ def _by_class(points, normals, classification, classes, options):
     done = []
     for code, rows in runs:
         try:
-            part = denoise(pts[rows], None if given is None else given[rows], **options)
+            part = _run(pts[rows], None if given is None else given[rows], runner,
+                        tile_points, store, **options)
         except ValueError as exc:
             if code is None:
                 raise

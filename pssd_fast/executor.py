@@ -1,244 +1,314 @@
-"""The one executor of the default method: its steps run over tiles with halos, in memory or
-from files, and a run in one tile is the in-core run (docs/ALGORITHM.md, "Tiles").
+"""The one executor of the default method: its steps run as rounds of tile tasks with halos,
+in memory or from files, and a run in one tile is the in-core run (docs/ALGORITHM.md,
+"Tiles").
 
 Every step reads a radius the plan fixed before the run (:class:`pssd_fast.plan.Plan`): a
 tile's task gets its own items first, then every other item within ``hops`` radii of the
-boxes of its own (:mod:`pssd_fast.tiled.tiles`), with their places in the whole cloud, which
+boxes of its own (:func:`pssd_fast.store.gather`), with their places in the whole cloud, which
 order tied neighbours. The lists of the items it keeps are then the whole cloud's, and so are
 its results, bit for bit, whatever the tiles (:func:`pssd_fast.graph.nearest_within`).
 
-Steps, each a round of tasks: the cells (each tile holds whole cells, consecutive along
-their Morton curve); the iterations on the cell means (four radii of halo in the first, whose
+The rounds: the iterations on the cell means (a halo of four list bounds in the first, whose
 normals are shifted, three after); every point onto the last fits of its nearest means (one
-radius); the chi-square test of each cell (one radius); the failing points' own iterations
-(four radii of their lists, then three).
+bound); the chi-square test of each cell (one bound); the failing points' own iterations (four
+bounds of their lists, then three). The cells themselves come first
+(:func:`group`, or :mod:`pssd_fast.tiled.ondisk` out of core): each tile holds whole cells,
+consecutive along their Morton curve, and its points grouped by cell.
 """
-import time
 from typing import NamedTuple
 
 import numpy as np
 
-from . import core, method
-from . import regions as geometry
+from . import core, method, regions
 from ._threads import threads
 from .graph import bounded_graph, knn_graph
 from .pipelines import aware
 from .progress import Clock
 from .run import Iterated
+from .store import gather
 
-#: Tiles start at multiples of this many cells.
+#: Tiles start at multiples of this many cells (where a tile holds more).
 ALIGN = 64
 
 
 class Tile(NamedTuple):
-    """A tile: the cells ``c0 .. c1 - 1`` and their points, ``rows`` (indices into the points
-    in Morton order, grouped by cell as :func:`pssd_fast.method.cells_of` groups them)."""
+    """A tile: its first cell ``c0`` and its cells ``cells``, its ``points``, and the boxes of
+    its points and of its cell means (:func:`pssd_fast.regions.boxes`)."""
 
     c0: int
-    c1: int
-    rows: np.ndarray
-
-
-def tiles_of(cells, tile_points):
-    """The tiles of ``cells``: runs of consecutive cells of at most ``tile_points`` points
-    (one cell at least), each starting at a multiple of :data:`ALIGN` cells where it can."""
-    ends = np.concatenate(([0], np.cumsum(cells.counts)))
-    m = cells.counts.shape[0]
-    out = []
-    c0 = 0
-    while c0 < m:
-        c1 = int(np.searchsorted(ends, ends[c0] + tile_points, side="right")) - 1
-        c1 = max(c1, c0 + 1)
-        if c1 < m and c1 - c0 > ALIGN:
-            c1 -= (c1 - c0) % ALIGN
-        out.append(Tile(c0, c1, cells.order[cells.starts[c0]:cells.starts[c1]]))
-        c0 = c1
-    return out
+    cells: int
+    points: int
+    point_boxes: np.ndarray
+    cell_boxes: np.ndarray
 
 
 class Local:
-    """Runs a step's tasks here, one after another, with every thread: the in-core run and
-    the tiled runs' ``"sync"`` use it; :class:`pssd_fast.tiled.scheduler.Runner` runs them on
-    Dask."""
+    """Runs a round's tasks here, one after another, with every thread: the in-core run, and
+    the tiled runs' ``"sync"``. :class:`pssd_fast.tiled.scheduler.Runner` runs them on Dask."""
 
     name = "in-core"
     threads = None
 
-    def __init__(self, n_jobs):
+    def __init__(self, n_jobs=None):
         self.n_jobs = n_jobs
 
     def map(self, stage, iteration, iterations, func, argsets):
         return [func(*args, self.n_jobs) for args in argsets]
 
 
-def run(current, given, plan, request, runner=None, tile_points=None):
-    """The default method on the distinct positions ``current`` (Morton order, relative to
-    ``request.centre``; the caller's normals ``given`` in that order, or None), in tiles of at
-    most ``tile_points`` points (None: one tile) whose tasks ``runner`` runs (None: here).
+def group(current, given, plan, store, tile_points=None):
+    """The cells of the points ``current`` (Morton order; the caller's normals ``given`` or
+    None) put into ``store`` tile by tile (``("points", i)``: the tile's points grouped by
+    cell, their places ``gid`` in ``current`` and their cell ``cell``; ``("cells", i, 0)``:
+    its cell means, the points they hold and their places), in tiles of at most
+    ``tile_points`` points (None: one tile). Returns the :class:`Tile` list."""
+    cells = method.cells_of(current, given, plan.edge, plan.low)
+    ends = np.concatenate(([0], np.cumsum(cells.counts)))
+    m = cells.counts.shape[0]
+    tiles = []
+    c0 = 0
+    while c0 < m:
+        c1 = m if tile_points is None else max(
+            c0 + 1, int(np.searchsorted(ends, ends[c0] + tile_points, side="right")) - 1)
+        if c1 < m and c1 - c0 > ALIGN:
+            c1 -= (c1 - c0) % ALIGN
+        rows = cells.order[ends[c0]:ends[c1]]
+        i = len(tiles)
+        points = {"xyz": current[rows], "gid": rows, "cell": cells.owner[rows]}
+        means = {"xyz": cells.points[c0:c1], "mass": cells.counts[c0:c1].astype(np.float64),
+                 "gid": np.arange(c0, c1)}
+        if given is not None:
+            points["given"] = given[rows]
+            means["normals"] = cells.normals[c0:c1]
+        store.put(("points", i), points)
+        store.put(("cells", i, 0), means)
+        tiles.append(Tile(c0, c1 - c0, rows.shape[0], regions.boxes(points["xyz"]),
+                          regions.boxes(means["xyz"])))
+        c0 = c1
+    return tiles
 
-    Returns an :class:`~pssd_fast.run.Iterated` (the records are the iterations on the
-    means, the last one's times with the points' steps added) and the number of tiles.
-    """
-    runner = Local(None) if runner is None else runner
+
+def run(plan, request, tiles, store, runner=None):
+    """The default method's rounds over the ``tiles`` in ``store`` (:func:`group`), their
+    tasks run by ``runner`` (None: here). Returns each tile's final entry key (``("out", i)``:
+    its points' ``xyz``, ``normals`` and ``held``, with ``gid``, and the likelihood and feature
+    intensity where ``request.extras``), one record per iteration on the means, and the keys
+    of the last iteration's means."""
+    runner = Local() if runner is None else runner
     params = request.params
     sigma_n, keep = params["sigma_n"], params["keep_normals"]
-    cells = method.cells_of(current, given, plan.edge, plan.low)
-    tiles = [Tile(0, cells.counts.shape[0], cells.order)] if tile_points is None else \
-        tiles_of(cells, tile_points)
-    one = len(tiles) == 1
-    m = cells.counts.shape[0]
-    mass = cells.counts.astype(np.float64)
-    hints = core.outward_hints(cells.points)
-    positions = cells.points
-    held = np.zeros(m, np.bool_)
+    whole = len(tiles) == 1
+    given = "normals" in store.get(("cells", 0, 0))
+    boxes = [tile.cell_boxes for tile in tiles]
     records = []
     for t in range(plan.iterations):
-        clock = Clock(request.report, t, plan.iterations)
-        own_given = cells.normals is not None and (t == 0 or keep)
-        normals = cells.normals if own_given else hints
+        own_given = given and (t == 0 or keep)
         first = None if own_given else t == 0
-        hops = 4 if first else 3
-        args = []
-        for tile in tiles:
-            rows = geometry.gather(positions, tile.c0, tile.c1, hops * plan.bound, one)
-            args.append((positions[rows], mass[rows], normals[rows], first, plan.k, plan.bound,
-                         sigma_n, rows, tile.c1 - tile.c0))
-        started = time.perf_counter()
-        parts = runner.map("tile_iteration", t, plan.iterations, _iteration, args)
-        fits = method.Fits(*(np.concatenate(column) for column in zip(*parts)), None)
-        clock.times["iteration"] = time.perf_counter() - started
-        held |= fits.held
-        records.append(method.record(clock.times, fits))
-        origins, positions, hints = positions, fits.moved, fits.filtered
+        width = (4 if first else 3) * plan.bound
+        keys = [("cells", i, t) for i in range(len(tiles))]
+        out = runner.map("tile_iteration", t, plan.iterations, _iteration, [
+            (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
+             own_given, first, plan, sigma_n, t == plan.iterations - 1)
+            for i in range(len(tiles))])
+        origins, boxes = boxes, [o[0] for o in out]
+        records.append(aware.step_record({}, sum(o[1] for o in out), sum(o[2] for o in out),
+                                         sum(tile.cells for tile in tiles),
+                                         np.sum([o[3] for o in out], axis=0)))
+    fits = [("fits", i) for i in range(len(tiles))]
     clock = Clock(request.report, plan.iterations - 1, plan.iterations)
-    point_parts = runner.map("tile_project", plan.iterations - 1, plan.iterations, _project, [
-        (current[tile.rows], *_gathered(origins, fits, tile, current, plan.bound, one))
-        for tile in tiles])
-    moved, normals, held_points, step2 = _scatter(current.shape[0], tiles, point_parts)
-    record = records[-1]
-    record["cells"] = m
+    runner.map("tile_project", plan.iterations - 1, plan.iterations, _project, [
+        (store, fits, origins, i, None if whole else regions.widened(tiles[i].point_boxes,
+                                                                      plan.bound), plan)
+        for i in range(len(tiles))])
+    records[-1]["cells"] = sum(tile.cells for tile in tiles)
+    refined = False
     if plan.refine is not None:
-        sums = method.cell_sums(cells, step2)
-        fails = np.concatenate(runner.map("tile_test", plan.iterations - 1, plan.iterations,
-                                          _test, [
-            (cells.points[rows], sums[rows], cells.counts[rows], rows, tile.c1 - tile.c0,
-             plan.noise.sigma, plan.bound)
-            for tile in tiles for rows in [geometry.gather(cells.points, tile.c0, tile.c1,
-                                                           plan.bound, one)]]))
-        flagged = fails[cells.owner]
-        record["refined"] = int(flagged.sum())
-        if flagged.any():
-            moved, normals, held_refined = _refine(current, moved, normals, flagged, given,
-                                                   keep, plan, sigma_n, tiles, runner, one)
-            held_points |= held_refined
-    extra = None
+        keys = [("test", i) for i in range(len(tiles))]
+        flagged = runner.map("tile_test", plan.iterations - 1, plan.iterations, _test, [
+            (store, keys, [t.cell_boxes for t in tiles], i,
+             None if whole else regions.widened(tiles[i].cell_boxes, plan.bound), plan)
+            for i in range(len(tiles))])
+        records[-1]["refined"] = int(sum(flagged))
+        if sum(flagged):
+            _refine(plan, tiles, store, runner, sigma_n, keep, whole, given)
+            refined = True
+    if not refined:
+        for i in range(len(tiles)):
+            store.put(("out", i), store.get(("placed", i)))
     if request.extras:
-        extra = clock.run("extras", extras, origins, fits, cells, plan)
+        clock.run("extras", extras, store, tiles, fits, plan)
     if request.orient is not None:
-        clock.run("orient", orient, moved, normals, request.orient, request.centre,
-                  None if one else current.mean(axis=0))
-    record["times"].update(clock.times)
-    return Iterated(moved, normals, extra, records, held_points), len(tiles)
+        clock.run("orient", orient, store, tiles, request.orient, request.centre, whole)
+    records[-1]["times"] = clock.times
+    return [("out", i) for i in range(len(tiles))], records
 
 
-def _iteration(positions, mass, normals, first, k, bound, sigma_n, ids, n_own, n_jobs):
-    """A tile's task of one iteration on the means: :func:`pssd_fast.method.iteration` on its
-    own means and halo, the own means' :class:`~pssd_fast.method.Fits` (without lists)."""
+def _iteration(store, keys, boxes, i, region, own_given, first, plan, sigma_n, last, n_jobs):
+    """A tile's task of one iteration on the means (:func:`pssd_fast.method.iteration` on its
+    own means and its halo): its own means' next entry (their positions and filtered normals;
+    in the ``last`` iteration also their fits, :data:`FITS`), and the boxes of their new
+    positions, held count, RMS sum and degree counts. The first iteration's PCA normals are
+    signed away from the cloud's centre (the positions are relative to it), as every tile
+    sees it."""
+    names = ("xyz", "mass", "gid", "normals" if own_given else "hints") if (
+        own_given or not first) else ("xyz", "mass", "gid")
+    items = gather(store, keys, i, boxes, region, names, "xyz")
+    n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
+    if own_given:
+        normals = items["normals"]
+    elif first:
+        normals = items["xyz"]  # away from the cloud's centre, whatever the tile
+    else:
+        normals = items["hints"]
     with threads(n_jobs):
-        fits = method.iteration(positions, mass, k, bound, sigma_n, normals,
-                                Clock(None, 0, 1), first, ids)
-    return tuple(column[:n_own] for column in fits[:-1])
+        fits = method.iteration(items["xyz"], items["mass"], plan.k, plan.bound, sigma_n,
+                                normals, Clock(None, 0, 1), first, items["gid"])
+    own = {name: items[name][:n_own] for name in ("mass", "gid")}
+    entry = store.get(keys[i])
+    own.update({"xyz": fits.moved[:n_own], "hints": fits.filtered[:n_own]})
+    if "normals" in entry:
+        own["normals"] = entry["normals"]
+    store.put(keys[i][:2] + (keys[i][2] + 1,), own)
+    if last:
+        store.put(("fits", i), {"xyz": items["xyz"][:n_own], "gid": own["gid"],
+                                "coef": fits.coef[:n_own], "filtered": fits.filtered[:n_own],
+                                "rms": fits.rms[:n_own]})
+    return (regions.boxes(fits.moved[:n_own]), int(fits.held[:n_own].sum()),
+            float(fits.rms[:n_own].sum()), np.bincount(fits.degree[:n_own], minlength=7))
 
 
-def _gathered(origins, fits, tile, current, bound, one):
-    """What a tile's projection reads: every mean within ``bound`` of its points (their
-    origins, filtered normals and fits) and their places, and the bound."""
-    rows = geometry.around(origins, current[tile.rows], bound, one)
-    return origins[rows], fits.filtered[rows], fits.coef[rows], rows, bound
-
-
-def _project(points, origins, filtered, coef, ids, bound, n_jobs):
-    """A tile's task of the projection: its points moved onto the fits of their nearest
-    means, their normals, held mask and squared step."""
+def _project(store, fits, boxes, i, region, plan, n_jobs):
+    """A tile's task of the projection: its points moved onto the fits of their nearest means
+    (where the last iteration started), their normals and held mask (``("placed", i)``), and
+    its cells' input means with the sums of their points' squared steps (``("test", i)``)."""
+    points = store.get(("points", i))
+    means = gather(store, fits, i, boxes, region, ("xyz", "gid", "coef", "filtered"), "xyz")
     with threads(n_jobs):
-        moved, normals, held = method.project(points, origins, method.Fits(
-            None, filtered, coef, None, None, None, None), bound, ids)
-    step = moved - points
-    return moved, normals, held, np.einsum("ij,ij->i", step, step)
+        moved, normals, held = method.project(points["xyz"], means["xyz"], method.Fits(
+            None, means["filtered"], means["coef"], None, None, None, None), plan.bound,
+            means["gid"])
+    step = moved - points["xyz"]
+    store.put(("placed", i), {"xyz": moved, "normals": normals, "held": held,
+                              "gid": points["gid"]})
+    cells = store.get(("cells", i, 0), ("xyz", "mass", "gid"))
+    local = points["cell"] - cells["gid"][0]
+    sums = np.bincount(local, np.einsum("ij,ij->i", step, step), cells["gid"].shape[0])
+    store.put(("test", i), {"xyz": cells["xyz"], "sums": sums, "mass": cells["mass"],
+                            "gid": cells["gid"]})
 
 
-def _scatter(n, tiles, parts):
-    """The tiles' per-point outputs put back in the points' order."""
-    out = None
-    for tile, part in zip(tiles, parts):
-        if out is None:
-            out = [np.empty((n,) + column.shape[1:], column.dtype) for column in part]
-        for array, column in zip(out, part):
-            array[tile.rows] = column
+def _test(store, keys, boxes, i, region, plan, n_jobs):
+    """A tile's task of the chi-square test: its points' flags (``("flags", i)``), from their
+    cells'; the number flagged."""
+    cells = gather(store, keys, i, boxes, region, ("xyz", "sums", "mass", "gid"), "xyz")
+    n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
+    with threads(n_jobs):
+        fails = method.failing(cells["xyz"], cells["sums"], cells["mass"], plan.noise.sigma,
+                               plan.bound, cells["gid"])[:n_own]
+    points = store.get(("points", i), ("cell",))
+    flagged = fails[points["cell"] - cells["gid"][0]]
+    store.put(("flags", i), {"flagged": flagged})
+    return int(flagged.sum())
+
+
+def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given):
+    """The failing points' own iterations, tile by tile (``("refine", i, t)`` entries; the
+    last becomes ``("out", i)``)."""
+    k, bound = plan.refine
+    for i in range(len(tiles)):
+        placed = store.get(("placed", i))
+        points = store.get(("points", i), ("xyz",) + (("given",) if given else ()))
+        flagged = store.get(("flags", i))["flagged"]
+        xyz = placed["xyz"].copy()
+        xyz[flagged] = points["xyz"][flagged]
+        entry = {"xyz": xyz, "normals": placed["normals"], "flagged": flagged,
+                 "gid": placed["gid"], "held": placed["held"]}
+        if given:
+            entry["given"] = points["given"]
+        store.put(("refine", i, 0), entry)
+    boxes = [regions.boxes(store.get(("refine", i, 0), ("xyz",))["xyz"])
+             for i in range(len(tiles))]
+    iterations = method.REFINE["iterations"]
+    for t in range(iterations):
+        use_given = given and (t == 0 or keep)
+        width = (3 if use_given or t > 0 else 4) * bound
+        keys = [("refine", i, t) for i in range(len(tiles))]
+        boxes = runner.map("tile_refine", t, iterations, _refine_task, [
+            (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
+             use_given, t == 0, plan, sigma_n) for i in range(len(tiles))])
+    for i in range(len(tiles)):
+        entry = store.get(("refine", i, iterations))
+        store.put(("out", i), {"xyz": entry["xyz"], "normals": entry["normals"],
+                               "held": entry["held"], "gid": entry["gid"]})
+
+
+def _refine_task(store, keys, boxes, i, region, use_given, first, plan, sigma_n, n_jobs):
+    """A tile's task of one refining iteration (:func:`pssd_fast.method.refine_step`): its own
+    points' next entry; the boxes of their positions."""
+    names = ("xyz", "normals", "flagged", "gid") + (("given",) if use_given else ())
+    items = gather(store, keys, i, boxes, region, names, "xyz")
+    entry = store.get(keys[i])
+    n_own = entry["gid"].shape[0]
+    k, bound = plan.refine
+    with threads(n_jobs):
+        out, normals, held = method.refine_step(
+            items["xyz"], items["normals"], items["flagged"], k, bound, sigma_n,
+            items["given"] if use_given else None, Clock(None, 0, 1), first, items["gid"])
+    entry.update(xyz=out[:n_own], normals=normals[:n_own], held=entry["held"] | held[:n_own])
+    store.put(keys[i][:2] + (keys[i][2] + 1,), entry)
+    return regions.boxes(entry["xyz"])
+
+
+def collect(store, tiles, n, names=("xyz", "normals", "held", "likelihood", "feature")):
+    """The tiles' final outputs (``("out", i)``) in the order of the points (their ``gid``):
+    ``xyz``, ``normals``, ``held`` and, where computed, ``likelihood`` and ``feature``."""
+    out = {}
+    for i in range(len(tiles)):
+        entry = store.get(("out", i))
+        for name in names:
+            if name not in entry:
+                continue
+            if name not in out:
+                out[name] = np.empty((n,) + entry[name].shape[1:], entry[name].dtype)
+            out[name][entry["gid"]] = entry[name]
     return out
 
 
-def _test(means, sums, counts, ids, n_own, sigma, bound, n_jobs):
-    """A tile's task of the chi-square test: whether each of its own cells fails it."""
-    with threads(n_jobs):
-        return method.failing(means, sums, counts, sigma, bound, ids)[:n_own]
-
-
-def _refine(current, moved, normals, flagged, given, keep, plan, sigma_n, tiles, runner, one):
-    """The failing points' own iterations, tile by tile: every point's position and normal,
-    and the flagged points held in some iteration."""
-    k, bound = plan.refine
-    positions = moved.copy()
-    positions[flagged] = current[flagged]
-    held = np.zeros(current.shape[0], np.bool_)
-    for t in range(method.REFINE["iterations"]):
-        use_given = given is not None and (t == 0 or keep)
-        hops = 3 if use_given or t > 0 else 4
-        args = []
-        for tile in tiles:
-            rows = geometry.around(positions, positions[tile.rows], hops * bound, one,
-                                   own=tile.rows)
-            args.append((positions[rows], normals[rows], flagged[rows],
-                         given[rows] if use_given else None, rows, tile.rows.shape[0], k,
-                         bound, sigma_n, t == 0))
-        parts = runner.map("tile_refine", t, method.REFINE["iterations"], _refine_task, args)
-        positions, normals, held_now = _scatter(current.shape[0], tiles, parts)
-        held |= held_now
-    return positions, normals, held
-
-
-def _refine_task(positions, normals, flagged, given, ids, n_own, k, bound, sigma_n, first,
-                 n_jobs):
-    """A tile's task of one refining iteration: its own points' positions, normals and held
-    mask (:func:`pssd_fast.method.refine_step`)."""
-    with threads(n_jobs):
-        out, out_normals, held = method.refine_step(positions, normals, flagged, k, bound,
-                                                    sigma_n, given, Clock(None, 0, 1), first,
-                                                    ids)
-    return out[:n_own], out_normals[:n_own], held[:n_own]
-
-
-def extras(origins, fits, cells, plan):
-    """The likelihood and feature intensity of the points: those of their cell's mean (the
-    likelihood from the last fits' RMS residual, the ``"exp"`` form; the feature intensity by
-    the paper's voting at the paper's constants over the means, at the last iteration's
-    start)."""
+def extras(store, tiles, fits, plan):
+    """The likelihood and feature intensity of each tile's points, added to its
+    ``("out", i)``: those of their cell's mean (the likelihood from the last fits' RMS
+    residual, the ``"exp"`` form; the feature intensity by the paper's voting at the paper's
+    constants over the means where the last iteration started). Over the whole cloud's means
+    at once: the voting's mean spacing and the likelihood's mean residual are the whole
+    cloud's."""
+    entries = [store.get(key, ("xyz", "rms", "filtered")) for key in fits]
+    origins, rms, filtered = (np.concatenate([e[name] for e in entries])
+                              for name in ("xyz", "rms", "filtered"))
     lists = bounded_graph(origins, plan.k, plan.bound)
-    lik, _ = core.sampling_likelihood(fits.rms, "exp")
-    feat = aware.voted_feature(origins, fits.filtered, lists,
+    lik, _ = core.sampling_likelihood(rms, "exp")
+    feat = aware.voted_feature(origins, filtered, lists,
                                aware.region_radius(core.mean_spacing(lists)))
-    return lik[cells.owner], feat[cells.owner]
+    for i in range(len(tiles)):
+        cell = store.get(("points", i), ("cell",))["cell"]
+        entry = store.get(("out", i))
+        entry.update(likelihood=lik[cell], feature=feat[cell])
+        store.put(("out", i), entry)
 
 
-def orient(points, normals, how, centre, centroid):
-    """``normals`` (in place) turned ``how`` (``"outward"``, ``"up"`` or a viewpoint, given
-    absolute): in a run of one tile (``centroid`` None), made consistent over the points'
-    lists of :data:`pssd_fast.core.ORIENT_NEIGHBOURS` first and each connected component
-    turned as a whole; in tiles each normal on its own (outward: away from ``centroid``, the
-    input's), since the propagation runs over the whole cloud."""
+def orient(store, tiles, how, centre, whole):
+    """Each tile's output normals turned ``how`` (``"outward"``, ``"up"`` or a viewpoint,
+    given absolute): in one tile made consistent over the points' lists of
+    :data:`pssd_fast.core.ORIENT_NEIGHBOURS` first and each connected component turned as a
+    whole; in tiles each normal on its own (outward: away from the cloud's centre), as the
+    propagation runs over the whole cloud."""
     target = how if isinstance(how, str) else how - centre
-    if centroid is None:
-        lists = knn_graph(points, min(core.ORIENT_NEIGHBOURS, points.shape[0] - 1), False)
-        core.orient_normals(points, normals, lists, target)
-    else:
-        core.orient_pointwise(points, normals, target, centroid)
+    for i in range(len(tiles)):
+        entry = store.get(("out", i))
+        points, normals = entry["xyz"], entry["normals"].copy()
+        if whole:
+            lists = knn_graph(points, min(core.ORIENT_NEIGHBOURS, points.shape[0] - 1), False)
+            core.orient_normals(points, normals, lists, target)
+        else:
+            core.orient_pointwise(points, normals, target, np.zeros(3))
+        entry["normals"] = normals
+        store.put(("out", i), entry)
