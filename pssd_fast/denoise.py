@@ -289,26 +289,54 @@ def _default(current, given, plan, request, runner, tile_points, store):
     return Iterated(out["xyz"], out["normals"], extra, records, out["held"]), len(tiles)
 
 
-def _run(points, normals, runner, tile_points, store, *, method="robust", iterations="auto",
-         k="auto", lam=None, preset="default", rebuild_graph="auto", orient=None,
-         remove_outliers=False, extras=False, duplicate_tolerance=0.0, n_jobs=None,
-         progress=None, **method_params):
-    """:func:`run` of a cloud without classes."""
+def checked_options(options):
+    """:func:`denoise`'s keyword arguments ``options`` checked, as far as they can be without
+    the points (TypeError or ValueError naming what is wrong): a dict of the run's ``method``,
+    ``preset``, ``pipeline``, ``params`` (the method's), ``lam``, ``k`` and ``iterations``
+    (None: the run chooses), ``rebuild_graph``, ``orient``, ``remove_outliers``, ``extras``,
+    ``duplicate_tolerance``, ``n_jobs`` and ``report``."""
+    options = dict(options)
+    method, preset = options.pop("method", "robust"), options.pop("preset", "default")
+    iterations, k = options.pop("iterations", "auto"), options.pop("k", "auto")
+    lam, rebuild_graph = options.pop("lam", None), options.pop("rebuild_graph", "auto")
+    orient = options.pop("orient", None)
+    remove_outliers, extras = options.pop("remove_outliers", False), options.pop("extras", False)
+    tolerance = options.pop("duplicate_tolerance", 0.0)
+    n_jobs, progress = options.pop("n_jobs", None), options.pop("progress", None)
     check_choice(method, "method", METHODS)
     check_choice(preset, "preset", tuple(PRESETS))
     setting = PRESETS[preset]
     pipeline = setting["pipeline"] if method == "robust" else method
-    explicit = {name for name, value in method_params.items() if auto(value) is not None}
+    explicit = {name for name, value in options.items() if auto(value) is not None}
     rebuild_graph = check_flag(rebuild_graph, "rebuild_graph")
-    params = _method_params(method, method_params)
+    params = _method_params(method, options)
     _check_pipeline_params(method, preset, pipeline, explicit, lam, rebuild_graph)
-    report = reporter(progress)
+    lam = setting["lam"] if lam is None else lam
+    for name, flag in (("remove_outliers", remove_outliers), ("extras", extras)):
+        if not isinstance(flag, (bool, np.bool_)):
+            raise TypeError(f"{name} must be True or False; got {flag!r}")
+    return {"method": method, "preset": preset, "pipeline": pipeline, "params": params,
+            "lam": None if lam is None else check_float(lam, "lam", low=0.0, high=1.0),
+            "k": auto(k), "iterations": auto(iterations, lambda v: check_int(
+                v, "iterations", minimum=1)),
+            "rebuild_graph": rebuild_graph,
+            "orient": None if orient is None else check_orient(orient),
+            "remove_outliers": bool(remove_outliers), "extras": bool(extras),
+            "duplicate_tolerance": duplicates.check_tolerance(tolerance), "n_jobs": n_jobs,
+            "report": reporter(progress)}
+
+
+def _run(points, normals, runner, tile_points, store, **options):
+    """:func:`run` of a cloud without classes."""
+    o = checked_options(options)
+    method, preset, pipeline, params, lam = (o["method"], o["preset"], o["pipeline"],
+                                             o["params"], o["lam"])
+    k, iterations, orient, n_jobs = o["k"], o["iterations"], o["orient"], o["n_jobs"]
+    setting = PRESETS[preset]
     pts, dtype = as_points(points)
     check_precision(pts, dtype, stacklevel=5)
     n = pts.shape[0]
-    iterations = auto(iterations, lambda v: check_int(v, "iterations", minimum=1))
-    k = auto(k)
-    if k is None and setting["k"] is not None and pipeline == "paper":
+    if k is None and setting["k"] is not None and pipeline != "default":
         # The caller chose no k: the message is about the cloud's size, not about k.
         check_size(n)
         k = setting["k"]
@@ -318,20 +346,15 @@ def _run(points, normals, runner, tile_points, store, *, method="robust", iterat
     elif k is None:
         check_size(n)
     k = None if k is None else check_k(k, n)
-    lam = setting["lam"] if lam is None else lam
-    lam = None if lam is None else check_float(lam, "lam", low=0.0, high=1.0)
     given = None if normals is None else as_normals(normals, n)
     if params["keep_normals"] and given is None:
         raise ValueError("keep_normals=True needs normals; pass normals=... or drop keep_normals")
-    if orient is not None:
-        orient = check_orient(orient)
-        if given is not None:
-            raise ValueError("orient applies to estimated normals; the given normals keep their "
-                             "signs (pass normals=None or drop orient)")
-    for name, flag in (("remove_outliers", remove_outliers), ("extras", extras)):
-        if not isinstance(flag, (bool, np.bool_)):
-            raise TypeError(f"{name} must be True or False; got {flag!r}")
-    duplicate_tolerance = duplicates.check_tolerance(duplicate_tolerance)
+    if orient is not None and given is not None:
+        raise ValueError("orient applies to estimated normals; the given normals keep their "
+                         "signs (pass normals=None or drop orient)")
+    remove_outliers, extras = o["remove_outliers"], o["extras"]
+    duplicate_tolerance, rebuild_graph, report = (o["duplicate_tolerance"], o["rebuild_graph"],
+                                                  o["report"])
 
     started = time.perf_counter()
     n_input = n

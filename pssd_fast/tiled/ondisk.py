@@ -21,10 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import atomic, duplicates
+from .. import atomic, core, duplicates, regions
 from .._validation import check_size
-from ..graph import MORTON_BITS, bounds
-from ..routes import coarse
+from ..graph import MORTON_BITS, bounds, grid_codes
 
 #: Points read from the input at a time.
 CHUNK_POINTS = 1 << 20
@@ -301,23 +300,18 @@ class Buckets:
             lo, hi = bounds(points)
             low, high = np.minimum(low, lo), np.maximum(high, hi)
         self.centre = 0.5 * (low + high)
+        # The grid of the default method's cells starts at the low corner of every row, as in
+        # core.
+        self.corner = low - self.centre
         origin = low  # of the cubes of the tolerance
         shift = np.uint64(3 * MORTON_BITS - _PREFIX_BITS)
         histogram = np.zeros(1 << _PREFIX_BITS, np.int64)
         for _, points, _ in chunks(array):
             prefix = (duplicates.codes(points, origin, high, tolerance) >> shift).astype(np.int64)
             histogram += np.bincount(prefix, minlength=1 << _PREFIX_BITS)
-        # Consecutive bins, at most tile_points points a bucket (a fuller bin alone).
-        bucket_of_bin = np.zeros(1 << _PREFIX_BITS, np.int64)
-        filled = 0
-        bucket = 0
-        for b in np.flatnonzero(histogram):
-            if filled and filled + histogram[b] > tile_points:
-                bucket += 1
-                filled = 0
-            bucket_of_bin[b] = bucket
-            filled += histogram[b]
-        self.paths = [folder / f"bucket_{i}.bin" for i in range(bucket + 1)]
+        bucket_of_bin = _bins(histogram, tile_points)
+        self.folder = Path(folder)
+        self.paths = [folder / f"bucket_{i}.bin" for i in range(int(bucket_of_bin.max()) + 1)]
         writers = [open(path, "wb") for path in self.paths]
         try:
             for start, points, normals in chunks(array):
@@ -401,113 +395,86 @@ class Buckets:
 
         return Normals()
 
-    def layout(self, noise, preset):
-        """:func:`pssd_fast.routes.coarse.layout` of the whole cloud: ``(codes, counts,
-        edge, k, rebuild_graph)``, the occupied cells' codes in Morton order and their points;
-        or None."""
-        def group(edge):
-            found = []
-            for records in self.each():
-                codes = coarse.cell_codes(records["xyz"] - self.centre, self.low, self.high,
-                                          edge)
-                if codes is None:
-                    return None
-                found.append(np.unique(codes, return_counts=True))
-            codes, where = np.unique(np.concatenate([f[0] for f in found]),
-                                     return_inverse=True)
-            counts = np.bincount(where, np.concatenate([f[1] for f in found]))
-            return codes.shape[0], (codes, counts.astype(np.int64))
+    def cells(self, plan, store, tile_points):
+        """The points grouped by the cells of ``plan`` into ``store``, as
+        :func:`pssd_fast.executor.group` puts them (each entry also with the points' input
+        ``row``), out of core: each point's cell code, a histogram of the codes' first bits, and
+        the points binned by those bits into tiles of whole cells of at most ``tile_points``
+        points (a fuller bin alone), in the order of their cells. Returns the tiles
+        (:class:`pssd_fast.executor.Tile`)."""
+        from ..executor import Tile
 
-        found = coarse.widen(self.shape[0], noise, preset, group)
-        if found is None:
-            return None
-        (codes, counts), edge, k, rebuild_graph = found
-        return codes, counts, edge, k, rebuild_graph
+        def codes_of(records):
+            return grid_codes(records["xyz"] - self.centre, plan.low, 1.0 / plan.edge)
 
-    def tiles(self, folder, first_codes, edge):
-        """The points binned into tile files by the first cell code of each tile (Morton
-        order kept within a tile, each record's code now its cell's); their paths."""
-        paths = [folder / f"tile_{i}.bin" for i in range(first_codes.shape[0])]
+        # The codes' first bits: as many as the cells' grid needs, less the prefix.
+        top = max(int(codes_of(records).max()) for records in self.each())
+        shift = np.uint64(max(0, top.bit_length() - _PREFIX_BITS))
+        histogram = np.zeros(1 << _PREFIX_BITS, np.int64)
+        for records in self.each():
+            histogram += np.bincount((codes_of(records) >> shift).astype(np.int64),
+                                     minlength=1 << _PREFIX_BITS)
+        bucket_of_bin = _bins(histogram, tile_points)
+        paths = [self.folder / f"cells_{i}.bin" for i in range(int(bucket_of_bin.max()) + 1)]
+        cell_record = np.dtype([("gid", np.int64), ("code", np.uint64), *[
+            (name, self.dtype[name]) for name in self.dtype.names if name != "code"]])
         writers = [open(path, "wb") for path in paths]
         try:
-            for records in self.each():
-                codes = coarse.cell_codes(records["xyz"] - self.centre, self.low, self.high,
-                                          edge)
-                records["code"] = codes
-                _append(writers, np.searchsorted(first_codes, codes, side="right") - 1, records)
+            for i, records in enumerate(self.each()):
+                out = np.empty(records.shape[0], cell_record)
+                out["gid"] = self.starts[i] + np.arange(records.shape[0])
+                out["code"] = codes = codes_of(records)
+                for name in records.dtype.names:
+                    if name != "code":
+                        out[name] = records[name]
+                _append(writers, bucket_of_bin[codes >> shift], out)
         finally:
             for writer in writers:
                 writer.close()
-        return paths
+        tiles = []
+        c0 = 0
+        for i, path in enumerate(paths):
+            records = np.fromfile(path, cell_record)
+            path.unlink()
+            # Appended in the Morton order of the points: sorted stably by cell, the points
+            # of a cell stay in that order, as in core.
+            records = records[np.argsort(records["code"], kind="stable")]
+            starts = np.flatnonzero(np.concatenate(([True], records["code"][1:]
+                                                    != records["code"][:-1])))
+            starts = np.concatenate((starts, [records.shape[0]])).astype(np.int64)
+            m = starts.shape[0] - 1
+            xyz = records["xyz"] - self.centre
+            normals = records["nrm"] if "nrm" in records.dtype.names else None
+            means, mean_normals = core.cell_means(xyz, normals, np.arange(xyz.shape[0]),
+                                                  starts)
+            counts = np.diff(starts)
+            points = {"xyz": xyz, "gid": records["gid"], "row": records["row"],
+                      "cell": c0 + np.repeat(np.arange(m), counts)}
+            cells = {"xyz": means, "mass": counts.astype(np.float64),
+                     "gid": np.arange(c0, c0 + m)}
+            if normals is not None:
+                points["given"] = normals
+                cells["normals"] = mean_normals
+            store.put(("points", i), points)
+            store.put(("cells", i, 0), cells)
+            tiles.append(Tile(c0, m, xyz.shape[0], regions.boxes(xyz), regions.boxes(means)))
+            c0 += m
+        return tiles
 
 
-    def states(self, paths, spans):
-        """The points cut into the rank ranges ``spans``, a :data:`STATE` file each (at
-        ``paths``; the file's normals, else zeros); returns each tile's
-        :func:`pssd_fast.tiled.halo.boxes` and the points' sum, row after row in rank order (the sum
-        of ``mean(axis=0)``)."""
-        from .halo import boxes
-
-        pieces = []
-        total = None
-        pending = np.empty(0, self.dtype)
-        for records in self.each():
-            start = records["xyz"] - self.centre
-            total = np.add.reduce(start if total is None else
-                                  np.concatenate((total[None], start)), axis=0)
-            records["xyz"] = start
-            pending = np.concatenate((pending, records))
-            while len(pieces) < len(spans):
-                a, b = spans[len(pieces)]
-                if pending.shape[0] < b - a:
-                    break
-                state = np.zeros(b - a, STATE)
-                state["row"] = pending["row"][:b - a]
-                state["xyz"] = state["start"] = pending["xyz"][:b - a]
-                if "nrm" in self.dtype.names:
-                    state["nrm"] = pending["nrm"][:b - a]
-                save(state, paths[len(pieces)])
-                pieces.append(boxes(state["xyz"]))
-                pending = pending[b - a:]
-        return pieces, total
-
-
-def gather(own, sources, region):
-    """A tile's task's points: its own records (:data:`STATE`), then those of the ranges
-    ``sources`` (``[(path, [(start, stop), ...]), ...]``) inside the boxes ``region`` (all of
-    them where ``region`` is None)."""
-    from .halo import within
-
-    found = [own]
-    for path, ranges in sources:
-        with open(path, "rb") as fh:
-            for start, stop in ranges:
-                fh.seek(start * STATE.itemsize)
-                records = np.fromfile(fh, STATE, stop - start)
-                found.append(records if region is None else
-                             records[within(records["xyz"], region)])
-    return np.concatenate(found)
-
-
-def ranked(paths, spans, dtype, field=None):
-    """``read(start, stop)``: the values of ranks ``start..stop-1`` from the files ``paths``
-    of the rank ranges ``spans`` (records of ``dtype``, their ``field``)."""
-    starts = np.array([a for a, _ in spans])
-
-    def read(start, stop):
-        found = []
-        for i in range(np.searchsorted(starts, start, side="right") - 1, len(spans)):
-            a, b = spans[i]
-            if a >= stop:
-                break
-            lo, hi = max(start, a), min(stop, b)
-            with open(paths[i], "rb") as fh:
-                fh.seek((lo - a) * dtype.itemsize)
-                values = np.fromfile(fh, dtype, hi - lo)
-            found.append(values if field is None else values[field])
-        return np.concatenate(found)
-
-    return read
+def _bins(histogram, tile_points):
+    """The bucket of each bin of ``histogram``: consecutive bins, at most ``tile_points`` a
+    bucket (a fuller bin alone)."""
+    bucket_of_bin = np.zeros(histogram.shape[0], np.int64)
+    filled = 0
+    bucket = 0
+    for b in np.flatnonzero(histogram):
+        if filled and filled + histogram[b] > tile_points:
+            bucket += 1
+            filled = 0
+        bucket_of_bin[b] = bucket
+        filled += histogram[b]
+    return bucket_of_bin
 
 
 def _append(writers, target, records):
@@ -518,14 +485,6 @@ def _append(writers, target, records):
     edges = np.flatnonzero(np.concatenate(([True], target[1:] != target[:-1], [True])))
     for a, b in zip(edges[:-1], edges[1:]):
         records[a:b].tofile(writers[target[a]])
-
-
-def read_tile(path, centre, dtype):
-    """A tile file's input rows, cell codes, points relative to ``centre``, and normals (or
-    None); its records of ``dtype``."""
-    records = np.fromfile(path, dtype)
-    normals = records["nrm"] if "nrm" in dtype.names else None
-    return records["row"], records["code"], records["xyz"] - centre, normals
 
 
 def write_rows(path, parts, n, dtype, columns=("xyz",), copies=None):
@@ -616,11 +575,6 @@ def save(records, path):
         records.tofile(fh)
 
 
-#: A point between the iterations of a tiled run on its points: its input row, its
-#: coordinates now and at the start (relative to the centre), its normal, and whether a move
-#: of it was refused so far (``held``).
-STATE = np.dtype([("row", np.int64), ("xyz", np.float64, 3), ("start", np.float64, 3),
-                  ("nrm", np.float64, 3), ("held", np.bool_)])
 #: A denoised point: its input row, coordinates, normal, likelihood, feature intensity and
 #: displacement (the columns of the result of ``denoise``, before its dtype).
 PART = np.dtype([("row", np.int64), ("xyz", np.float64, 3), ("nrm", np.float64, 3),
