@@ -96,7 +96,7 @@ def run(plan, request, tiles, store, runner=None):
     of the last iteration's means."""
     runner = Local() if runner is None else runner
     params = request.params
-    sigma_n, keep = params["sigma_n"], params["keep_normals"]
+    sigma_n, keep, shift = params["sigma_n"], params["keep_normals"], params["shift_normals"]
     whole = len(tiles) == 1
     given = "normals" in store.get(("cells", 0, 0))
     boxes = [tile.cell_boxes for tile in tiles]
@@ -104,11 +104,11 @@ def run(plan, request, tiles, store, runner=None):
     for t in range(plan.iterations):
         own_given = given and (t == 0 or keep)
         first = None if own_given else t == 0
-        width = (4 if first else 3) * plan.bound
+        width = (4 if first and shift else 3) * plan.bound
         keys = [("cells", i, t) for i in range(len(tiles))]
         out = runner.map("tile_iteration", t, plan.iterations, _iteration, [
             (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
-             own_given, first, plan, sigma_n, t == plan.iterations - 1)
+             own_given, first, plan, sigma_n, t == plan.iterations - 1, shift)
             for i in range(len(tiles))])
         origins, boxes = boxes, [o[0] for o in out]
         records.append(aware.step_record({}, sum(o[1] for o in out), sum(o[2] for o in out),
@@ -130,7 +130,7 @@ def run(plan, request, tiles, store, runner=None):
             for i in range(len(tiles))])
         records[-1]["refined"] = int(sum(flagged))
         if sum(flagged):
-            _refine(plan, tiles, store, runner, sigma_n, keep, whole, given)
+            _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift)
             refined = True
     if not refined:
         for i in range(len(tiles)):
@@ -143,7 +143,8 @@ def run(plan, request, tiles, store, runner=None):
     return [("out", i) for i in range(len(tiles))], records
 
 
-def _iteration(store, keys, boxes, i, region, own_given, first, plan, sigma_n, last, n_jobs):
+def _iteration(store, keys, boxes, i, region, own_given, first, plan, sigma_n, last, shift,
+               n_jobs):
     """A tile's task of one iteration on the means (:func:`pssd_fast.method.iteration` on its
     own means and its halo): its own means' next entry (their positions and filtered normals;
     in the ``last`` iteration also their fits, :data:`FITS`), and the boxes of their new
@@ -162,7 +163,7 @@ def _iteration(store, keys, boxes, i, region, own_given, first, plan, sigma_n, l
         normals = items["hints"]
     with threads(n_jobs):
         fits = method.iteration(items["xyz"], items["mass"], plan.k, plan.bound, sigma_n,
-                                normals, Clock(None, 0, 1), first, items["gid"])
+                                normals, Clock(None, 0, 1), first, items["gid"], shift)
     own = {name: items[name][:n_own] for name in ("mass", "gid")}
     entry = store.get(keys[i])
     own.update({"xyz": fits.moved[:n_own], "hints": fits.filtered[:n_own]})
@@ -211,7 +212,7 @@ def _test(store, keys, boxes, i, region, plan, n_jobs):
     return int(flagged.sum())
 
 
-def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given):
+def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift):
     """The failing points' own iterations, tile by tile (``("refine", i, t)`` entries; the
     last becomes ``("out", i)``)."""
     k, bound = plan.refine
@@ -231,18 +232,19 @@ def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given):
     iterations = method.REFINE["iterations"]
     for t in range(iterations):
         use_given = given and (t == 0 or keep)
-        width = (3 if use_given or t > 0 else 4) * bound
+        width = (3 if use_given or t > 0 or not shift else 4) * bound
         keys = [("refine", i, t) for i in range(len(tiles))]
         boxes = runner.map("tile_refine", t, iterations, _refine_task, [
             (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
-             use_given, t == 0, plan, sigma_n) for i in range(len(tiles))])
+             use_given, t == 0, plan, sigma_n, shift) for i in range(len(tiles))])
     for i in range(len(tiles)):
         entry = store.get(("refine", i, iterations))
         store.put(("out", i), {"xyz": entry["xyz"], "normals": entry["normals"],
                                "held": entry["held"], "gid": entry["gid"]})
 
 
-def _refine_task(store, keys, boxes, i, region, use_given, first, plan, sigma_n, n_jobs):
+def _refine_task(store, keys, boxes, i, region, use_given, first, plan, sigma_n, shift,
+                 n_jobs):
     """A tile's task of one refining iteration (:func:`pssd_fast.method.refine_step`): its own
     points' next entry; the boxes of their positions."""
     names = ("xyz", "normals", "flagged", "gid") + (("given",) if use_given else ())
@@ -253,7 +255,8 @@ def _refine_task(store, keys, boxes, i, region, use_given, first, plan, sigma_n,
     with threads(n_jobs):
         out, normals, held = method.refine_step(
             items["xyz"], items["normals"], items["flagged"], k, bound, sigma_n,
-            items["given"] if use_given else None, Clock(None, 0, 1), first, items["gid"])
+            items["given"] if use_given else None, Clock(None, 0, 1), first, items["gid"],
+            shift)
     entry.update(xyz=out[:n_own], normals=normals[:n_own], held=entry["held"] | held[:n_own])
     store.put(keys[i][:2] + (keys[i][2] + 1,), entry)
     return regions.boxes(entry["xyz"])

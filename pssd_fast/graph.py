@@ -8,7 +8,7 @@ from ._threads import kdtree, threads
 from ._validation import as_points, check_k
 from .kernels.graph import keep_nearest, put_self_first, refresh_lists
 from .kernels.knn import grid_knn
-from .kernels.order import morton_codes
+from .kernels.order import cell_coordinates, interleave, morton_codes
 
 MORTON_BITS = 21  # per axis: 3 * 21 = 63 bits fit an unsigned 64-bit code
 
@@ -87,6 +87,33 @@ def grid_codes(points, low, scale):
     code = np.empty(points.shape[0], np.uint64)
     morton_codes(np.ascontiguousarray(points, dtype=np.float64), low, scale, code)
     return code
+
+
+def cell_keys(points, low, edge, shift=None):
+    """What orders the grid cells of edge ``edge`` from ``low`` along a Morton curve, however
+    many there are: each point's cell coordinates ``(n, 3)`` int64, and the Morton code of
+    those coordinates shifted right by ``shift`` bits (by default as few as leave 21 an axis
+    on these points; a cloud longer than ``2**21`` cells is ordered by the curve of coarser
+    cells, then by the coordinates). Sorting by the code, then the coordinates, groups each
+    cell's points and keeps their order (:func:`numpy.lexsort`)."""
+    n = points.shape[0]
+    cells = np.empty((n, 3), np.int64)
+    cell_coordinates(np.ascontiguousarray(points, dtype=np.float64), low, 1.0 / edge, cells)
+    if shift is None:
+        shift = max(0, int(cells.max(initial=0)).bit_length() - MORTON_BITS)
+    code = np.empty(n, np.uint64)
+    interleave(cells, shift, code)
+    return code, cells
+
+
+def cell_order(code, cells):
+    """The order that groups the points by cell (:func:`cell_keys`), stably, and where each
+    cell starts in it (with the end)."""
+    order = np.lexsort((cells[:, 2], cells[:, 1], cells[:, 0], code))
+    keys = cells[order]
+    change = np.concatenate(([True], (keys[1:] != keys[:-1]).any(axis=1)))
+    starts = np.concatenate((np.flatnonzero(change), [order.shape[0]])).astype(np.int64)
+    return order, starts
 
 
 class ListScales(NamedTuple):
@@ -192,8 +219,9 @@ def nearest_within(data, queries, k, bound, ids=None):
         if grid:
             found = np.empty((stop - start, q), np.int64)
             dists = query(start, stop, found)
-            dists[dists > bound] = np.inf
-            found[dists > bound] = n
+            beyond = ~(dists < bound)  # as pykdtree's bound: strictly within
+            dists[beyond] = np.inf
+            found[beyond] = n
         else:
             dists, found = tree.query(queries[start:stop], k=q, distance_upper_bound=bound)
             dists = np.asarray(dists, np.float64).reshape(-1, q)

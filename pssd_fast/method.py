@@ -20,7 +20,7 @@ from typing import NamedTuple, Optional
 import numpy as np
 
 from . import core
-from .graph import bounded_graph, grid_codes, nearest_within
+from .graph import bounded_graph, cell_keys, cell_order, nearest_within
 from .pipelines import aware
 from .pipelines.normals import pca, shifted
 from .progress import Clock
@@ -96,12 +96,9 @@ def cell_edge(sigma, spacing):
 
 
 def cells_of(points, normals, edge, low):
-    """The :class:`Cells` of ``points`` (Morton order) on the grid of ``edge`` from ``low``."""
-    codes = grid_codes(points, low, 1.0 / edge)
-    order = np.argsort(codes, kind="stable")
-    codes = codes[order]
-    starts = np.flatnonzero(np.concatenate(([True], codes[1:] != codes[:-1])))
-    starts = np.concatenate((starts, [codes.shape[0]])).astype(np.int64)
+    """The :class:`Cells` of ``points`` (Morton order) on the grid of ``edge`` from ``low``,
+    in the Morton order of the cells (:func:`pssd_fast.graph.cell_keys`)."""
+    order, starts = cell_order(*cell_keys(points, low, edge))
     means, mean_normals = core.cell_means(points, normals, order, starts)
     counts = np.diff(starts)
     owner = np.empty(points.shape[0], np.int64)
@@ -123,7 +120,7 @@ class Fits(NamedTuple):
     lists: object
 
 
-def iteration(current, mass, k, bound, sigma_n, normals, clock, first, ids=None):
+def iteration(current, mass, k, bound, sigma_n, normals, clock, first, ids=None, shift=True):
     """One feature-aware iteration on the cell means ``current`` (weighted by the points they
     hold, ``mass``), each fitted over its ``k`` nearest means within ``bound`` (ties ordered by
     ``ids``, the means' places in the whole cloud, where given): a :class:`Fits`.
@@ -131,13 +128,15 @@ def iteration(current, mass, k, bound, sigma_n, normals, clock, first, ids=None)
     ``normals``: the caller's (given) normals, or the hints that sign the PCA normals (the
     previous iteration's filtered normals, or the directions away from the centroid of the
     whole cloud); ``first``: whether they are hints of the first iteration, whose normals are
-    shifted (docs/ALGORITHM.md, "Shifted normals"); None when ``normals`` are given.
+    shifted where ``shift`` (docs/ALGORITHM.md, "Shifted normals"); None when ``normals`` are
+    given.
     """
     lists = clock.run("neighbors", bounded_graph, current, k, bound, None, ids)
     if first is None:
         nrm = normals
     else:
-        nrm = clock.run("normals", _normals, current, lists, normals, k if first else None)
+        nrm = clock.run("normals", _normals, current, lists, normals,
+                        k if first and shift else None)
     filtered = clock.run("filter", core.filter_normals, current, nrm, lists)
     coef, rms, degree = clock.run("mls", core.surface_fits, current, filtered, lists, sigma_n,
                                   mass)
@@ -164,7 +163,8 @@ class Iterated(NamedTuple):
     records: list
 
 
-def iterate(cells, k, bound, iterations, sigma_n, given, keep_normals, report=None):
+def iterate(cells, k, bound, iterations, sigma_n, given, keep_normals, report=None,
+            shift=True):
     """The feature-aware iterations (:func:`iteration`) on the cell means; the last keeps its
     fits. ``given``: the means' normals from the caller's (the first iteration's; every one's
     with ``keep_normals``), else None: PCA normals, shifted in the first iteration."""
@@ -177,7 +177,7 @@ def iterate(cells, k, bound, iterations, sigma_n, given, keep_normals, report=No
         clock = Clock(report, t, iterations)
         own = given is not None and (t == 0 or keep_normals)
         fits = iteration(current, mass, k, bound, sigma_n, given if own else hints, clock,
-                         None if own else t == 0)
+                         None if own else t == 0, None, shift)
         held |= fits.held
         records.append(record(clock.times, fits))
         origins, current, hints = current, fits.moved, fits.filtered
@@ -224,20 +224,21 @@ def failing(means, sums, counts, sigma, bound, ids=None):
         2.0 / np.maximum(points, 1.0)))
 
 
-def refine_step(current, normals, flagged, k, bound, sigma_n, given, clock, first, ids=None):
+def refine_step(current, normals, flagged, k, bound, sigma_n, given, clock, first, ids=None,
+                shift=True):
     """One of the flagged points' own feature-aware iterations (:data:`REFINE`): each flagged
     point fitted over its ``k`` nearest points within ``bound`` (ties ordered by ``ids`` where
     given), the others lending their positions and ``normals``. ``given``: the flagged points'
-    normals from the caller's, else None (PCA signed like ``normals``, shifted where
-    ``first``). Returns every point's position and normal after it, and the flagged points
-    held in place."""
+    normals from the caller's, else None (PCA signed like ``normals``, shifted where ``first``
+    and ``shift``). Returns every point's position and normal after it, and the flagged
+    points held in place."""
     rows = np.flatnonzero(flagged)
     lists = clock.run("refine_neighbors", bounded_graph, current, k, bound, rows, ids)
     if given is not None:
         nrm = given.copy()
     else:
         nrm = clock.run("refine_normals", _normals, current, lists, normals,
-                        k if first else None)
+                        k if first and shift else None)
     nrm[~flagged] = normals[~flagged]
     moved, filtered, _, _, held = clock.run("refine_fit", aware.fit_and_move, current, nrm,
                                             lists, sigma_n, Clock(None, 0, 1))
@@ -248,7 +249,7 @@ def refine_step(current, normals, flagged, k, bound, sigma_n, given, clock, firs
     return out, out_normals, held & flagged
 
 
-def refine(start, normals, flagged, k, bound, sigma_n, given, keep_normals, clock):
+def refine(start, normals, flagged, k, bound, sigma_n, given, keep_normals, clock, shift=True):
     """The flagged points' own iterations (:func:`refine_step`, ``REFINE["iterations"]`` of
     them) from ``start`` (the flagged points' input positions, every other point where the
     surface put it). Returns every point's position and normal, and the flagged points held
@@ -258,6 +259,6 @@ def refine(start, normals, flagged, k, bound, sigma_n, given, keep_normals, cloc
     for t in range(REFINE["iterations"]):
         own = given if given is not None and (t == 0 or keep_normals) else None
         current, normals, held_now = refine_step(current, normals, flagged, k, bound, sigma_n,
-                                                 own, clock, t == 0)
+                                                 own, clock, t == 0, None, shift)
         held |= held_now
     return current, normals, held

@@ -50,3 +50,28 @@ def scatter_rows(src, order, offset, out):
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             for a in range(src.shape[1]):
                 out[order[i], a] = src[i, a] + offset[a]
+
+
+@parallel_kernel
+def cell_coordinates(points, low, scale, out):
+    """The integer coordinates ``floor((p - low) * scale)`` of each point's grid cell into
+    ``out`` ``(n, 3)`` int64 (every point at or above ``low``)."""
+    n = points.shape[0]
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            for axis in range(3):
+                out[i, axis] = np.int64(np.uint64((points[i, axis] - low[axis]) * scale))
+
+
+@parallel_kernel
+def interleave(cells, shift, out):
+    """The Morton code of each cell's coordinates shifted right by ``shift`` bits (at most 21
+    bits an axis left) into ``out`` (uint64)."""
+    n = cells.shape[0]
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            code = np.uint64(0)
+            for axis in range(3):
+                code |= _spread_bits(np.uint64(cells[i, axis]) >> np.uint64(shift)) << np.uint64(
+                    axis)
+            out[i] = code

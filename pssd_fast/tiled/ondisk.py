@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import atomic, core, duplicates, regions
 from .._validation import check_size
-from ..graph import MORTON_BITS, bounds, grid_codes
+from ..graph import MORTON_BITS, bounds, cell_keys, cell_order
 
 #: Points read from the input at a time.
 CHUNK_POINTS = 1 << 20
@@ -404,16 +404,21 @@ class Buckets:
         (:class:`pssd_fast.executor.Tile`)."""
         from ..executor import Tile
 
-        def codes_of(records):
-            return grid_codes(records["xyz"] - self.centre, plan.low, 1.0 / plan.edge)
+        def keys_of(records, shift=None):
+            return cell_keys(records["xyz"] - self.centre, plan.low, plan.edge, shift)
 
-        # The codes' first bits: as many as the cells' grid needs, less the prefix.
-        top = max(int(codes_of(records).max()) for records in self.each())
-        shift = np.uint64(max(0, top.bit_length() - _PREFIX_BITS))
+        # One shift for every bucket: the whole cloud's cell coordinates.
+        top = max(int(keys_of(records)[1].max(initial=0)) for records in self.each())
+        shift = max(0, top.bit_length() - MORTON_BITS)
+        codes = [keys_of(records, shift)[0] for records in self.each()]
+        # The codes' first bits: as many as they use, less the prefix.
+        prefix = np.uint64(max(0, int(max(c.max() for c in codes)).bit_length()
+                               - _PREFIX_BITS))
         histogram = np.zeros(1 << _PREFIX_BITS, np.int64)
-        for records in self.each():
-            histogram += np.bincount((codes_of(records) >> shift).astype(np.int64),
+        for code in codes:
+            histogram += np.bincount((code >> prefix).astype(np.int64),
                                      minlength=1 << _PREFIX_BITS)
+        del codes
         bucket_of_bin = _bins(histogram, tile_points)
         paths = [self.folder / f"cells_{i}.bin" for i in range(int(bucket_of_bin.max()) + 1)]
         cell_record = np.dtype([("gid", np.int64), ("code", np.uint64), *[
@@ -423,11 +428,11 @@ class Buckets:
             for i, records in enumerate(self.each()):
                 out = np.empty(records.shape[0], cell_record)
                 out["gid"] = self.starts[i] + np.arange(records.shape[0])
-                out["code"] = codes = codes_of(records)
+                out["code"] = code = keys_of(records, shift)[0]
                 for name in records.dtype.names:
                     if name != "code":
                         out[name] = records[name]
-                _append(writers, bucket_of_bin[codes >> shift], out)
+                _append(writers, bucket_of_bin[code >> prefix], out)
         finally:
             for writer in writers:
                 writer.close()
@@ -436,12 +441,11 @@ class Buckets:
         for i, path in enumerate(paths):
             records = np.fromfile(path, cell_record)
             path.unlink()
-            # Appended in the Morton order of the points: sorted stably by cell, the points
+            # Appended in the Morton order of the points: grouped stably by cell, the points
             # of a cell stay in that order, as in core.
-            records = records[np.argsort(records["code"], kind="stable")]
-            starts = np.flatnonzero(np.concatenate(([True], records["code"][1:]
-                                                    != records["code"][:-1])))
-            starts = np.concatenate((starts, [records.shape[0]])).astype(np.int64)
+            code, cells = keys_of(records, shift)
+            order, starts = cell_order(code, cells)
+            records = records[order]
             m = starts.shape[0] - 1
             xyz = records["xyz"] - self.centre
             normals = records["nrm"] if "nrm" in records.dtype.names else None
