@@ -559,3 +559,57 @@ def blended(point, targets, distance, origins, radius):
         return point.copy()
     weights = 1.0 / np.maximum(distance[keep], 1e-300)
     return point + (weights[:, None] * steps[keep]).sum(axis=0) / weights.sum()
+
+
+# Lists bounded by a radius (pssd_fast.graph.nearest_within, bounded_graph).
+def nearest_within(data, queries, k, bound):
+    """Each query's list: the points of ``data`` nearer than its ``k + 1``-th nearest (none of
+    several tied at that distance: the set a tree returns does not depend on the tree) and no
+    farther than ``bound``, by distance, then index. A list of (indices, distances) pairs."""
+    out = []
+    for q in queries:
+        d = np.sqrt(((data - q) ** 2).sum(axis=1))
+        order = np.lexsort((np.arange(len(data)), d))
+        cut = d[order[k]] if len(data) > k else np.inf
+        keep = np.array([j for j in order if d[j] < cut and d[j] <= bound], dtype=np.int64)
+        out.append((keep, d[keep]))
+    return out
+
+
+# The noise probe (docs/ALGORITHM.md, "The noise probe"; pssd_fast.kernels.noise).
+NOISE_REFITS = 2  # reweighted fits after the first
+NOISE_WIDTH = 2.5  # the reweighting's width, in robust spreads
+MAD_TO_SIGMA = 1.482602218505602  # 1 / Phi^-1(3/4): a unit Gaussian's median |x| is 1 / this
+
+
+def local_noise(points, lists, lengths):
+    """For each point and each prefix length of its list (self first): the robust spread of
+    the prefix's heights about their quadratic, and the prefix's radius (to its farthest
+    member). The quadratic is fitted in the frame of the prefix's covariance (heights along
+    its smallest eigenvector, tangent coordinates over the radius along the other two,
+    relative to the point) by weighted least squares (the plane, else the mean height, where
+    the quadratic is not well posed); the spread is ``MAD_TO_SIGMA`` times the median
+    ``|residual|``, and the fit is repeated ``NOISE_REFITS`` times with weights
+    ``exp(-(r / (NOISE_WIDTH s))^2)``, ``s`` the last spread, while that spread is above 0."""
+    scale = np.zeros((len(points), len(lengths)))
+    radius = np.zeros((len(points), len(lengths)))
+    for i in range(len(points)):
+        for c, m in enumerate(lengths):
+            rel = points[np.asarray(lists[i])[:m]] - points[i]
+            r = np.sqrt((rel ** 2).sum(axis=1).max())
+            centred = rel - rel.mean(axis=0)
+            _, v = np.linalg.eigh(centred.T @ centred)
+            inv = 1.0 / r if r > 0 else 0.0
+            design = _monomials(rel @ v[:, 2] * inv, rel @ v[:, 1] * inv)[:, :6]
+            z = rel @ v[:, 0]
+            weights = np.ones(m)
+            resid = z - design @ _solve(design, weights, z, 6)[0]
+            s = MAD_TO_SIGMA * np.median(np.abs(resid))
+            for _ in range(NOISE_REFITS):
+                if not s > 0:
+                    break
+                weights = np.exp(-(resid / (NOISE_WIDTH * s)) ** 2)
+                resid = z - design @ _solve(design, weights, z, 6)[0]
+                s = MAD_TO_SIGMA * np.median(np.abs(resid))
+            scale[i, c], radius[i, c] = s, r
+    return scale, radius
