@@ -582,13 +582,44 @@ NOISE_WIDTH = 2.5  # the reweighting's width, in robust spreads
 MAD_TO_SIGMA = 1.482602218505602  # 1 / Phi^-1(3/4): a unit Gaussian's median |x| is 1 / this
 
 
+PIVOT_TOL = 1e-9  # a Cholesky pivot fails at this fraction of its column's own weight
+
+
+def _pivots(gram, tol=PIVOT_TOL):
+    """How many leading pivots of the Cholesky factorisation of ``gram`` pass: each column's
+    variance left after the earlier columns above ``tol`` times its own (kernels.linalg's
+    test, which decides the noise probe's fallbacks)."""
+    lower = np.zeros_like(gram)
+    for col in range(len(gram)):
+        left = gram[col, col] - lower[col, :col] @ lower[col, :col]
+        if not left > tol * gram[col, col]:
+            return col
+        lower[col, col] = np.sqrt(left)
+        for row in range(col + 1, len(gram)):
+            lower[row, col] = (gram[row, col] - lower[row, :col] @ lower[col, :col]) / lower[
+                col, col]
+    return len(gram)
+
+
+def _noise_residuals(design, weights, z):
+    """Residuals of the weighted quadratic of the heights ``z`` (``design``'s six columns),
+    else of the plane (three), else of the mean height, the first whose normal equations pass
+    :func:`_pivots`; ``z`` itself where none does."""
+    for m in (6, 3, 1):
+        cols = design[:, :m]
+        if _pivots(cols.T @ (weights[:, None] * cols)) == m:
+            sw = np.sqrt(weights)
+            return z - cols @ np.linalg.lstsq(sw[:, None] * cols, sw * z, rcond=None)[0]
+    return z
+
+
 def local_noise(points, lists, lengths):
     """For each point and each prefix length of its list (self first): the robust spread of
     the prefix's heights about their quadratic, and the prefix's radius (to its farthest
     member). The quadratic is fitted in the frame of the prefix's covariance (heights along
     its smallest eigenvector, tangent coordinates over the radius along the other two,
     relative to the point) by weighted least squares (the plane, else the mean height, where
-    the quadratic is not well posed); the spread is ``MAD_TO_SIGMA`` times the median
+    the quadratic's normal equations fail :func:`_pivots`); the spread is ``MAD_TO_SIGMA`` times the median
     ``|residual|``, and the fit is repeated ``NOISE_REFITS`` times with weights
     ``exp(-(r / (NOISE_WIDTH s))^2)``, ``s`` the last spread, while that spread is above 0."""
     scale = np.zeros((len(points), len(lengths)))
@@ -603,13 +634,13 @@ def local_noise(points, lists, lengths):
             design = _monomials(rel @ v[:, 2] * inv, rel @ v[:, 1] * inv)[:, :6]
             z = rel @ v[:, 0]
             weights = np.ones(m)
-            resid = z - design @ _solve(design, weights, z, 6)[0]
+            resid = _noise_residuals(design, weights, z)
             s = MAD_TO_SIGMA * np.median(np.abs(resid))
             for _ in range(NOISE_REFITS):
                 if not s > 0:
                     break
                 weights = np.exp(-(resid / (NOISE_WIDTH * s)) ** 2)
-                resid = z - design @ _solve(design, weights, z, 6)[0]
+                resid = _noise_residuals(design, weights, z)
                 s = MAD_TO_SIGMA * np.median(np.abs(resid))
             scale[i, c], radius[i, c] = s, r
     return scale, radius
