@@ -665,3 +665,45 @@ def test_a_point_on_the_fitted_patch_stays():
     moved, _ = core.evaluate_fits(points, surface, nrm, coef, nearest[None],
                                   distance[nearest][None])
     assert (degree[nearest] == 6).all() and np.abs(moved - points).max() < 1e-4
+
+
+@pytest.mark.parametrize("name", ["wavy", "sphere", "duplicates"])
+def test_evaluate_fits_skips_the_rows_past_the_surface(name):
+    """Rows past the surface's (a query bounded by a radius found fewer than it asked for):
+    none. A point moves onto the fits of its other rows, as the reference blends them, exactly
+    as if those alone were listed; with none, it stays, held."""
+    surface = {"wavy": wavy, "sphere": sphere}.get(name, wavy)(300)
+    if name == "duplicates":
+        surface = np.repeat(surface[:100], 3, axis=0)
+    graph, lists = _setup(surface, 16)
+    nrm = _pca_reference(surface, lists)
+    coef, _, _ = core.surface_fits(surface, nrm, graph, 0.05)
+    m = len(surface)
+    rng = np.random.default_rng(9)
+    points = surface[rng.integers(0, m, 60)] + rng.normal(0, 0.01, (60, 3))
+    nearest = rng.integers(0, m, (60, 3))
+    distance = rng.uniform(0.01, 0.2, (60, 3))
+    missing = rng.uniform(size=(60, 3)) < 0.4
+    missing[:5] = True  # nothing found at all
+    nearest[missing] = np.where(rng.uniform(size=missing.sum()) < 0.5, m, m + 7)
+    distance[missing] = np.inf
+    moved, held = core.evaluate_fits(points, surface, nrm, coef, nearest, distance)
+    assert held[:5].all() and (moved[:5] == points[:5]).all()
+    for i in range(5, 60):
+        rows = ~missing[i]
+        if not rows.any():
+            assert held[i] and (moved[i] == points[i]).all()
+            continue
+        alone, alone_held = core.evaluate_fits(points[i:i + 1], surface, nrm, coef,
+                                               nearest[i:i + 1, rows].copy(),
+                                               distance[i:i + 1, rows].copy())
+        np.testing.assert_array_equal(moved[i], alone[0])
+        assert held[i] == alone_held[0]
+        near = nearest[i, rows]
+        fits = [reference.frame_coefficients(surface[j], nrm[j], surface[lists[j]],
+                                             nrm[lists[j]], 0.05)[:2] for j in near]
+        targets = [reference.on_fit(points[i], surface[j], nrm[j], *fit)
+                   for j, fit in zip(near, fits)]
+        want = reference.blended(points[i], targets, distance[i, rows], surface[near],
+                                 np.array([fit[1] for fit in fits]))
+        np.testing.assert_allclose(moved[i], want, atol=1e-9, rtol=0)
