@@ -528,24 +528,25 @@ def cell_of(p, low, edge):
     return tuple(np.floor((p - low) * (1.0 / edge)).astype(int))
 
 
-def cell_means(points, normals, edge):
+def cell_means(points, normals, edge, low=None):
     """Mean point and mean normal (signs turned to the cell's first normal) of each grid cell
-    (:func:`cell_of`), keyed by the cell's integer coordinates."""
+    (:func:`cell_of`, from ``low``, by default the points' lowest corner) and the rows it
+    holds, keyed by the cell's integer coordinates."""
     cells = {}
-    low = points.min(axis=0)
+    low = points.min(axis=0) if low is None else low
     for i, p in enumerate(points):
         cells.setdefault(cell_of(p, low, edge), []).append(i)
     out = {}
     for key, members in cells.items():
         mean = points[members].mean(axis=0)
         if normals is None:
-            out[key] = (mean, None, len(members))
+            out[key] = (mean, None, np.array(members))
             continue
         first = normals[members[0]]
         turned = [normals[j] if normals[j] @ first >= 0 else -normals[j] for j in members]
         total = np.sum(turned, axis=0)
         norm = np.linalg.norm(total)
-        out[key] = (mean, total / norm if norm > 0 else first, len(members))
+        out[key] = (mean, total / norm if norm > 0 else first, np.array(members))
     return out
 
 
@@ -644,3 +645,104 @@ def local_noise(points, lists, lengths):
                 s = MAD_TO_SIGMA * np.median(np.abs(resid))
             scale[i, c], radius[i, c] = s, r
     return scale, radius
+
+
+# The default method (pssd_fast.method): its iterations on the cell means, every point onto
+# their fits, the test and the failing points' own fits.
+def bounded_lists(points, k, bound, rows=None):
+    """The lists of :func:`nearest_within` of ``points`` among themselves for ``rows`` (all by
+    default), the point alone for the others."""
+    lists = [np.array([i]) for i in range(len(points))]
+    chosen = np.arange(len(points)) if rows is None else np.asarray(rows)
+    for i, (members, _) in zip(chosen, nearest_within(points, points[chosen], k, bound)):
+        lists[i] = members
+    return lists
+
+
+def _list_radius(points, lists):
+    return np.array([np.linalg.norm(points[m] - points[i], axis=1).max()
+                     for i, m in enumerate(lists)])
+
+
+def _signed(normals, hints):
+    return normals * np.where((normals * hints).sum(axis=1) < 0, -1.0, 1.0)[:, None]
+
+
+def _supported(points, normals, height, radius):
+    """Each point moved by ``height`` along its normal, held where that step is not finite or
+    longer than its list's ``radius`` (docs/DECISIONS.md, "No point flung"); and the held."""
+    held = ~(np.abs(height) <= radius) | ~np.isfinite(height)
+    return points + np.where(held, 0.0, height)[:, None] * normals, held
+
+
+def method_iterations(means, mass, k, bound, iterations, sigma_n=0.05):
+    """The iterations on the cell means (weights times ``mass``, the points each stands for):
+    lists of the ``k`` nearest means within ``bound``; PCA normals, away from the centroid and
+    shifted in the first iteration, signed like the last filtered normals after it; the
+    normal filter; the feature-aware quadratic (no robust alternative on means); the
+    projection. Returns the means, the last iteration's origins (the means at its start), its
+    lists and its filtered normals."""
+    current, previous = np.array(means, dtype=float), None
+    for _ in range(iterations):
+        lists = bounded_lists(current, k, bound)
+        hints = current - current.mean(axis=0) if previous is None else previous
+        nrm = _signed(pca_normals(current, lists), hints)
+        if previous is None:
+            nrm = shifted_normals(current, nrm, lists, max(1, round(SHIFT["candidates"] * k)),
+                                  SHIFT["tolerance"])[0]
+        filtered = filter_normals(current, nrm, lists)
+        height, _, _ = aware_fit(current, filtered, lists, sigma_n, mass)
+        moved, _ = _supported(current, filtered, height, _list_radius(current, lists))
+        origins, current, previous = current, moved, filtered
+    return current, origins, lists, previous
+
+
+def method_project(points, origins, normals, lists, mass, bound, blend=3, sigma_n=0.05):
+    """Each point moved onto the quadratics (:func:`frame_coefficients`, weights times
+    ``mass``) of its ``blend`` nearest ``origins`` within ``bound`` (:func:`nearest_within`),
+    blended (:func:`blended`); the normal of the nearest. Returns the points and normals."""
+    fits = [frame_coefficients(origins[j], normals[j], origins[m], normals[m], sigma_n,
+                               mass[m])[:2] for j, m in enumerate(lists)]
+    moved, out_normals = np.empty_like(points), np.empty_like(points)
+    for i, (near, distance) in enumerate(nearest_within(origins, points, blend, bound)):
+        targets = [on_fit(points[i], origins[j], normals[j], *fits[j]) for j in near]
+        moved[i] = blended(points[i], targets, distance, origins[near],
+                           np.array([fits[j][1] for j in near]))
+        out_normals[i] = normals[near[0]]
+    return moved, out_normals
+
+
+def method_failing(means, members, residual2, sigma, bound, cells=8, test=3.0):
+    """Whether each cell fails the chi-square test: over the points of the cell and of its
+    ``cells - 1`` nearest cells within ``bound`` (``members``: each cell's points), the mean
+    square residual above ``sigma^2 (1 + test sqrt(2 / m))``, ``m`` the points."""
+    out = []
+    for near, _ in nearest_within(means, means, cells, bound):
+        rows = np.concatenate([members[c] for c in near])
+        out.append(residual2[rows].mean() > sigma ** 2 * (1 + test * np.sqrt(2 / len(rows))))
+    return np.array(out)
+
+
+def method_refine(start, normals, flagged, k, bound, iterations=2, sigma_n=0.05):
+    """The flagged points' own iterations from ``start``: each over its ``k`` nearest points
+    within ``bound`` (the others lend their positions and ``normals``), PCA normals signed like
+    its last normal and shifted in the first iteration, the filter, the feature-aware quadratic
+    with its robust alternative, the projection held beyond the list's radius. Returns the
+    flagged points' positions, normals and whether they were held in some iteration."""
+    points, normals = np.array(start, dtype=float), np.array(normals, dtype=float)
+    rows = np.flatnonzero(flagged)
+    held = np.zeros(len(points), bool)
+    for iteration in range(iterations):
+        lists = bounded_lists(points, k, bound, rows)
+        nrm = normals.copy()
+        nrm[rows] = _signed(pca_normals(points, [lists[i] for i in rows]), normals[rows])
+        if iteration == 0:
+            nrm[rows] = shifted_normals(points, nrm, lists, max(1, round(SHIFT["candidates"] * k)),
+                                        SHIFT["tolerance"])[0][rows]
+        filtered = filter_normals(points, nrm, lists)
+        with np.errstate(divide="ignore", invalid="ignore"):  # the lists of one point
+            height, _, _ = aware_fit(points, filtered, lists, sigma_n, robust=True)
+        moved, held_now = _supported(points, filtered, height, _list_radius(points, lists))
+        points[rows], normals[rows] = moved[rows], filtered[rows]
+        held[rows] |= held_now[rows]
+    return points[rows], normals[rows], held[rows]
