@@ -620,9 +620,10 @@ def local_noise(points, lists, lengths):
     member). The quadratic is fitted in the frame of the prefix's covariance (heights along
     its smallest eigenvector, tangent coordinates over the radius along the other two,
     relative to the point) by weighted least squares (the plane, else the mean height, where
-    the quadratic's normal equations fail :func:`_pivots`); the spread is ``MAD_TO_SIGMA`` times the median
-    ``|residual|``, and the fit is repeated ``NOISE_REFITS`` times with weights
-    ``exp(-(r / (NOISE_WIDTH s))^2)``, ``s`` the last spread, while that spread is above 0."""
+    the quadratic's normal equations fail :func:`_pivots`); the spread is ``MAD_TO_SIGMA``
+    times the median ``|residual|``, and the fit is repeated ``NOISE_REFITS`` times with
+    weights ``exp(-(r / (NOISE_WIDTH s))^2)``, ``s`` the last spread, while that spread is
+    above 0."""
     scale = np.zeros((len(points), len(lengths)))
     radius = np.zeros((len(points), len(lengths)))
     for i in range(len(points)):
@@ -675,19 +676,24 @@ def _supported(points, normals, height, radius):
     return points + np.where(held, 0.0, height)[:, None] * normals, held
 
 
-def method_iterations(means, mass, k, bound, iterations, sigma_n=0.05):
+def method_iterations(means, mass, k, bound, iterations, sigma_n=0.05, given=None,
+                      keep=False):
     """The iterations on the cell means (weights times ``mass``, the points each stands for):
-    lists of the ``k`` nearest means within ``bound``; PCA normals, away from the centroid and
+    lists of the ``k`` nearest means within ``bound``; the ``given`` normals in the first
+    iteration (in every one with ``keep``), else PCA normals, away from the centroid and
     shifted in the first iteration, signed like the last filtered normals after it; the
     normal filter; the feature-aware quadratic (no robust alternative on means); the
     projection. Returns the means, the last iteration's origins (the means at its start), its
     lists and its filtered normals."""
     current, previous = np.array(means, dtype=float), None
-    for _ in range(iterations):
+    for iteration in range(iterations):
         lists = bounded_lists(current, k, bound)
         hints = current - current.mean(axis=0) if previous is None else previous
-        nrm = _signed(pca_normals(current, lists), hints)
-        if previous is None:
+        if given is not None and (iteration == 0 or keep):
+            nrm = np.array(given, dtype=float)
+        else:
+            nrm = _signed(pca_normals(current, lists), hints)
+        if previous is None and given is None:
             nrm = shifted_normals(current, nrm, lists, max(1, round(SHIFT["candidates"] * k)),
                                   SHIFT["tolerance"])[0]
         filtered = filter_normals(current, nrm, lists)
@@ -723,20 +729,25 @@ def method_failing(means, members, residual2, sigma, bound, cells=8, test=3.0):
     return np.array(out)
 
 
-def method_refine(start, normals, flagged, k, bound, iterations=2, sigma_n=0.05):
+def method_refine(start, normals, flagged, k, bound, iterations=2, sigma_n=0.05, given=None,
+                  keep=False):
     """The flagged points' own iterations from ``start``: each over its ``k`` nearest points
-    within ``bound`` (the others lend their positions and ``normals``), PCA normals signed like
-    its last normal and shifted in the first iteration, the filter, the feature-aware quadratic
-    with its robust alternative, the projection held beyond the list's radius. Returns the
-    flagged points' positions, normals and whether they were held in some iteration."""
+    within ``bound`` (the others lend their positions and ``normals``); the ``given`` normals
+    in the first iteration (in every one with ``keep``), else PCA normals signed like its last
+    normal and shifted in the first iteration; the filter, the feature-aware quadratic with
+    its robust alternative, the projection held beyond the list's radius. Returns the flagged
+    points' positions, normals and whether they were held in some iteration."""
     points, normals = np.array(start, dtype=float), np.array(normals, dtype=float)
     rows = np.flatnonzero(flagged)
     held = np.zeros(len(points), bool)
     for iteration in range(iterations):
         lists = bounded_lists(points, k, bound, rows)
         nrm = normals.copy()
-        nrm[rows] = _signed(pca_normals(points, [lists[i] for i in rows]), normals[rows])
-        if iteration == 0:
+        if given is not None and (iteration == 0 or keep):
+            nrm[rows] = given[rows]
+        else:
+            nrm[rows] = _signed(pca_normals(points, [lists[i] for i in rows]), normals[rows])
+        if iteration == 0 and given is None:
             nrm[rows] = shifted_normals(points, nrm, lists, max(1, round(SHIFT["candidates"] * k)),
                                         SHIFT["tolerance"])[0][rows]
         filtered = filter_normals(points, nrm, lists)

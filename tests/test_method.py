@@ -187,20 +187,42 @@ def test_project_holds_a_point_with_no_mean_within_the_bound(iterated):
     np.testing.assert_array_equal(moved[5], far[5])
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_refine_matches_the_reference(seed):
+def _tilted(rng, n, spread):
+    """Unit normals about +z, each tilted at random by about ``spread`` radians."""
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1)) + rng.normal(0, spread, (n, 3))
+    return normals / np.linalg.norm(normals, axis=1)[:, None]
+
+
+def test_iterate_takes_the_given_normals(iterated):
+    """The caller's normals (the cells' means of them) in the first iteration, in every one
+    with ``keep_normals``."""
+    _, cells, _ = iterated
+    given = _tilted(np.random.default_rng(2), len(cells.points), 0.2)
+    for keep in (False, True):
+        done = method.iterate(cells, 20, 0.3, 2, 0.05, given, keep)
+        points, origins, _, normals = reference.method_iterations(
+            cells.points, cells.counts.astype(float), 20, 0.3, 2, given=given, keep=keep)
+        np.testing.assert_allclose(done.origins, origins, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(done.normals, normals, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(done.points, points, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed, given, keep", [(0, False, False), (1, False, False),
+                                               (0, True, False), (0, True, True)])
+def test_refine_matches_the_reference(seed, given, keep):
     """The flagged points' own iterations over their bounded lists, the others lending their
-    positions and normals."""
+    positions and normals; the caller's normals in the first iteration (in every one with
+    ``keep_normals``)."""
     rng = np.random.default_rng(seed)
     points = _ordered(wavy(500, noise=0.01, seed=8 + seed))
     start = points + rng.normal(0, 0.003, points.shape)
-    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1)) + rng.normal(0, 0.1, points.shape)
-    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    normals = _tilted(rng, len(points), 0.1)
+    given = _tilted(rng, len(points), 0.3) if given else None
     flagged = rng.uniform(size=len(points)) < 0.3
-    placed, refined, held = method.refine(start, normals, flagged, 16, 0.12, 0.05, None, False,
+    placed, refined, held = method.refine(start, normals, flagged, 16, 0.12, 0.05, given, keep,
                                           Clock(None, 0, 1))
     want, want_normals, want_held = reference.method_refine(
-        start, normals, flagged, 16, 0.12, method.REFINE["iterations"])
+        start, normals, flagged, 16, 0.12, method.REFINE["iterations"], given=given, keep=keep)
     np.testing.assert_allclose(placed, want, rtol=0, atol=1e-9)
     np.testing.assert_allclose(refined, want_normals, rtol=0, atol=1e-8)
     np.testing.assert_array_equal(held, want_held)
