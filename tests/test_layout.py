@@ -2,6 +2,8 @@
 import ast
 from pathlib import Path
 
+import pytest
+
 import pssd_fast
 
 PACKAGE = Path(pssd_fast.__file__).resolve().parent
@@ -34,8 +36,8 @@ def test_kernels_import_nothing_from_the_python_layer():
 #: The package's layers, bottom first, as README's "How it works" lists them: a module imports
 #: only from its own layer and the layers before it.
 LAYERS = (("kernels",), ("jit", "_threads", "_validation", "interop", "progress", "atomic"),
-          ("graph", "core", "duplicates", "io"), ("pipelines",), ("routes",), ("run",),
-          ("denoise", "classes", "stages", "warmup"), ("tiled",),
+          ("graph", "core", "duplicates", "io"), ("pipelines",), ("noise", "method", "plan"),
+          ("run", "executor"), ("denoise", "classes", "stages", "warmup"), ("tiled",),
           ("pictures", "datasets", "cli", "pdal_filter", "__main__", "__init__"))
 
 
@@ -83,9 +85,9 @@ def test_only_the_array_layer_calls_kernels():
 def test_the_layer_check_catches_an_upward_import(tmp_path):
     package = tmp_path / "pkg"
     (package / "pipelines").mkdir(parents=True)
-    (package / "pipelines" / "aware.py").write_text("from ..routes import scales\n")
+    (package / "pipelines" / "aware.py").write_text("from ..method import CELL\n")
     (package / "core.py").write_text("from . import denoise\nfrom .kernels import mls\n")
-    assert _upward_imports(package) == [("core.py", "denoise"), ("pipelines/aware.py", "routes")]
+    assert _upward_imports(package) == [("core.py", "denoise"), ("pipelines/aware.py", "method")]
 
 
 def test_the_layout_check_catches_an_import_of_the_python_layer(tmp_path):
