@@ -175,7 +175,7 @@ def run_ours(cell, options):
     cd, p2m = cell.score(result.points)
     plan = result.stats["plan"]
     return {"cd": cd, "p2m": p2m, "seconds": seconds,
-            "route": f"{plan['route']}, k={plan['k']}"}
+            "route": f"{plan['method']}, k={plan['k']}"}
 
 
 def measure(cell, peers, log):

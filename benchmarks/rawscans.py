@@ -123,7 +123,7 @@ def measure(name, points, frame, reference, log, families=FAMILIES):
         entry = {"mean": mean, "median": median, "seconds": seconds}
         if not isinstance(result, peers.PeerResult):
             plan = result.stats["plan"]
-            entry["route"] = f"{plan['route']}, k={plan['k']}"
+            entry["route"] = f"{plan['method']}, k={plan['k']}"
         row["rows"][label] = entry
         log(f"  {label:28s} {mean:6.3f} {median:6.3f} {seconds:7.2f} s")
     return row

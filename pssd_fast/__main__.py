@@ -33,7 +33,7 @@ def main(argv=None):
     cloud = datasets.cad_part(n_points=args.points, noise=args.noise, seed=args.seed)
     started = time.perf_counter()
     result = denoise(cloud.points, iterations=args.iterations, k=args.k, lam=args.lam,
-                     preset=args.preset, n_jobs=args.n_jobs)
+                     preset=args.preset, extras=True, n_jobs=args.n_jobs)
     seconds = time.perf_counter() - started
 
     before, after, moved, edge = cloud.errors(result)

@@ -148,10 +148,6 @@ def _parser():
     den.add_argument("--no-shift-normals", dest="shift_normals", action="store_false",
                      help="first iteration of presets default and fast: keep each point's own "
                           "PCA normal instead of the flattest nearby list's")
-    den.add_argument("--select-scales", action=argparse.BooleanOptionalAction, default=None,
-                     help="presets default and fast, on the points: a neighbourhood size per "
-                          "point, walked up to 4.5 k while the wider list still fits (default: "
-                          "on for clouds of at most 50,000 points under preset default)")
     den.add_argument("--orient", type=_orientation, default=None, metavar="HOW",
                      help="sign of the estimated normals: outward, up, or a viewpoint X,Y,Z "
                           "(normals towards it), made consistent over the neighbour graph "
@@ -375,16 +371,7 @@ def _run_denoise(points, normals, args, method_params, say=None, **options):
         progress.close()
     seconds = time.perf_counter() - started
     if args.verbose:
-        probe = result.stats["auto_k"]
-        chosen = "" if probe is None else (
-            f" chosen from the estimated noise {probe['noise']:.4g} (probe: "
-            f"{probe['probe_k']} neighbours, mean radius {probe['probe_radius']:.4g}, ratio "
-            f"{probe['ratio']:.3f})")
-        cells = None if probe is None else probe["coarse"]
-        if cells:
-            chosen = (f"{chosen}; on {cells['cells']:,} cell means of {cells['mean_points']:.1f} "
-                      f"points each (cell edge {cells['cell_edge']:.4g}), each point then moved "
-                      f"onto the fits of its nearest denoised means")
+        chosen = _chosen(result.stats)
         threads = result.stats["n_jobs"]
         print(f"k = {result.stats['k']}{chosen}; {threads} thread{'s' * (threads != 1)}",
               file=say or sys.stdout)
@@ -395,6 +382,25 @@ def _run_denoise(points, normals, args, method_params, say=None, **options):
             print(f"outlier score: {result.stats['outliers']['seconds']:.3f} s",
                   file=say or sys.stdout)
     return result, seconds
+
+
+def _chosen(stats):
+    """What ``--verbose`` says after ``k``: where the run's sizes came from."""
+    plan, probe = stats["plan"], stats["auto_k"]
+    if plan["method"] == "default":
+        noise = plan["noise"]
+        chosen = (f" cell means within {plan['bound']:.4g}, from the probe's noise "
+                  f"{noise['sigma']:.4g} and spacing {noise['spacing']:.4g} (cells of edge "
+                  f"{plan['cell_edge']:.4g})")
+        if plan["refine"] is not None:
+            chosen += (f"; the points that fail the test refit over {plan['refine']['k']} "
+                       f"points within {plan['refine']['bound']:.4g}")
+        return chosen
+    if probe is None:
+        return ""
+    return (f" chosen from the estimated noise {probe['noise']:.4g} (probe: "
+            f"{probe['probe_k']} neighbours, mean radius {probe['probe_radius']:.4g}, ratio "
+            f"{probe['ratio']:.3f})")
 
 
 def _check_output(path, force):
@@ -538,7 +544,7 @@ def _check_tiled(args, method_params, remove_outliers):
         ("--lam", args.lam is not None), ("--rebuild-graph", args.rebuild_graph is not None),
         ("--remove-outliers", remove_outliers),
         *((_flag(dest), True) for dest in method_params
-          if dest not in ("sigma_n", "select_scales")))
+          if dest != "sigma_n"))
         if given]
     if args.preset == "paper":
         unused.append("--preset paper")
@@ -551,11 +557,11 @@ def _on_disk(args, inp, out):
     """Whether ``--tile-points`` runs out of core (:func:`pssd_fast.tiled.denoise_file`): an
     ``.npy`` (n, 3), Zarr or LAS/LAZ input into a file of its kind, with fields that such a
     run writes."""
+    if args.tile_points is None or _is_stdio(inp) or _is_stdio(out) or args.columns:
+        return False  # io.read refuses --columns for these formats
     from .tiled import ondisk
     from .tiled import FILE_KINDS
 
-    if args.tile_points is None or _is_stdio(inp) or _is_stdio(out) or args.columns:
-        return False  # io.read refuses --columns for these formats
     kind = FILE_KINDS.get(Path(inp).suffix.lower())
     if kind is None or kind != FILE_KINDS.get(Path(out).suffix.lower()):
         return False
@@ -625,8 +631,6 @@ def _denoise(args):
         params["keep_normals"] = True
     if not args.shift_normals:
         params["shift_normals"] = False
-    if args.select_scales is not None:
-        params["select_scales"] = args.select_scales
     jobs = _jobs(args)
     # Data on stdout: every message goes to stderr.
     say = sys.stderr if any(_is_stdio(out) for _, out in jobs) else sys.stdout
@@ -672,9 +676,12 @@ def _denoise_file(args, params, inp, out, say):
     if orient is not None and given is not None:
         raise CommandError(f"--orient applies to estimated normals; {inp} has normals, whose "
                            "signs are kept")
+    # The default method computes the likelihood and the feature intensity on request only.
+    names = _field_names(args)
+    extras = names == "all" or bool({"likelihood", "feature_intensity"} & set(names))
     result, seconds = _run_denoise(cloud.points, given, args, params, say,
                                    orient=orient, remove_outliers=args.remove_outliers,
-                                   **labels)
+                                   extras=extras, **labels)
     if args.remove_outliers:
         cloud = io.select(cloud, result.kept)
     if chosen is not None and args.remove_outliers:
@@ -782,7 +789,7 @@ def _demo(args):
     args.out.mkdir(parents=True, exist_ok=True)
     cloud = datasets.cad_part(n_points=args.points, noise=args.noise, seed=args.seed)
     compile_seconds = warmup()
-    result, seconds = _run_denoise(cloud.points, None, args, {})
+    result, seconds = _run_denoise(cloud.points, None, args, {}, extras=True)
     written = _demo_files(args, cloud.points, result)
     try:
         from .pictures import figure_set

@@ -528,84 +528,26 @@ def cell_of(p, low, edge):
     return tuple(np.floor((p - low) * (1.0 / edge)).astype(int))
 
 
-def cell_means(points, normals, edge):
+def cell_means(points, normals, edge, low=None):
     """Mean point and mean normal (signs turned to the cell's first normal) of each grid cell
-    (:func:`cell_of`), keyed by the cell's integer coordinates."""
+    (:func:`cell_of`, from ``low``, by default the points' lowest corner) and the rows it
+    holds, keyed by the cell's integer coordinates."""
     cells = {}
-    low = points.min(axis=0)
+    low = points.min(axis=0) if low is None else low
     for i, p in enumerate(points):
         cells.setdefault(cell_of(p, low, edge), []).append(i)
     out = {}
     for key, members in cells.items():
         mean = points[members].mean(axis=0)
         if normals is None:
-            out[key] = (mean, None, len(members))
+            out[key] = (mean, None, np.array(members))
             continue
         first = normals[members[0]]
         turned = [normals[j] if normals[j] @ first >= 0 else -normals[j] for j in members]
         total = np.sum(turned, axis=0)
         norm = np.linalg.norm(total)
-        out[key] = (mean, total / norm if norm > 0 else first, len(members))
+        out[key] = (mean, total / norm if norm > 0 else first, np.array(members))
     return out
-
-
-def coarse_to_fine(points, edge, k, iterations, surface_k, blend, sigma_n=0.05):
-    """The coarse-to-fine default (docs/ALGORITHM.md, "Coarse to fine"): cell means of edge
-    ``edge``, ``iterations`` feature-aware iterations on them weighted by their counts,
-    :func:`collapse` and :func:`refine`. Returns points and normals."""
-    cells = cell_means(points, None, edge)
-    coarse = np.array([value[0] for value in cells.values()])
-    mass = np.array([value[2] for value in cells.values()], dtype=float)
-    normals = None
-    for _ in range(iterations):
-        coarse, normals = aware_iteration(coarse, normals, k, sigma_n, mass)
-    surface, surface_normals, _ = collapse(coarse, normals, mass, edge, ())
-    return refine(points, surface, surface_normals, surface_k, blend, sigma_n)
-
-
-def collapse(points, normals, mass, edge, fields):
-    """Means of ``points`` over grid cells of edge ``edge`` (low corner at their minimum),
-    weighted by ``mass``; the weighted mean of the normals (each turned to the side of the
-    cell's first) and of each of ``fields``. Rows in any order (sorted by cell key)."""
-    groups = {}
-    low = points.min(axis=0)
-    for i, p in enumerate(points):
-        groups.setdefault(cell_of(p, low, edge), []).append(i)
-    out, out_normals, out_fields = [], [], []
-    for key in sorted(groups):
-        members = groups[key]
-        w = mass[members]
-        out.append((w[:, None] * points[members]).sum(axis=0) / w.sum())
-        first = normals[members[0]]
-        total = sum(w_j * (normals[j] if normals[j] @ first >= 0 else -normals[j])
-                    for w_j, j in zip(w, members))
-        norm = np.linalg.norm(total)
-        out_normals.append(total / norm if norm > 0 else first)
-        out_fields.append([(w * f[members]).sum() / w.sum() for f in fields])
-    return np.array(out), np.array(out_normals), np.array(out_fields).T
-
-
-def refine(points, surface, normals, surface_k, blend, sigma_n=0.05):
-    """Each point moved onto the feature-aware quadratics of its ``blend`` nearest surface
-    points (each fitted to that surface point's ``surface_k`` nearest ones, itself first, in
-    the frame of the surface point and its normal), by the mean of the steps weighted by the
-    inverse distance; and the normal of its nearest surface point."""
-    fits = []
-    for j, s in enumerate(surface):
-        order = np.argsort(np.linalg.norm(surface - s, axis=1), kind="stable")
-        order = np.concatenate(([j], order[order != j]))[:surface_k]
-        coef, scale, _, _ = frame_coefficients(s, normals[j], surface[order], normals[order],
-                                               sigma_n)
-        fits.append((coef, scale))
-    moved = np.empty_like(points)
-    out_normals = np.empty_like(points)
-    for i, p in enumerate(points):
-        distance = np.linalg.norm(surface - p, axis=1)
-        near = np.argsort(distance, kind="stable")[:blend]
-        moved[i] = blended(p, [on_fit(p, surface[j], normals[j], *fits[j]) for j in near],
-                           distance[near], surface[near], np.array([fits[j][1] for j in near]))
-        out_normals[i] = normals[near[0]]
-    return moved, out_normals
 
 
 def blended(point, targets, distance, origins, radius):
@@ -620,169 +562,198 @@ def blended(point, targets, distance, origins, radius):
     return point + (weights[:, None] * steps[keep]).sum(axis=0) / weights.sum()
 
 
-# A scale per point (docs/ALGORITHM.md, "A scale per point").
-SCALES = {"factors": (0.25, 0.5, 1.0, 2.0, 3.0, 4.5), "smallest": 8,
-          "radius_over_noise": 4.0, "later_noise": 0.03, "tau": 3.5, "tau_cubic": 2.5,
-          "tau_plane": 1.0}
-QUARTILE_OF_UNIT = 0.3186  # lower quartile of |r| for a unit normal r
-SCALE_FITS = ("quad", "plane", "rss", "rss_plane", "rss_cubic", "weight", "radius", "tapered")
-
-
-def scale_fits(points, normals, lists, scales, sigma_n, k, thin):
-    """Each point's weighted plane, quadratic and cubic over the first ``s`` of its list
-    (``lists[i]``, self first), by ``np.linalg.lstsq``, in the frame of the point and the
-    normal of its first listed point: heights, residual sums of squares, summed weight and
-    prefix radius per scale. Weights: normal agreement alone; where ``thin`` (a dict) holds a
-    point, the heights of its list above the fit of a thin wall, also ``exp(-(r / s)^2)`` with
-    ``s`` the lower quartile of ``|r|`` over the first ``k`` over ``QUARTILE_OF_UNIT``. NaN
-    where the normal equations are not well posed or the weights sum to less than the number
-    of monomials. ``tapered``: the quadratic's height with each weight also times
-    ``1 - d^2 / R^2``, ``d`` the neighbour's distance and ``R`` the prefix's last one's."""
-    n = len(lists)
-    out = {name: np.full((n, len(scales)), np.nan) for name in SCALE_FITS}
-    for i in range(n):
-        members = np.asarray(lists[i])
-        nrm = normals[members[0]]
-        u, v = _basis(nrm)
-        d = points[members] - points[i]
-        radius = np.sqrt((d * d).sum(axis=1).max())
-        scale = 1.0 / radius if radius > 0 else 1.0
-        x, y, z = d @ u * scale, d @ v * scale, d @ nrm
-        w = np.exp(-((1.0 - np.minimum(np.abs(normals[members] @ nrm), 1.0)) / sigma_n) ** 2)
-        if i in thin:
-            r = np.abs(thin[i])
-            quartile = np.sort(r[:k])[(min(k, len(r)) - 1) // 4]
-            if quartile > 0:
-                w = w * np.exp(-(thin[i] * QUARTILE_OF_UNIT / quartile) ** 2)
-        basis = np.column_stack([np.ones_like(x), y, x, x * y, y * y, x * x, x ** 3, x * x * y,
-                                 x * y * y, y ** 3])
-        for s, length in enumerate(scales):
-            count = min(length, len(members))
-            distance2 = (d[:count] ** 2).sum(axis=1)
-            last = distance2[-1]
-            taper = 1.0 - distance2 / last if last > 0 else np.ones(count)
-            for m, weights, height, rss in ((6, w[:count], "quad", "rss"),
-                                            (3, w[:count], "plane", "rss_plane"),
-                                            (10, w[:count], None, "rss_cubic"),
-                                            (6, w[:count] * taper, "tapered", None)):
-                if weights.sum() >= m and _well_posed(basis[:count, :m], weights):
-                    sw = np.sqrt(weights)
-                    a = basis[:count, :m] * sw[:, None]
-                    coef = np.linalg.lstsq(a, z[:count] * sw, rcond=None)[0]
-                    if height is not None:
-                        out[height][i, s] = coef[0]
-                    if rss is not None:
-                        out[rss][i, s] = np.sum((a @ coef - z[:count] * sw) ** 2)
-            out["weight"][i, s] = w[:count].sum()
-            out["radius"][i, s] = np.sqrt(last)
+# Lists bounded by a radius (pssd_fast.graph.nearest_within, bounded_graph).
+def nearest_within(data, queries, k, bound):
+    """Each query's list: the points of ``data`` nearer than its ``k + 1``-th nearest (none of
+    several tied at that distance: the set a tree returns does not depend on the tree) and no
+    farther than ``bound``, by distance, then index. A list of (indices, distances) pairs."""
+    out = []
+    for q in queries:
+        d = np.sqrt(((data - q) ** 2).sum(axis=1))
+        order = np.lexsort((np.arange(len(data)), d))
+        cut = d[order[k]] if len(data) > k else np.inf
+        keep = np.array([j for j in order if d[j] < cut and d[j] <= bound], dtype=np.int64)
+        out.append((keep, d[keep]))
     return out
 
 
-def walk_scales(fits, first, noise2, fallback, fallback_rms):
-    """Each point's scale: from column ``first``, the next is kept while the residual its
-    ring adds per unit weight is at most ``noise2 (1 + tau sqrt(2 / added))`` and its cubic
-    terms explain at most ``noise2 (1 + tau_cubic sqrt(1/2))`` each; the plane where its
-    curvature terms explain at most ``noise2 (1 + tau_plane sqrt(2/3))`` each. Height (the
-    plane's, else the tapered quadratic's where it and the flat one are finite, else the
-    flat one's), RMS residual, column and whether the plane was taken; ``fallback`` where
-    not finite."""
-    n, n_scales = fits["quad"].shape
-    height, rms = np.empty(n), np.empty(n)
-    pick, flat = np.empty(n, int), np.empty(n, bool)
-    for i in range(n):
-        kept = first
-        if np.isfinite(fits["quad"][i, first]):
-            for s in range(first + 1, n_scales):
-                added = max(fits["weight"][i, s] - fits["weight"][i, s - 1], 1e-9)
-                rate = (fits["rss"][i, s] - fits["rss"][i, s - 1]) / added / noise2
-                gain = (fits["rss"][i, s] - fits["rss_cubic"][i, s]) / 4 / noise2
-                fits_ring = rate <= 1 + SCALES["tau"] * np.sqrt(2 / added)
-                wrinkled = gain > 1 + SCALES["tau_cubic"] * np.sqrt(0.5)
-                if not (np.isfinite(fits["quad"][i, s]) and fits_ring) or wrinkled:
+# The noise probe (docs/ALGORITHM.md, "The noise probe"; pssd_fast.kernels.noise).
+NOISE_REFITS = 2  # reweighted fits after the first
+NOISE_WIDTH = 2.5  # the reweighting's width, in robust spreads
+MAD_TO_SIGMA = 1.482602218505602  # 1 / Phi^-1(3/4): a unit Gaussian's median |x| is 1 / this
+
+
+PIVOT_TOL = 1e-9  # a Cholesky pivot fails at this fraction of its column's own weight
+
+
+def _pivots(gram, tol=PIVOT_TOL):
+    """How many leading pivots of the Cholesky factorisation of ``gram`` pass: each column's
+    variance left after the earlier columns above ``tol`` times its own (kernels.linalg's
+    test, which decides the noise probe's fallbacks)."""
+    lower = np.zeros_like(gram)
+    for col in range(len(gram)):
+        left = gram[col, col] - lower[col, :col] @ lower[col, :col]
+        if not left > tol * gram[col, col]:
+            return col
+        lower[col, col] = np.sqrt(left)
+        for row in range(col + 1, len(gram)):
+            lower[row, col] = (gram[row, col] - lower[row, :col] @ lower[col, :col]) / lower[
+                col, col]
+    return len(gram)
+
+
+def _noise_residuals(design, weights, z):
+    """Residuals of the weighted quadratic of the heights ``z`` (``design``'s six columns),
+    else of the plane (three), else of the mean height, the first whose normal equations pass
+    :func:`_pivots`; ``z`` itself where none does."""
+    for m in (6, 3, 1):
+        cols = design[:, :m]
+        if _pivots(cols.T @ (weights[:, None] * cols)) == m:
+            sw = np.sqrt(weights)
+            return z - cols @ np.linalg.lstsq(sw[:, None] * cols, sw * z, rcond=None)[0]
+    return z
+
+
+def local_noise(points, lists, lengths):
+    """For each point and each prefix length of its list (self first): the robust spread of
+    the prefix's heights about their quadratic, and the prefix's radius (to its farthest
+    member). The quadratic is fitted in the frame of the prefix's covariance (heights along
+    its smallest eigenvector, tangent coordinates over the radius along the other two,
+    relative to the point) by weighted least squares (the plane, else the mean height, where
+    the quadratic's normal equations fail :func:`_pivots`); the spread is ``MAD_TO_SIGMA``
+    times the median ``|residual|``, and the fit is repeated ``NOISE_REFITS`` times with
+    weights ``exp(-(r / (NOISE_WIDTH s))^2)``, ``s`` the last spread, while that spread is
+    above 0."""
+    scale = np.zeros((len(points), len(lengths)))
+    radius = np.zeros((len(points), len(lengths)))
+    for i in range(len(points)):
+        for c, m in enumerate(lengths):
+            rel = points[np.asarray(lists[i])[:m]] - points[i]
+            r = np.sqrt((rel ** 2).sum(axis=1).max())
+            centred = rel - rel.mean(axis=0)
+            _, v = np.linalg.eigh(centred.T @ centred)
+            inv = 1.0 / r if r > 0 else 0.0
+            design = _monomials(rel @ v[:, 2] * inv, rel @ v[:, 1] * inv)[:, :6]
+            z = rel @ v[:, 0]
+            weights = np.ones(m)
+            resid = _noise_residuals(design, weights, z)
+            s = MAD_TO_SIGMA * np.median(np.abs(resid))
+            for _ in range(NOISE_REFITS):
+                if not s > 0:
                     break
-                kept = s
-        pick[i] = kept
-        curvature = (fits["rss_plane"][i, kept] - fits["rss"][i, kept]) / 3 / noise2
-        flat[i] = np.isfinite(fits["plane"][i, kept]) and curvature <= (
-            1 + SCALES["tau_plane"] * np.sqrt(2 / 3))
-        h = fits["plane"][i, kept] if flat[i] else fits["quad"][i, kept]
-        if not flat[i] and np.isfinite(h) and np.isfinite(fits["tapered"][i, kept]):
-            h = fits["tapered"][i, kept]
-        if np.isfinite(h):
-            height[i] = h
-            rms[i] = np.sqrt(fits["rss"][i, kept] / max(fits["weight"][i, kept], 1.0))
-        else:
-            height[i], rms[i] = fallback[i], fallback_rms[i]
-    return height, rms, pick, flat
+                weights = np.exp(-(resid / (NOISE_WIDTH * s)) ** 2)
+                resid = _noise_residuals(design, weights, z)
+                s = MAD_TO_SIGMA * np.median(np.abs(resid))
+            scale[i, c], radius[i, c] = s, r
+    return scale, radius
 
 
-def thin_wall_heights(points, normals, lists, sigma_n):
-    """``heights(i, members)``: the heights of ``members`` above point ``i``'s robust
-    feature-aware fit over ``lists[i]`` (:func:`frame_coefficients`), for :func:`scale_fits`'s
-    ``thin``."""
-    def heights(i, members):
-        coef, scale, _, _ = frame_coefficients(points[i], normals[i], points[lists[i]],
-                                               normals[lists[i]], sigma_n, robust=True)
-        u, v = _basis(normals[i])
-        rel = points[members] - points[i]
-        return rel @ normals[i] - _monomials(rel @ u / scale, rel @ v / scale)[:, :6] @ coef
-    return heights
+# The default method (pssd_fast.method): its iterations on the cell means, every point onto
+# their fits, the test and the failing points' own fits.
+def bounded_lists(points, k, bound, rows=None):
+    """The lists of :func:`nearest_within` of ``points`` among themselves for ``rows`` (all by
+    default), the point alone for the others."""
+    lists = [np.array([i]) for i in range(len(points))]
+    chosen = np.arange(len(points)) if rows is None else np.asarray(rows)
+    for i, (members, _) in zip(chosen, nearest_within(points, points[chosen], k, bound)):
+        lists[i] = members
+    return lists
 
 
-def scale_iteration_fit(points, filtered, k_lists, long_lists, lengths, first, noise2,
-                        sigma_n=0.05):
-    """The fit of ``select_scales`` for one iteration: the robust feature-aware fit at ``k``
-    (:func:`aware_fit`) says where a list reaches across a thin wall; nested fits over
-    ``long_lists`` at ``lengths``; the walk. Height, RMS residual, column, plane taken, and
-    whether the walked fit was finite (else the fit at ``k`` stands)."""
-    k = len(k_lists[0])
-    height, rms, _ = aware_fit(points, filtered, k_lists, sigma_n, robust=True)
-    plain, _, _ = aware_fit(points, filtered, k_lists, sigma_n)
-    heights = thin_wall_heights(points, filtered, k_lists, sigma_n)
-    thin = {i: heights(i, long_lists[i]) for i in range(len(points)) if height[i] != plain[i]}
-    fits = scale_fits(points, filtered, long_lists, lengths, sigma_n, k, thin)
-    height, rms, pick, flat = walk_scales(fits, first, noise2, height, rms)
-    return height, rms, pick, flat, np.isfinite(fits["quad"][np.arange(len(points)), pick])
+def _list_radius(points, lists):
+    return np.array([np.linalg.norm(points[m] - points[i], axis=1).max()
+                     for i, m in enumerate(lists)])
 
 
-def zones(surface, feature, radius, fraction):
-    """The edges route's zone code of each cell mean: 2 for the ``round(fraction * m)`` (at
-    least one) highest ``feature`` (ties to the lower row), 1 within ``radius`` of one of
-    those, else 0."""
-    m = len(surface)
-    top = max(1, int(round(fraction * m)))
-    flagged = sorted(range(m), key=lambda i: (-feature[i], i))[:top]
-    code = np.zeros(m, np.int8)
-    for i in range(m):
-        if any(np.linalg.norm(surface[i] - surface[j]) <= radius for j in flagged):
-            code[i] = 1
-    code[flagged] = 2
-    return code
+def _signed(normals, hints):
+    return normals * np.where((normals * hints).sum(axis=1) < 0, -1.0, 1.0)[:, None]
 
 
-def edges_pass(start, normals, flagged, k, iterations, sigma_n=0.05):
-    """The edges route's pass: each flagged point takes the feature-aware iteration over its
-    ``k`` nearest zone points (PCA normals signed like its last normal, shifted in the first
-    iteration), while the others keep their positions and lend their ``normals``. Returns the
-    flagged points' positions and filtered normals."""
-    points = np.array(start, dtype=float)
-    normals = np.array(normals, dtype=float)
-    rows = np.flatnonzero(flagged)
+def _supported(points, normals, height, radius):
+    """Each point moved by ``height`` along its normal, held where that step is not finite or
+    longer than its list's ``radius`` (docs/DECISIONS.md, "No point flung"); and the held."""
+    held = ~(np.abs(height) <= radius) | ~np.isfinite(height)
+    return points + np.where(held, 0.0, height)[:, None] * normals, held
+
+
+def method_iterations(means, mass, k, bound, iterations, sigma_n=0.05, given=None,
+                      keep=False):
+    """The iterations on the cell means (weights times ``mass``, the points each stands for):
+    lists of the ``k`` nearest means within ``bound``; the ``given`` normals in the first
+    iteration (in every one with ``keep``), else PCA normals, away from the centroid and
+    shifted in the first iteration, signed like the last filtered normals after it; the
+    normal filter; the feature-aware quadratic (no robust alternative on means); the
+    projection. Returns the means, the last iteration's origins (the means at its start), its
+    lists and its filtered normals."""
+    current, previous = np.array(means, dtype=float), None
     for iteration in range(iterations):
-        nearest, _ = knn_lists(points, k)
-        lists = [nearest[i] if flagged[i] else np.array([i]) for i in range(len(points))]
+        lists = bounded_lists(current, k, bound)
+        hints = current - current.mean(axis=0) if previous is None else previous
+        if given is not None and (iteration == 0 or keep):
+            nrm = np.array(given, dtype=float)
+        else:
+            nrm = _signed(pca_normals(current, lists), hints)
+        if previous is None and given is None:
+            nrm = shifted_normals(current, nrm, lists, max(1, round(SHIFT["candidates"] * k)),
+                                  SHIFT["tolerance"])[0]
+        filtered = filter_normals(current, nrm, lists)
+        height, _, _ = aware_fit(current, filtered, lists, sigma_n, mass)
+        moved, _ = _supported(current, filtered, height, _list_radius(current, lists))
+        origins, current, previous = current, moved, filtered
+    return current, origins, lists, previous
+
+
+def method_project(points, origins, normals, lists, mass, bound, blend=3, sigma_n=0.05):
+    """Each point moved onto the quadratics (:func:`frame_coefficients`, weights times
+    ``mass``) of its ``blend`` nearest ``origins`` within ``bound`` (:func:`nearest_within`),
+    blended (:func:`blended`); the normal of the nearest. Returns the points and normals."""
+    fits = [frame_coefficients(origins[j], normals[j], origins[m], normals[m], sigma_n,
+                               mass[m])[:2] for j, m in enumerate(lists)]
+    moved, out_normals = np.empty_like(points), np.empty_like(points)
+    for i, (near, distance) in enumerate(nearest_within(origins, points, blend, bound)):
+        targets = [on_fit(points[i], origins[j], normals[j], *fits[j]) for j in near]
+        moved[i] = blended(points[i], targets, distance, origins[near],
+                           np.array([fits[j][1] for j in near]))
+        out_normals[i] = normals[near[0]]
+    return moved, out_normals
+
+
+def method_failing(means, members, residual2, sigma, bound, cells=8, test=3.0):
+    """Whether each cell fails the chi-square test: over the points of the cell and of its
+    ``cells - 1`` nearest cells within ``bound`` (``members``: each cell's points), the mean
+    square residual above ``sigma^2 (1 + test sqrt(2 / m))``, ``m`` the points."""
+    out = []
+    for near, _ in nearest_within(means, means, cells, bound):
+        rows = np.concatenate([members[c] for c in near])
+        out.append(residual2[rows].mean() > sigma ** 2 * (1 + test * np.sqrt(2 / len(rows))))
+    return np.array(out)
+
+
+def method_refine(start, normals, flagged, k, bound, iterations=2, sigma_n=0.05, given=None,
+                  keep=False):
+    """The flagged points' own iterations from ``start``: each over its ``k`` nearest points
+    within ``bound`` (the others lend their positions and ``normals``); the ``given`` normals
+    in the first iteration (in every one with ``keep``), else PCA normals signed like its last
+    normal and shifted in the first iteration; the filter, the feature-aware quadratic with
+    its robust alternative, the projection held beyond the list's radius. Returns the flagged
+    points' positions, normals and whether they were held in some iteration."""
+    points, normals = np.array(start, dtype=float), np.array(normals, dtype=float)
+    rows = np.flatnonzero(flagged)
+    held = np.zeros(len(points), bool)
+    for iteration in range(iterations):
+        lists = bounded_lists(points, k, bound, rows)
         nrm = normals.copy()
-        for i in rows:
-            nrm[i] = pca_normal(points, lists[i])[0]
-            if nrm[i] @ normals[i] < 0:
-                nrm[i] = -nrm[i]
-        if iteration == 0:
-            shifted = shifted_normals(points, nrm, lists, max(1, round(SHIFT["candidates"] * k)),
-                                      SHIFT["tolerance"])[0]
-            nrm[rows] = shifted[rows]
+        if given is not None and (iteration == 0 or keep):
+            nrm[rows] = given[rows]
+        else:
+            nrm[rows] = _signed(pca_normals(points, [lists[i] for i in rows]), normals[rows])
+        if iteration == 0 and given is None:
+            nrm[rows] = shifted_normals(points, nrm, lists, max(1, round(SHIFT["candidates"] * k)),
+                                        SHIFT["tolerance"])[0][rows]
         filtered = filter_normals(points, nrm, lists)
         with np.errstate(divide="ignore", invalid="ignore"):  # the lists of one point
             height, _, _ = aware_fit(points, filtered, lists, sigma_n, robust=True)
-        points[rows] += height[rows, None] * filtered[rows]
-        normals[rows] = filtered[rows]
-    return points[rows], normals[rows]
+        moved, held_now = _supported(points, filtered, height, _list_radius(points, lists))
+        points[rows], normals[rows] = moved[rows], filtered[rows]
+        held[rows] |= held_now[rows]
+    return points[rows], normals[rows], held[rows]

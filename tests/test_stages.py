@@ -667,93 +667,43 @@ def test_a_point_on_the_fitted_patch_stays():
     assert (degree[nearest] == 6).all() and np.abs(moved - points).max() < 1e-4
 
 
-@pytest.mark.parametrize("with_normals", [False, True])
-@pytest.mark.parametrize("name", ["wavy", "sphere", "duplicates", "plane", "tiny"])
-def test_cell_means(name, with_normals):
-    from pssd_fast.routes import coarse
-
-    points = {"wavy": wavy, "sphere": sphere, "plane": plane}.get(name, wavy)(400)
-    if name == "duplicates":
-        points = np.repeat(points[:150], 3, axis=0)
-    if name == "tiny":
-        points = points[:1]
-    rng = np.random.default_rng(3)
-    normals = None
-    if with_normals:
-        normals = rng.normal(size=points.shape)
-        normals /= np.linalg.norm(normals, axis=1)[:, None]
-        normals[1::7] = -normals[::7][:len(normals[1::7])]  # opposite pairs: a sum may cancel
-    edge = 0.15
-    order, starts = coarse.group_cells(points, edge)
-    means, mean_normals = core.cell_means(points, normals, order, starts)
-    ref = reference.cell_means(points, normals, edge)
-    low = points.min(axis=0)
-    keys = [reference.cell_of(mean, low, edge) for mean in means]
-    assert sorted(keys) == sorted(ref) and np.diff(starts).sum() == len(points)
-    for i, key in enumerate(keys):
-        ref_mean, ref_normal, count = ref[key]
-        assert starts[i + 1] - starts[i] == count
-        np.testing.assert_allclose(means[i], ref_mean, atol=1e-12)
-        if with_normals:
-            np.testing.assert_allclose(mean_normals[i], ref_normal, atol=1e-12)
-    assert (mean_normals is None) == (normals is None)
-    # The cells follow the Morton curve of their coordinates, their members the input order.
-    codes = [reference.morton_code(key) for key in keys]
-    assert codes == sorted(codes)
-    assert all((np.diff(order[a:b]) > 0).all() for a, b in zip(starts[:-1], starts[1:]))
-
-
-def test_cell_grid_too_fine_for_the_codes():
-    from pssd_fast.routes import coarse
-
-    assert coarse.group_cells(wavy(50), 1e-9) is None
-    assert coarse.group_cells(wavy(50), 0.0) is None
-
-
 @pytest.mark.parametrize("name", ["wavy", "sphere", "duplicates"])
-def test_collapse(name):
-    """The denoised cell means averaged over the grid again, weighted by their counts."""
-    from pssd_fast.routes import coarse
-
-    points = {"wavy": wavy, "sphere": sphere}.get(name, wavy)(600)
+def test_evaluate_fits_skips_the_rows_past_the_surface(name):
+    """Rows past the surface's (a query bounded by a radius found fewer than it asked for):
+    none. A point moves onto the fits of its other rows, as the reference blends them, exactly
+    as if those alone were listed; with none, it stays, held."""
+    surface = {"wavy": wavy, "sphere": sphere}.get(name, wavy)(300)
     if name == "duplicates":
-        points = np.repeat(points[:200], 3, axis=0)
-    rng = np.random.default_rng(4)
-    normals = rng.normal(size=points.shape)
-    normals /= np.linalg.norm(normals, axis=1)[:, None]
-    counts = rng.integers(1, 30, len(points))
-    field = rng.uniform(size=len(points))
-    edge = 0.2
-    cells = coarse.Cells(points, None, counts, edge, 10, 16, False)
-    got, got_normals, (got_field,) = coarse.collapse(cells, points, normals, (field,))
-    ref, ref_normals, ref_fields = reference.collapse(points, normals, counts.astype(float),
-                                                      edge, (field,))
-    # The reference's rows are sorted by cell key, the kernel's along the Morton curve.
-    low = points.min(axis=0)
-    keys = [reference.cell_of(p, low, edge) for p in got]
-    rows = np.array([sorted(keys).index(key) for key in keys])
-    codes = [reference.morton_code(key) for key in keys]
-    assert len(set(keys)) == len(got) == len(ref) and codes == sorted(codes)
-    np.testing.assert_allclose(got, ref[rows], atol=1e-12)
-    np.testing.assert_allclose(got_normals, ref_normals[rows], atol=1e-12)
-    np.testing.assert_allclose(got_field, ref_fields[0][rows], atol=1e-12)
-
-
-@pytest.mark.parametrize("name", ["wavy", "sphere", "plane"])
-def test_refine(name):
-    from pssd_fast.routes import coarse
-    from pssd_fast.progress import Clock
-
-    surface = {"wavy": wavy, "sphere": sphere, "plane": plane}[name](300)
-    graph, lists = _setup(surface, 20)
+        surface = np.repeat(surface[:100], 3, axis=0)
+    graph, lists = _setup(surface, 16)
     nrm = _pca_reference(surface, lists)
-    rng = np.random.default_rng(8)
-    points = surface[rng.integers(0, len(surface), 80)] + rng.normal(0, 0.02, (80, 3))
-    moved, normals, nearest, record, held = coarse.refine(points, surface, nrm, 16, 0.05,
-                                                          Clock(None, 0, 1))
-    ref_moved, ref_normals = reference.refine(points, surface, nrm, 16, coarse.BLEND)
-    np.testing.assert_allclose(moved, ref_moved, atol=1e-10)
-    np.testing.assert_array_equal(normals, ref_normals)
-    np.testing.assert_array_equal(normals, nrm[nearest])
-    assert record["held_points"] == held.sum() == 0
-    assert sum(record["fit_degree"].values()) == len(points)
+    coef, _, _ = core.surface_fits(surface, nrm, graph, 0.05)
+    m = len(surface)
+    rng = np.random.default_rng(9)
+    points = surface[rng.integers(0, m, 60)] + rng.normal(0, 0.01, (60, 3))
+    nearest = rng.integers(0, m, (60, 3))
+    distance = rng.uniform(0.01, 0.2, (60, 3))
+    missing = rng.uniform(size=(60, 3)) < 0.4
+    missing[:5] = True  # nothing found at all
+    nearest[missing] = np.where(rng.uniform(size=missing.sum()) < 0.5, m, m + 7)
+    distance[missing] = np.inf
+    moved, held = core.evaluate_fits(points, surface, nrm, coef, nearest, distance)
+    assert held[:5].all() and (moved[:5] == points[:5]).all()
+    for i in range(5, 60):
+        rows = ~missing[i]
+        if not rows.any():
+            assert held[i] and (moved[i] == points[i]).all()
+            continue
+        alone, alone_held = core.evaluate_fits(points[i:i + 1], surface, nrm, coef,
+                                               nearest[i:i + 1, rows].copy(),
+                                               distance[i:i + 1, rows].copy())
+        np.testing.assert_array_equal(moved[i], alone[0])
+        assert held[i] == alone_held[0]
+        near = nearest[i, rows]
+        fits = [reference.frame_coefficients(surface[j], nrm[j], surface[lists[j]],
+                                             nrm[lists[j]], 0.05)[:2] for j in near]
+        targets = [reference.on_fit(points[i], surface[j], nrm[j], *fit)
+                   for j, fit in zip(near, fits)]
+        want = reference.blended(points[i], targets, distance[i, rows], surface[near],
+                                 np.array([fit[1] for fit in fits]))
+        np.testing.assert_allclose(moved[i], want, atol=1e-9, rtol=0)

@@ -165,7 +165,7 @@ def field_values(name, points, normals=None, stored=None, *, progress=None, **de
         fields = ", ".join(stored) if stored else "none"
         raise ValueError(f"the cloud holds no {what}{hint}; colour it by "
                          f"{', '.join(colourings(stored))} (its per-point fields: {fields})")
-    result = denoise(pts, normals, progress=progress, **denoise_options)
+    result = denoise(pts, normals, progress=progress, extras=True, **denoise_options)
     # Rounded as pssd denoise stores its added fields (float32), so both pictures agree.
     return getattr(result, STORED[name][0]).astype(np.float32).astype(np.float64)
 
