@@ -565,14 +565,15 @@ def blended(point, targets, distance, origins, radius):
 # Lists bounded by a radius (pssd_fast.graph.nearest_within, bounded_graph).
 def nearest_within(data, queries, k, bound):
     """Each query's list: the points of ``data`` nearer than its ``k + 1``-th nearest (none of
-    several tied at that distance: the set a tree returns does not depend on the tree) and no
-    farther than ``bound``, by distance, then index. A list of (indices, distances) pairs."""
+    several tied at that distance: the set a tree returns does not depend on the tree) and
+    nearer than ``bound`` (strictly, as pykdtree's bound), by distance, then index. A list of
+    (indices, distances) pairs."""
     out = []
     for q in queries:
         d = np.sqrt(((data - q) ** 2).sum(axis=1))
         order = np.lexsort((np.arange(len(data)), d))
         cut = d[order[k]] if len(data) > k else np.inf
-        keep = np.array([j for j in order if d[j] < cut and d[j] <= bound], dtype=np.int64)
+        keep = np.array([j for j in order if d[j] < cut and d[j] < bound], dtype=np.int64)
         out.append((keep, d[keep]))
     return out
 

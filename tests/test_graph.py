@@ -242,10 +242,10 @@ def test_nearest_within_drops_a_tie_at_the_cut():
             :count])
 
 
-@pytest.mark.xfail(strict=True, reason="bug: pykdtree's distance_upper_bound keeps only d < "
-                   "bound, the grid query d <= bound: a point at the bound itself is kept by "
-                   "one and not the other")
-def test_nearest_within_keeps_a_point_at_the_bound_itself_from_either_query():
+def test_nearest_within_drops_a_point_at_the_bound_itself_from_either_query():
+    """Both queries keep only points strictly within the bound (pykdtree's
+    distance_upper_bound): on a lattice with a neighbour at the bound itself, the grid's lists
+    and the tree's are the reference's."""
     points = _lattice()
     want = reference.nearest_within(points, points, 130, 1.0)
     _check_bounded(nearest_within(points, points, 130, 1.0), want, len(points))  # the grid's
@@ -312,9 +312,12 @@ def test_keep_nearest_on_hand_made_rows():
     kept = np.empty((4, 4), np.int64)
     kept_dists = np.empty((4, 4))
     lengths = np.empty(4, np.int64)
-    keep_nearest(dists, found, 10, kept, kept_dists, lengths)
+    keep_nearest(dists, found, 10, np.empty(0, np.int64), kept, kept_dists, lengths)
     np.testing.assert_array_equal(lengths, [3, 1, 2, 4])
     np.testing.assert_array_equal(kept, [[5, 3, 9, 10], [2, 10, 10, 10], [4, 1, 10, 10],
                                          [3, 0, 2, 1]])
     np.testing.assert_array_equal(kept_dists[:, 0], 0.0)
     assert np.isinf(kept_dists[0, 3]) and np.isinf(kept_dists[1, 1:]).all()
+    # Ties by ids where given (a tile's points by their places in the whole cloud).
+    keep_nearest(dists, found, 10, np.arange(11)[::-1].copy(), kept, kept_dists, lengths)
+    np.testing.assert_array_equal(kept[0], [5, 9, 3, 10])
