@@ -93,7 +93,8 @@ def run(plan, request, tiles, store, runner=None):
     tasks run by ``runner`` (None: here). Returns each tile's final entry key (``("out", i)``:
     its points' ``xyz``, ``normals`` and ``held``, with ``gid``, and the likelihood and feature
     intensity where ``request.extras``), one record per iteration on the means, and the keys
-    of the last iteration's means."""
+    of the last iteration's means. Each round's stages are timed (the tasks' own stages summed
+    over the tiles) and reported to ``request.report`` once the round is done."""
     runner = Local() if runner is None else runner
     params = request.params
     sigma_n, keep, shift = params["sigma_n"], params["keep_normals"], params["shift_normals"]
@@ -102,6 +103,7 @@ def run(plan, request, tiles, store, runner=None):
     boxes = [tile.cell_boxes for tile in tiles]
     records = []
     for t in range(plan.iterations):
+        clock = Clock(request.report, t, plan.iterations)
         own_given = given and (t == 0 or keep)
         first = None if own_given else t == 0
         width = (4 if first and shift else 3) * plan.bound
@@ -110,27 +112,28 @@ def run(plan, request, tiles, store, runner=None):
             (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
              own_given, first, plan, sigma_n, t == plan.iterations - 1, shift)
             for i in range(len(tiles))])
+        _tally(clock, [o[4] for o in out])
         origins, boxes = boxes, [o[0] for o in out]
-        records.append(aware.step_record({}, sum(o[1] for o in out), sum(o[2] for o in out),
+        records.append(aware.step_record(clock.times, sum(o[1] for o in out),
+                                         sum(o[2] for o in out),
                                          sum(tile.cells for tile in tiles),
                                          np.sum([o[3] for o in out], axis=0)))
     fits = [("fits", i) for i in range(len(tiles))]
-    clock = Clock(request.report, plan.iterations - 1, plan.iterations)
-    runner.map("tile_project", plan.iterations - 1, plan.iterations, _project, [
-        (store, fits, origins, i, None if whole else regions.widened(tiles[i].point_boxes,
-                                                                      plan.bound), plan)
-        for i in range(len(tiles))])
+    clock.run("project", runner.map, "tile_project", plan.iterations - 1, plan.iterations,
+              _project, [(store, fits, origins, i, None if whole else regions.widened(
+                  tiles[i].point_boxes, plan.bound), plan) for i in range(len(tiles))])
     records[-1]["cells"] = sum(tile.cells for tile in tiles)
     refined = False
     if plan.refine is not None:
         keys = [("test", i) for i in range(len(tiles))]
-        flagged = runner.map("tile_test", plan.iterations - 1, plan.iterations, _test, [
-            (store, keys, [t.cell_boxes for t in tiles], i,
-             None if whole else regions.widened(tiles[i].cell_boxes, plan.bound), plan)
-            for i in range(len(tiles))])
+        flagged = clock.run("test", runner.map, "tile_test", plan.iterations - 1,
+                            plan.iterations, _test, [
+                                (store, keys, [t.cell_boxes for t in tiles], i, None if whole
+                                 else regions.widened(tiles[i].cell_boxes, plan.bound), plan)
+                                for i in range(len(tiles))])
         records[-1]["refined"] = int(sum(flagged))
         if sum(flagged):
-            _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift)
+            _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, clock)
             refined = True
     if not refined:
         for i in range(len(tiles)):
@@ -143,14 +146,25 @@ def run(plan, request, tiles, store, runner=None):
     return [("out", i) for i in range(len(tiles))], records
 
 
+def _tally(clock, times):
+    """The tasks' stage ``times`` of a round (one dict per tile) summed into ``clock``, each
+    stage reported in the order the tasks ran them."""
+    total = {}
+    for own in times:
+        for stage, seconds in own.items():
+            total[stage] = total.get(stage, 0.0) + seconds
+    for stage, seconds in total.items():
+        clock.add(stage, seconds)
+
+
 def _iteration(store, keys, boxes, i, region, own_given, first, plan, sigma_n, last, shift,
                n_jobs):
     """A tile's task of one iteration on the means (:func:`pssd_fast.method.iteration` on its
     own means and its halo): its own means' next entry (their positions and filtered normals;
     in the ``last`` iteration also their fits, :data:`FITS`), and the boxes of their new
-    positions, held count, RMS sum and degree counts. The first iteration's PCA normals are
-    signed away from the cloud's centre (the positions are relative to it), as every tile
-    sees it."""
+    positions, held count, RMS sum, degree counts and stage times. The first iteration's PCA
+    normals are signed away from the cloud's centre (the positions are relative to it), as
+    every tile sees it."""
     names = ("xyz", "mass", "gid", "normals" if own_given else "hints") if (
         own_given or not first) else ("xyz", "mass", "gid")
     items = gather(store, keys, i, boxes, region, names, "xyz")
@@ -161,9 +175,10 @@ def _iteration(store, keys, boxes, i, region, own_given, first, plan, sigma_n, l
         normals = items["xyz"]  # away from the cloud's centre, whatever the tile
     else:
         normals = items["hints"]
+    clock = Clock(None, 0, 1)
     with threads(n_jobs):
         fits = method.iteration(items["xyz"], items["mass"], plan.k, plan.bound, sigma_n,
-                                normals, Clock(None, 0, 1), first, items["gid"], shift)
+                                normals, clock, first, items["gid"], shift)
     own = {name: items[name][:n_own] for name in ("mass", "gid")}
     entry = store.get(keys[i])
     own.update({"xyz": fits.moved[:n_own], "hints": fits.filtered[:n_own]})
@@ -175,7 +190,8 @@ def _iteration(store, keys, boxes, i, region, own_given, first, plan, sigma_n, l
                                 "coef": fits.coef[:n_own], "filtered": fits.filtered[:n_own],
                                 "rms": fits.rms[:n_own]})
     return (regions.boxes(fits.moved[:n_own]), int(fits.held[:n_own].sum()),
-            float(fits.rms[:n_own].sum()), np.bincount(fits.degree[:n_own], minlength=7))
+            float(fits.rms[:n_own].sum()), np.bincount(fits.degree[:n_own], minlength=7),
+            clock.times)
 
 
 def _project(store, fits, boxes, i, region, plan, n_jobs):
@@ -212,9 +228,9 @@ def _test(store, keys, boxes, i, region, plan, n_jobs):
     return int(flagged.sum())
 
 
-def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift):
+def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, clock):
     """The failing points' own iterations, tile by tile (``("refine", i, t)`` entries; the
-    last becomes ``("out", i)``)."""
+    last becomes ``("out", i)``), their stages timed on ``clock``."""
     k, bound = plan.refine
     for i in range(len(tiles)):
         placed = store.get(("placed", i))
@@ -234,9 +250,11 @@ def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift):
         use_given = given and (t == 0 or keep)
         width = (3 if use_given or t > 0 or not shift else 4) * bound
         keys = [("refine", i, t) for i in range(len(tiles))]
-        boxes = runner.map("tile_refine", t, iterations, _refine_task, [
+        out = runner.map("tile_refine", t, iterations, _refine_task, [
             (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
              use_given, t == 0, plan, sigma_n, shift) for i in range(len(tiles))])
+        _tally(clock, [o[1] for o in out])
+        boxes = [o[0] for o in out]
     for i in range(len(tiles)):
         entry = store.get(("refine", i, iterations))
         store.put(("out", i), {"xyz": entry["xyz"], "normals": entry["normals"],
@@ -246,20 +264,20 @@ def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift):
 def _refine_task(store, keys, boxes, i, region, use_given, first, plan, sigma_n, shift,
                  n_jobs):
     """A tile's task of one refining iteration (:func:`pssd_fast.method.refine_step`): its own
-    points' next entry; the boxes of their positions."""
+    points' next entry; the boxes of their positions and the stage times."""
     names = ("xyz", "normals", "flagged", "gid") + (("given",) if use_given else ())
     items = gather(store, keys, i, boxes, region, names, "xyz")
     entry = store.get(keys[i])
     n_own = entry["gid"].shape[0]
     k, bound = plan.refine
+    clock = Clock(None, 0, 1)
     with threads(n_jobs):
         out, normals, held = method.refine_step(
             items["xyz"], items["normals"], items["flagged"], k, bound, sigma_n,
-            items["given"] if use_given else None, Clock(None, 0, 1), first, items["gid"],
-            shift)
+            items["given"] if use_given else None, clock, first, items["gid"], shift)
     entry.update(xyz=out[:n_own], normals=normals[:n_own], held=entry["held"] | held[:n_own])
     store.put(keys[i][:2] + (keys[i][2] + 1,), entry)
-    return regions.boxes(entry["xyz"])
+    return regions.boxes(entry["xyz"]), clock.times
 
 
 def collect(store, tiles, n, names=("xyz", "normals", "held", "likelihood", "feature")):

@@ -16,11 +16,15 @@ class Clock:
         """``func(*args)``, timed as ``stage`` (added to the stage's earlier runs)."""
         started = time.perf_counter()
         result = func(*args)
-        seconds = time.perf_counter() - started
+        self.add(stage, time.perf_counter() - started)
+        return result
+
+    def add(self, stage, seconds):
+        """A stage timed elsewhere (in a tile's task): added to the stage's earlier runs and
+        reported."""
         self.times[stage] = self.times.get(stage, 0.0) + seconds
         if self.report is not None:
             self.report(self.iteration + 1, self.iterations, stage, seconds)
-        return result
 
 
 class TimeLeft:
