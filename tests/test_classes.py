@@ -301,8 +301,6 @@ def test_pssd_denoise_keeps_the_classes_of_a_las_file_apart(tmp_path, survey):
     assert np.isnan(np.asarray(clean["nz"])[other]).all()
 
 
-@pytest.mark.xfail(strict=True, reason="bug: the default method ignores orient "
-                   "(method.iterate passes no orientation to estimated_normals)")
 def test_pssd_denoise_orients_the_classes_of_a_las_file_up(tmp_path, survey):
     points, labels = survey
     source = tmp_path / "survey.las"

@@ -443,8 +443,6 @@ def test_graph_reuse_reaches_the_library(tmp_path, cloud, flag, rebuild):
     np.testing.assert_array_equal(np.load(out)["points"], expected.points)
 
 
-@pytest.mark.xfail(strict=True, reason="bug: the default method ignores "
-                   "shift_normals (method.iterate and method.refine always shift)")
 @pytest.mark.parametrize("flags, shift", [((), True), (("--no-shift-normals",), False)])
 def test_shifted_normals_reach_the_library(tmp_path, cloud, flags, shift):
     source, out = tmp_path / "in.npy", tmp_path / "out.npz"
@@ -716,8 +714,6 @@ def _terrain_las(path, n=4000, outliers=0):
     return points
 
 
-@pytest.mark.xfail(strict=True, reason="bug: the default method ignores orient "
-                   "(method.iterate passes no orientation to estimated_normals)")
 def test_las_normals_point_up_and_outliers_are_dropped(tmp_path):
     """LAS input: normals up by default; --remove-outliers drops the flagged records (the
     others keep their own intensity) and every output point carries a float32 outlier_score."""

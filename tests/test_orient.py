@@ -89,8 +89,6 @@ def test_parallel_sheets_stay_opposite():
     assert (normals[:6000, 2] < -0.9).all() and (normals[6000:, 2] > 0.9).all()
 
 
-@pytest.mark.xfail(strict=True, reason="bug: the default method ignores orient "
-                   "(method.iterate passes no orientation to estimated_normals)")
 def test_denoise_orients_and_keeps_positions():
     """orient changes the normals' signs only: the same points, bit for bit, for any thread
     count; the normals outward everywhere on the sphere beside the cube."""
