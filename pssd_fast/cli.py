@@ -604,6 +604,7 @@ def _denoise_on_disk(args, params, inp, out, say):
         stats = tiled.denoise_file(inp, out, tile_points=args.tile_points,
                                    client=args.scheduler, preset=args.preset,
                                    iterations=args.iterations, orient=orient, fields=fields,
+                                   extras=bool({"likelihood", "feature_intensity"} & set(fields)),
                                    duplicate_tolerance=args.duplicate_tolerance,
                                    n_jobs=args.n_jobs, progress=progress, overwrite=args.force,
                                    **params)
@@ -613,8 +614,8 @@ def _denoise_on_disk(args, params, inp, out, say):
         tiles = stats["tiles"]
         print(f"{inp} -> {out}: {stats['n_points']:,} points, method {args.method}, "
               f"{stats['n_iterations']} iterations, {stats['total_seconds']:.2f} s; "
-              f"{tiles['count']} tiles of at most {tiles['most_points']:,} points "
-              f"({'cells' if tiles['route'] == 'cells' else 'halos'}), out of core", file=say)
+              f"{tiles['count']} tiles of at most {tiles['most_points']:,} points, out of core",
+              file=say)
 
 
 def _denoise(args):

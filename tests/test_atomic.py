@@ -16,6 +16,7 @@ import pytest
 
 import pssd_fast
 from pssd_fast import atomic
+from pssd_fast.tiled import ondisk
 
 
 def leftovers(folder):
@@ -332,8 +333,6 @@ def test_temporary_names_are_unique_hidden_and_keep_the_suffix(tmp_path):
 
 def _write_parts(path, value, rounds, start):
     """A writer of one part: ``rounds`` times the whole part, all ``value``."""
-    from pssd_fast.tiled import ondisk
-
     records = np.zeros(20_000, ondisk.PART)
     records["row"] = value
     start.wait()
@@ -341,7 +340,6 @@ def _write_parts(path, value, rounds, start):
         ondisk.save(records, path)
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 def test_two_writers_of_one_part_never_corrupt_it(tmp_path):
     """A task run again while the first worker still writes: whatever a reader finds is one
     writer's whole part."""

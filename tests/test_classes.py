@@ -312,7 +312,6 @@ def test_pssd_denoise_orients_the_classes_of_a_las_file_up(tmp_path, survey):
     assert (np.asarray(laspy.read(str(tmp_path / "out.las"))["nz"])[denoised] > 0).all()
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 def test_tile_points_need_classes_all_for_a_classified_las_file(tmp_path, survey):
     points, labels = survey
     source = tmp_path / "survey.las"

@@ -3,6 +3,7 @@ script calls, and in a subprocess where the process itself is the subject (stdin
 signals)."""
 import gzip
 import inspect
+import re
 import subprocess
 import sys
 
@@ -789,7 +790,6 @@ def test_verbose_tells_the_plan(tmp_path):
     assert "iteration 1: neighbors" in stdout and "project" in stdout
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 def test_tile_points_give_the_in_core_file(tmp_path):
     pytest.importorskip("dask")
     thick = datasets.cad_part(n_points=20000, noise=0.03, seed=3)
@@ -830,7 +830,6 @@ def test_duplicate_tolerance_reaches_the_library(tmp_path):
     np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), want.points)
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 def test_duplicate_tolerance_reaches_tiled_runs(tmp_path):
     """Out of core (``--tile-points`` on ``.npy``), the in-core result."""
     pytest.importorskip("dask")
@@ -843,7 +842,6 @@ def test_duplicate_tolerance_reaches_tiled_runs(tmp_path):
     np.testing.assert_array_equal(np.load(tmp_path / "tiled.npy"), want.points)
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 @pytest.mark.parametrize("ext", [pytest.param(".npy", marks=pytest.mark.slow), ".las"])
 def test_tile_points_on_npy_and_las_run_out_of_core_with_the_in_core_file(tmp_path, ext):
     """Points, and for LAS the fields and normals asked for; the normals of LAS input face up
@@ -863,7 +861,8 @@ def test_tile_points_on_npy_and_las_run_out_of_core_with_the_in_core_file(tmp_pa
     status, out, err = pssd("denoise", path, tmp_path / f"tiled{ext}", *fields,
                             "--tile-points", "1500", "--scheduler", "sync")
     assert status == 0, err
-    assert "7 tiles of at most 1,472 points (halos), out of core" in out
+    tiles = re.search(r"(\d+) tiles of at most ([\d,]+) points, out of core", out)
+    assert tiles and int(tiles[1]) >= 7 and int(tiles[2].replace(",", "")) <= 1500, out
     in_core, tiled = (io.read(tmp_path / f"{name}{ext}") for name in ("in_core", "tiled"))
     np.testing.assert_array_equal(tiled.points, in_core.points)
     assert sorted(tiled.fields) == sorted(in_core.fields)
@@ -874,7 +873,6 @@ def test_tile_points_on_npy_and_las_run_out_of_core_with_the_in_core_file(tmp_pa
         np.testing.assert_array_equal(np.abs(tiled.normals), np.abs(in_core.normals))
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 @pytest.mark.slow  # Zarr out of core: tests/test_tiled.py; the CLI's path: the .las case
 def test_tile_points_read_and_write_zarr(tmp_path):
     pytest.importorskip("dask")
@@ -889,7 +887,6 @@ def test_tile_points_read_and_write_zarr(tmp_path):
                                   pssd_fast.denoise(points).points)
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 @pytest.mark.parametrize("extra, match", [
     (("--k", "30"), "does not take --k"),
     (("--preset", "paper"), "does not take --preset paper"),

@@ -131,7 +131,6 @@ def test_copies_are_denoised_as_one_point(run):
                                atol=4 * np.finfo(float).eps * np.abs(copies).max())
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 def test_copies_stay_together_in_tiled_runs():
     pytest.importorskip("dask")
     from pssd_fast import tiled
@@ -155,14 +154,13 @@ def test_too_few_distinct_positions_are_refused():
         pssd_fast.denoise(np.repeat(points[:8], 4, axis=0)[:32], k=20)
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
-@pytest.mark.parametrize("ext, n, noise, route", [(".npy", 15_000, 0.001, "halo"),
-                                                  (".npy", 30_000, 0.02, "cells"),
-                                                  (".las", 30_000, 0.02, "cells")])
-def test_copies_stay_together_out_of_core(tmp_path, monkeypatch, ext, n, noise, route):
+@pytest.mark.parametrize("ext, n, noise", [(".npy", 15_000, 0.001), (".npy", 30_000, 0.02),
+                                           (".las", 30_000, 0.02)])
+def test_copies_stay_together_out_of_core(tmp_path, monkeypatch, ext, n, noise):
     """denoise_file sets the copies aside while it bins the file and gives each its first
-    row's result as it writes the output: the in-core file, bit for bit, on both routes, with
-    blocks of rows so small that copies and their first rows fall in different blocks."""
+    row's result as it writes the output: the in-core file, bit for bit, with cells of about
+    one point and of several, with blocks of rows so small that copies and their first rows
+    fall in different blocks."""
     pytest.importorskip("dask")
     from pssd_fast import io, tiled
     from pssd_fast.tiled import ondisk
@@ -183,9 +181,11 @@ def test_copies_stay_together_out_of_core(tmp_path, monkeypatch, ext, n, noise, 
         las.intensity = np.arange(len(copies)) % 65535
         las.write(str(source))
         copies = io.read(source).points  # as quantised
-    whole = pssd_fast.denoise(copies)
-    stats = tiled.denoise_file(source, out, tile_points=5_000, client="sync")
-    assert stats["tiles"]["route"] == route and stats["tiles"]["count"] >= 4
+    whole = pssd_fast.denoise(copies, extras=True)
+    fields = ondisk.RESULT_FIELDS if ext == ".las" else ()
+    stats = tiled.denoise_file(source, out, tile_points=3_000, client="sync", fields=fields,
+                               extras=bool(fields))
+    assert stats["tiles"]["count"] >= 4
     assert stats["duplicates"] == whole.stats["duplicates"] > 0
     assert stats["n_points"] == len(copies)
     if ext == ".npy":
@@ -228,7 +228,6 @@ def test_the_corridor_keeps_every_distinct_point():
     assert np.unique(whole.points[-1_000:], axis=0).shape[0] == 1_000
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 def test_the_corridor_keeps_every_distinct_point_in_tiled_runs(tmp_path, monkeypatch):
     """Each of the patch's points keeps the in-core result in tiled runs in memory and on
     disk, bit for bit."""
@@ -294,7 +293,6 @@ def test_a_tolerance_merges_the_rows_of_one_cube():
                                atol=4 * np.finfo(float).eps * np.abs(copies).max())
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 def test_a_tolerance_merges_the_rows_of_one_cube_in_tiled_runs(tmp_path, monkeypatch):
     """The in-core result of the cube's rows in tiled runs in memory and on disk, bit for
     bit."""
@@ -324,7 +322,6 @@ def test_bad_tolerances_are_named(value, error):
         pssd_fast.denoise(points, duplicate_tolerance=value)
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 @pytest.mark.parametrize("value, error", [(-1e-3, ValueError), (float("nan"), ValueError),
                                           (float("inf"), ValueError), ("0.1", TypeError),
                                           (True, TypeError), (1e-320, ValueError)])

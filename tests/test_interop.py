@@ -117,7 +117,6 @@ def test_the_stage_functions_take_a_structured_array(part):
     np.testing.assert_array_equal(graph.indices, pssd_fast.neighbors(part, k=12).indices)
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 def test_tiled_runs_take_a_structured_array(part):
     pytest.importorskip("dask")
     from pssd_fast import tiled

@@ -37,7 +37,8 @@ def test_kernels_import_nothing_from_the_python_layer():
 #: only from its own layer and the layers before it.
 LAYERS = (("kernels",), ("jit", "_threads", "_validation", "interop", "progress", "atomic"),
           ("graph", "core", "duplicates", "io"), ("pipelines",), ("noise", "method", "plan"),
-          ("run", "executor", "regions", "store"), ("denoise", "classes", "stages", "warmup"), ("tiled",),
+          ("run", "executor", "regions", "store"), ("denoise", "classes", "stages", "warmup"),
+          ("tiled",),
           ("pictures", "datasets", "cli", "pdal_filter", "__main__", "__init__"))
 
 

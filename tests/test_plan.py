@@ -121,7 +121,6 @@ def test_stats_say_which_method_ran_and_its_plan(quiet, options, described):
         assert (result.stats["auto_k"] is not None) == from_probe
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 @pytest.mark.parametrize("noise_level", [0.001, 0.02])
 def test_tiled_runs_follow_the_same_plan(tmp_path, noise_level):
     pytest.importorskip("dask")

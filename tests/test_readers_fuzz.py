@@ -783,8 +783,7 @@ def _cli_case(case, tiled):
 
 @pytest.mark.parametrize("name", CLI_SEEDS)
 @settings(FAST, max_examples=4)
-# tiled=st.booleans() again once the tiled executor, being rewritten, is back.
-@given(data=st.data(), tiled=st.just(False))
+@given(data=st.data(), tiled=st.booleans())
 def test_cli_refuses_a_broken_file_in_one_line_leaving_no_file(name, data, tiled):
     _cli_case(data.draw(_refusing(name), label="case"), tiled)
 
@@ -792,8 +791,7 @@ def test_cli_refuses_a_broken_file_in_one_line_leaving_no_file(name, data, tiled
 @slow
 @pytest.mark.parametrize("name", CLI_SEEDS)
 @settings(SLOW, max_examples=60)
-# tiled=st.booleans() again once the tiled executor, being rewritten, is back.
-@given(data=st.data(), tiled=st.just(False))
+@given(data=st.data(), tiled=st.booleans())
 def test_cli_refuses_a_broken_file_in_one_line_leaving_no_file_at_length(name, data, tiled):
     _cli_case(data.draw(_refusing(name), label="case"), tiled)
 
@@ -920,7 +918,6 @@ def _tiled_case(name, data):
         check_tiled(folder, suffix, content)
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 @pytest.mark.usefixtures("traced")
 @pytest.mark.parametrize("name", TILED_SEEDS)
 @settings(FAST, max_examples=8)
@@ -929,7 +926,6 @@ def test_tiled_readers_read_a_broken_file_as_it_is_or_name_it(name, data):
     _tiled_case(name, data)
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 @slow
 @pytest.mark.usefixtures("traced")
 @pytest.mark.parametrize("name", TILED_SEEDS)
@@ -1106,7 +1102,6 @@ def _zarr_edit(files, name, edit):
     return {**files, name: edit(files[name])}
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 @pytest.mark.usefixtures("traced")
 @pytest.mark.parametrize("name", FOUND_TILED)
 def test_what_the_fuzzer_found_in_tiled_readers(name):
@@ -1116,7 +1111,6 @@ def test_what_the_fuzzer_found_in_tiled_readers(name):
     assert error is not None and re.search(match, str(error)), error
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 @pytest.mark.parametrize("compress", [False, True])
 def test_tiled_las_reader_gives_the_rows_asked_in_any_order(tmp_path, compress):
     # Rows read on from the previous call, from row 0 afresh, or elsewhere (a seek).

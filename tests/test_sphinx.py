@@ -11,7 +11,6 @@ DOCS = Path(__file__).resolve().parent.parent / "docs"
 
 
 # It documents pssd_fast.tiled, which does not import while it is rewritten.
-@pytest.mark.skip(reason="tiled executor being rewritten")
 def test_the_api_reference_builds_without_warnings_and_links_the_docs_it_cites(tmp_path):
     from sphinx.cmd.build import build_main
 

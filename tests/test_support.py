@@ -59,7 +59,6 @@ def test_no_point_moves_far_on_real_files(lidar, run):
     assert result.stats["held_points"] == int(result.held.sum())
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 @pytest.mark.slow
 @pytest.mark.parametrize("preset", ["default", "fast"])
 def test_tiled_runs_on_real_files_move_no_point_far(lidar, preset):
@@ -221,7 +220,6 @@ def test_the_guard_holds_the_broken_fits_of_the_refinement(monkeypatch):
     np.testing.assert_array_equal(result.points[~result.held], fast.points[~result.held])
 
 
-@pytest.mark.skip(reason="tiled executor being rewritten")
 def test_tiled_runs_hold_and_count_the_points_denoise_holds(monkeypatch, tmp_path):
     """Heights broken on purpose in a slab of the cloud (in the centred frame the kernels
     see, so the same points in a tile as in the whole cloud): tiled.denoise and
