@@ -231,7 +231,9 @@ def _file_settings(options):
                          f"them all: read the file with pssd_fast.io.read, then "
                          f"pssd_fast.denoise or tiled.denoise")
     # denoise's own checks, on a cloud it does not run: what it would refuse, this refuses.
-    return checked_options(options)
+    # (The classes, at their default None, are denoise's, not the method's parameters.)
+    return checked_options({name: value for name, value in options.items()
+                            if name not in ("classification", "classes")})
 
 
 def _parts(store, tiles, centre, dtype, folder):
