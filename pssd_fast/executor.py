@@ -250,7 +250,8 @@ def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, cloc
         use_given = given and (t == 0 or keep)
         width = (3 if use_given or t > 0 or not shift else 4) * bound
         keys = [("refine", i, t) for i in range(len(tiles))]
-        out = runner.map("tile_refine", t, iterations, _refine_task, [
+        # Reported in the run's last iteration, as the rest of the refinement.
+        out = runner.map("tile_refine", plan.iterations - 1, plan.iterations, _refine_task, [
             (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
              use_given, t == 0, plan, sigma_n, shift) for i in range(len(tiles))])
         _tally(clock, [o[1] for o in out])

@@ -166,10 +166,15 @@ def test_the_paper_s_pipeline_and_the_baselines_run_in_one_task():
 
 
 def test_progress_hears_of_every_tile(noisy):
-    """Each round's tiles as they finish (``tile_iteration 3/8``), then the round's stages."""
-    seen = []
+    """Each round's tiles as they finish (``tile_iteration 3/8``), then the round's stages,
+    in the iterations counted from 1 as the stages count them."""
+    heard = []
     got = tiled.denoise(noisy.points, tile_points=1_000,
-                        progress=lambda *args: seen.append(args[2]))
+                        progress=lambda *args: heard.append(args))
+    seen = [stage for _, _, stage, _ in heard]
+    iterations = [(i, n) for i, n, _, _ in heard]
+    assert iterations == sorted(iterations) and iterations[0] == (1, method.ITERATIONS)
+    assert iterations[-1] == (method.ITERATIONS, method.ITERATIONS)
     count = got.stats["tiles"]["count"]
     for stage in ("tile_iteration", "tile_project", "tile_test", "tile_refine"):
         ours = [s for s in seen if s.startswith(stage + " ")]

@@ -56,7 +56,9 @@ class Runner:
                         "threads_per_task": max(before["threads_per_task"], per_task)}
 
     def map(self, stage, iteration, iterations, func, argsets):
-        """``func(*args, n_jobs)`` for each of ``argsets``, results in their order."""
+        """``func(*args, n_jobs)`` for each of ``argsets``, results in their order; each
+        finished task reported as ``stage`` of iteration ``iteration`` (from 0) of
+        ``iterations``."""
         total = len(argsets)
         done = [0, time.perf_counter()]
 
@@ -65,7 +67,8 @@ class Runner:
             now = time.perf_counter()
             done[0] += 1
             if self.report is not None:
-                self.report(iteration, iterations, f"{stage} {done[0]}/{total}", now - done[1])
+                self.report(iteration + 1, iterations, f"{stage} {done[0]}/{total}",
+                            now - done[1])
             done[1] = now
 
         if self.name == "distributed":
