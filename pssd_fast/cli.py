@@ -278,12 +278,15 @@ def _orientation(text):
 
 def _add_common(parser):
     parser.add_argument("--iterations", type=int, default=None,
-                        help="iterations (preset: 4 default, 2 fast, 2 paper)")
+                        help="iterations (preset: default 4, but 2 where it takes fast's cells: "
+                             "above 50,000 points at low noise; fast 2; paper 2)")
     parser.add_argument("--preset", choices=("default", "fast", "paper"), default="default",
-                        help="default: feature-aware fit, k from the estimated noise, 4 "
-                             "iterations (on cell means where the noise spans many point "
-                             "spacings); fast: the same always on cell means, 2 iterations; "
-                             "paper: the paper's method (k=25, lam=0.5, 2 iterations)")
+                        help="default: feature-aware fit, k and route from the estimated "
+                             "noise (on cell means where the noise spans many point spacings; "
+                             "above 50,000 points at low noise fast's cells, 2 iterations, then "
+                             "the points near features); fast: the same always on cell means, 2 "
+                             "iterations; paper: the paper's method (k=25, lam=0.5, 2 "
+                             "iterations)")
     parser.add_argument("--k", type=int, default=None, help="neighbours per point (preset)")
     parser.add_argument("--lam", type=float, default=None,
                         help="lambda, weight of the likelihood term (preset)")
