@@ -50,15 +50,15 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         the result has their dtype. Or an Open3D or trimesh cloud, or a structured array with
         fields ``X``, ``Y``, ``Z`` (:mod:`pssd_fast.interop`).
     normals : array_like, shape (n, 3), optional
-        Normals for the first iteration (every one with ``keep_normals=True``); only their
-        local sign consistency matters. Otherwise each iteration estimates them by PCA.
+        Normals for the first iteration (every one with ``keep_normals=True``), else
+        estimated by PCA; only their local sign consistency matters.
     method : {"robust", "bilateral", "mls"}, default "robust"
         ``"robust"``: the paper's method (preset "paper") or the feature-aware refinement of
         it (the other presets, Notes); the other two are the paper's baselines
         (docs/ALGORITHM.md, "The baselines").
     iterations : int or "auto", default "auto"
-        Passes, each from the current positions. ``"auto"``: 4 ("default"; 2 where it takes
-        "fast"'s cells), 2 ("fast", "paper"). ``stats["n_iterations"]`` says how many ran.
+        ``"auto"``: 4 ("default"; 2 where it takes "fast"'s cells), 2 ("fast", "paper").
+        ``stats["n_iterations"]`` says how many ran.
     k : int or "auto", default "auto"
         Neighbours including the point itself, 10 to ``n - 1``. ``"auto"``: 25 ("paper"),
         else from the noise a probe measures (``stats["auto_k"]``). Given, the iterations run
@@ -90,8 +90,8 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         (2 ground, 6 building, 9 water, 10 rail, 11 road, 17 bridge deck); 0 and 1 alone are
         no classification (docs/DECISIONS.md, "LiDAR classes").
     classes : iterable of int, "each" or "all", optional
-        Which classes to denoise, each on its own; ``"all"``: every point as one cloud.
-        ``stats["classes"]`` says what ran.
+        Which classes to denoise, each on its own: these codes, or ``"each"`` (every class
+        present); ``"all"``: every point as one cloud. ``stats["classes"]`` says what ran.
     n_jobs : int or None, default None
         Threads; ``None`` or -1: every thread numba may use. The output does not depend on it.
     progress : bool or callable, optional
@@ -127,11 +127,11 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
 
     Notes
     -----
-    docs/ALGORITHM.md describes the method as implemented. The paper's iteration (Sections
-    2-4) moves each point along its filtered normal onto an MLS cubic, weighted by sampling
-    likelihood and feature intensity; the feature-aware one fits a quadratic weighted by
-    normal agreement, so that a point near a crease fits its own face (docs/DECISIONS.md,
-    "Beyond the paper"). No point moves beyond its neighbour list's radius (``held``).
+    docs/ALGORITHM.md describes the method as implemented, docs/benchmarks.md its accuracy
+    and its seconds ("How long will it take"). The feature-aware iteration fits a quadratic
+    weighted by normal agreement, so that a point near a crease fits its own face
+    (docs/DECISIONS.md, "Beyond the paper"). No point moves beyond its neighbour list's radius
+    (``held``).
 
     Examples
     --------
