@@ -171,8 +171,8 @@ def _parser():
     den.add_argument("--tile-points", type=int, default=None, metavar="N",
                      help="run in tiles of at most N points on Dask (pip install "
                           "'pssd_fast[dask]'), with the same result; presets default and fast, "
-                          "where they work on cell means; a classified input (LAS/LAZ) only "
-                          "with --classes all")
+                          "where they work on cell means; a classified input keeps its "
+                          "classes apart as without it (see --classes)")
     den.add_argument("--scheduler", default=None, metavar="WHERE",
                      help="where the tiles run: threads (default), processes, sync, or a Dask "
                           "scheduler's address")
@@ -526,7 +526,7 @@ def _run_tiled(points, normals, args, method_params, progress, orient, remove_ou
     return tiled.denoise(points, normals, tile_points=args.tile_points, client=args.scheduler,
                          preset=args.preset, iterations=args.iterations, orient=orient,
                          duplicate_tolerance=args.duplicate_tolerance, n_jobs=args.n_jobs,
-                         progress=progress, **method_params)
+                         progress=progress, **labels, **method_params)
 
 
 def _flag(dest):
@@ -582,8 +582,6 @@ def _denoise_on_disk(args, params, inp, out, say):
 
     _check_tiled(args, params, args.remove_outliers)
     las = FILE_KINDS[Path(inp).suffix.lower()] == "las"
-    if las and args.classes != "all":
-        _refuse_classes(inp)
     if not las and args.classes not in (None, "all"):
         raise CommandError(f"--classes: {inp} has no classification field")
     names = _field_names(args)
@@ -603,15 +601,18 @@ def _denoise_on_disk(args, params, inp, out, say):
                                    iterations=args.iterations, orient=orient, fields=fields,
                                    duplicate_tolerance=args.duplicate_tolerance,
                                    n_jobs=args.n_jobs, progress=progress, overwrite=args.force,
-                                   **params)
+                                   classes=args.classes if las else None, **params)
     finally:
         progress.close()
     if not args.quiet:
         tiles = stats["tiles"]
-        print(f"{inp} -> {out}: {stats['n_points']:,} points, method {args.method}, "
+        # With classes, n_points counts the points denoised.
+        total = stats["n_points"] + stats.get("classes", {}).get("untouched", 0)
+        print(f"{inp} -> {out}: {total:,} points, method {args.method}, "
               f"{stats['n_iterations']} iterations, {stats['total_seconds']:.2f} s; "
               f"{tiles['count']} tiles of at most {tiles['most_points']:,} points "
-              f"({'cells' if tiles['route'] == 'cells' else 'halos'}), out of core", file=say)
+              f"({'cells' if tiles['route'] == 'cells' else 'halos'}), out of core"
+              f"{_classes_done(stats)}", file=say)
 
 
 def _denoise(args):
@@ -720,8 +721,6 @@ def _labels(args, cloud, name):
         raise CommandError(f"{name}: {_one_line(exc)}") from None
     if runs[0][0] is None:
         return {}, None  # the file's classes are 0 and 1 only: no classification
-    if args.tile_points is not None:
-        _refuse_classes(name)
     return {"classification": classification, "classes": args.classes}, [r for _, r in runs]
 
 
@@ -734,15 +733,6 @@ def _classes_done(stats):
     return (f"; class{'es' * (len(codes) > 1)} {', '.join(map(str, codes))} denoised"
             f"{' each on its own' * (len(codes) > 1)}, {done['untouched']:,} points of other "
             f"classes kept")
-
-
-def _refuse_classes(name):
-    """``--tile-points`` denoises every point as one cloud: a classified input needs ``--classes
-    all``."""
-    raise CommandError(f"--tile-points denoises every point as one cloud and cannot keep the "
-                       f"classes of {name} apart; pass --classes all to denoise it as one "
-                       f"cloud, or leave out --tile-points to denoise its classes each on its "
-                       f"own")
 
 
 def _read(path, args, fmt=None):

@@ -18,10 +18,12 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from .. import atomic, core, duplicates, interop
+from .. import classes as lidar
 from .._threads import threads
 from .._validation import (
     as_normals, as_points, auto, check_choice, check_flag, check_float, check_int, check_orient,
@@ -47,7 +49,9 @@ PARAMS = {"keep_normals": False, "shift_normals": True}
 #: :func:`pssd_fast.denoise`'s parameters that tiled runs take at their default only (and,
 #: at theirs, the method parameters of the paper's pipeline).
 AT_DEFAULT = {"method": "robust", "k": "auto", "lam": None, "rebuild_graph": "auto",
-              "remove_outliers": False, "classification": None, "classes": None, **PARAMS}
+              "remove_outliers": False, **PARAMS}
+#: :func:`pssd_fast.denoise`'s parameters of LiDAR classes, which tiled runs take as it does.
+CLASSES = ("classification", "classes")
 
 
 def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method="robust",
@@ -80,7 +84,10 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method=
         all of them); on ``distributed`` each worker shares its own cores between the tasks it
         runs at once (its threads). ``progress`` also hears of each finished tile (stages
         ``tile_cells`` and ``tile_update``).
-    method, k, lam, rebuild_graph, remove_outliers, classification, classes
+    classification, classes
+        As in :func:`pssd_fast.denoise`: each class chosen runs on its own, tiled (a tiled run
+        of its points alone), and the points of the other classes are kept as they are.
+    method, k, lam, rebuild_graph, remove_outliers
         :func:`pssd_fast.denoise`'s, taken at their defaults only (as are ``keep_normals=False``
         and ``shift_normals=True``): tiled runs run the robust method of the feature-aware
         presets with the choices it makes in memory. Any other value raises ValueError naming
@@ -92,18 +99,27 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method=
         Bit-identical to ``pssd_fast.denoise(points, normals, preset=preset, ...)``;
         ``stats["tiles"]`` gives the number of tiles, their most points, the scheduler and
         the ``threads`` the tasks took (``tasks_at_once`` and ``threads_per_task``: the most
-        of each; on ``distributed`` the workers' threads in all and the largest share).
+        of each; on ``distributed`` the workers' threads in all and the largest share); with
+        classes, those of the largest class's run, as :func:`pssd_fast.denoise` gives its
+        ``stats``.
 
     Raises
     ------
     ValueError
         A parameter above set to another value than its default, or preset "fast" on a cloud
         it would iterate on its points (the noise small against the point spacing): it keeps
-        its first lists through the iterations, which a tile's task of one iteration cannot.
+        its first lists through the iterations, which a tile's task of one iteration cannot;
+        ``classification`` and ``classes`` as :func:`pssd_fast.denoise` refuses them.
     TypeError
         An unknown method parameter.
     ImportError
         Without Dask.
+
+    Warns
+    -----
+    DenoiseWarning
+        Where classes chosen by default are too small to denoise, as
+        :func:`pssd_fast.denoise` warns.
 
     Examples
     --------
@@ -125,10 +141,15 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method=
     tile_points, iterations, sigma_n, select_scales = _settings(
         preset, tile_points, iterations, client, dict(
             method=method, k=k, lam=lam, rebuild_graph=rebuild_graph,
-            remove_outliers=remove_outliers, classification=classification, classes=classes,
-            **method_params))
+            remove_outliers=remove_outliers, **method_params))
+    points = interop.coordinates(points)
+    if classes is not None or classification is not None:
+        return _by_class(points, normals, classification, classes, {
+            "tile_points": tile_points, "client": client, "iterations": iterations,
+            "preset": preset, "orient": orient, "duplicate_tolerance": duplicate_tolerance,
+            "n_jobs": n_jobs, "progress": progress, **method_params})
     report = reporter(progress)
-    pts, dtype = as_points(interop.coordinates(points))
+    pts, dtype = as_points(points)
     n = pts.shape[0]
     check_size(n)
     given = None if normals is None else as_normals(normals, n)
@@ -164,6 +185,31 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, method=
     return result(Input(pts, dtype, order, groups), done, centre, np.arange(n_input), None,
                   stats(request, plan, n_input, n, n_threads, done.records,
                         int(done.held.sum()), tiles=tiled))
+
+
+def _by_class(points, normals, classification, classes, options):
+    """:func:`denoise` of each class that ``classification`` and ``classes`` choose on its
+    own, the other points kept as they are, as :func:`pssd_fast.denoise` keeps them."""
+    started = time.perf_counter()
+    pts, dtype = as_points(points)
+    n = pts.shape[0]
+    runs, small, described, least = lidar.select(classification, classes, n,
+                                                  {"preset": options["preset"]})
+    lidar.warn_small(small, least, stacklevel=3)
+    chosen = np.zeros(n, np.bool_)
+    for _, rows in runs:
+        chosen[rows] = True
+    given = lidar.given_normals(normals, n, chosen)
+    done = []
+    for code, rows in runs:
+        try:
+            part = denoise(pts[rows], None if given is None else given[rows], **options)
+        except ValueError as exc:
+            if code is None:
+                raise
+            raise ValueError(f"the points of class {code}: {exc}") from exc
+        done.append((code, rows, part))
+    return lidar.merge(pts, dtype, given, done, small, described, started)
 
 
 def _points(current, given, plan, request, runner, tile_points):
@@ -248,8 +294,8 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
     source : path-like
         An ``.npy`` file of a real ``(n, 3)`` array, a Zarr array of that shape (or a Zarr
         group holding one as ``points``; ``pip install "pssd_fast[zarr]"``), or a LAS/LAZ
-        file without normals (``nx``, ``ny``, ``nz``: ``pssd_fast.io.read`` them, then
-        :func:`denoise` in memory).
+        file (its ``nx``, ``ny``, ``nz``, where it has them, are the given normals; its
+        ``classification`` field gives each point's class, see ``classes``).
     destination : path-like
         Of the kind of ``source``, written only when complete: the denoised ``(n, 3)`` points
         in the input's rows (``.npy``, or a Zarr array of the input's chunks), float32 for
@@ -264,7 +310,19 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
     duplicate_tolerance : float
         As in :func:`pssd_fast.denoise`: the rows at one position are merged while the file
         is binned (each bucket holds whole positions), and take their first row's output.
-    method, k, lam, rebuild_graph, remove_outliers, classification, classes
+    classification : array_like of int, shape (n,), optional
+        Of an ``.npy`` or Zarr input, as in :func:`pssd_fast.denoise`. A LAS/LAZ input's
+        classes are its ``classification`` field (read first, one byte a point), which it
+        refuses.
+    classes : iterable of int, "each" or "all", optional
+        As in :func:`pssd_fast.denoise`, of ``classification`` or a LAS/LAZ file's field: by
+        default the surface classes present, and a file of classes 0 and 1 only as one cloud;
+        ``"all"``: every point as one cloud. Each class chosen runs out of core on its own (a
+        run reads the file three times and takes the rows of its class), and the rows of the
+        other classes keep their coordinates (a LAS/LAZ record byte for byte), their normals
+        as read, NaN likelihood and feature intensity and zero displacement, as
+        ``pssd denoise`` writes them in memory.
+    method, k, lam, rebuild_graph, remove_outliers
         As in :func:`denoise`: their defaults only.
     fields : sequence of str
         LAS/LAZ output: which of ``"likelihood"``, ``"feature_intensity"``,
@@ -280,17 +338,25 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
     Returns
     -------
     dict
-        The run's ``stats``, as :func:`denoise` gives them.
+        The run's ``stats``, as :func:`denoise` gives them (with classes, as
+        :func:`pssd_fast.denoise` gives them: ``stats["classes"]`` says what ran).
 
     Raises
     ------
     ValueError
         Bad input, unknown fields, other formats, a parameter :func:`denoise` takes at its
         default only, ``fast`` on a cloud it would iterate on its points (see
-        :func:`denoise`), or too few distinct positions.
+        :func:`denoise`), too few distinct positions, or ``classification`` and ``classes``
+        as :func:`pssd_fast.denoise` refuses them (``classification`` with a LAS/LAZ file).
     FileExistsError
         ``destination`` exists and ``overwrite`` is False: checked first, and again by the
         final rename, which never replaces what another writer put there meanwhile.
+
+    Warns
+    -----
+    DenoiseWarning
+        Where classes chosen by default are too small to denoise, as
+        :func:`pssd_fast.denoise` warns.
 
     Examples
     --------
@@ -321,8 +387,11 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
     tile_points, iterations, sigma_n, select_scales = _settings(
         preset, tile_points, iterations, client, dict(
             method=method, k=k, lam=lam, rebuild_graph=rebuild_graph,
-            remove_outliers=remove_outliers, classification=classification, classes=classes,
-            **method_params))
+            remove_outliers=remove_outliers, **method_params))
+    lidar.check_classes(classification, classes)
+    if kinds[source] == "las" and classification is not None:
+        raise ValueError(f"the classes of {source.name} are its classification field; pass "
+                         f"classes=... alone")
     orient = None if orient is None else check_orient(orient)
     duplicate_tolerance = duplicates.check_tolerance(duplicate_tolerance)
     unknown = sorted(set(fields) - set(ondisk.RESULT_FIELDS))
@@ -336,55 +405,132 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, met
         raise ValueError(f"the output {destination} would overwrite the input")
     array = {"npy": ondisk.NpyFile, "las": ondisk.LasFile, "zarr": ondisk.ZarrFile}[
         kinds[source]](source)
+    labels = _file_labels(array, classification, classes)
+    runs, small, least = [None], [], None
+    if labels is not None:
+        codes, counts = np.unique(labels, return_counts=True)
+        least = lidar.least_points({"preset": preset})
+        found, small = lidar.choose(codes, counts, classes, least)
+        if found is None:
+            labels = None  # classes 0 and 1 only: no classification
+        else:
+            runs = found
+    lidar.warn_small(small, least, stacklevel=2)
     dtype = np.dtype(np.float32) if array.dtype == np.float32 else np.dtype(np.float64)
     report = reporter(progress)
     started = time.perf_counter()
     folder = Path(tempfile.mkdtemp(prefix="pssd_tiles_", dir=scratch or destination.parent))
     # Beside the destination, so that the last rename stays on one file system.
     output = atomic.temporary(destination)
+    setting = _FileRun(array, tile_points, duplicate_tolerance, iterations, preset,
+                       select_scales, sigma_n, orient, report)
     try:
         with threads(n_jobs) as n_threads, _Runner(client, n_threads, report) as runner:
-            # The plan may change the preset's iterations; the buckets come before it.
-            first = Clock(report, 0, iterations or PRESETS[preset]["iterations"])
-            cloud = first.run("buckets", ondisk.Buckets, array, folder, tile_points,
-                              duplicate_tolerance)
-            n = check_distinct(cloud.shape[0], cloud.rows, None)
-            given = cloud.normals
-            if given is not None and orient is not None:
-                raise ValueError(f"orient applies to estimated normals; {source} has normals, "
-                                 f"whose signs are kept (drop orient)")
-            plan = planning.make(cloud, given, preset, distinct=n, iterations=iterations,
-                                 layout=cloud.layout, select_scales=select_scales,
-                                 sigma_n=sigma_n, shift_normals=PARAMS["shift_normals"])
-            request = Request("robust", preset, "aware", None,
-                              {**PARAMS, "sigma_n": sigma_n,
-                               "select_scales": plan.select_scales},
-                              orient, cloud.centre, report, started)
-            iterations = first.iterations = plan.iterations
-            if plan.cells is None:
-                _check_points_route(preset)
-                spans = halo.tiles(n, tile_points)
-                parts, records, held = _file_points(cloud, spans, plan, request, folder,
-                                                    runner, first)
-                tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
-                         "route": "halo"}
-            else:
-                parts, records, tiled, held = _file_cells(cloud, plan, request, folder, runner,
-                                                          first, tile_points)
-            tiled.update(scheduler=runner.name, threads=runner.threads)
-            clock = Clock(report, iterations - 1, iterations)
-            clock.run("write", _write, array, output, parts, cloud.rows, dtype, folder, fields,
-                      cloud.copies if cloud.duplicates else None)
+            done = []
+            for code in runs:
+                if code is None:
+                    done.append((None, *_file_run(setting, None, folder, runner, n_threads,
+                                                  started)))
+                    continue
+                try:
+                    done.append((code, *_file_run(
+                        setting, lambda a, b, code=code: labels[a:b] == code,
+                        folder / f"class_{code}", runner, n_threads, time.perf_counter())))
+                except ValueError as exc:
+                    raise ValueError(f"the points of class {code}: {exc}") from exc
+            parts = [path for _, paths, _, _ in done for path in paths]
+            if labels is not None:
+                kept = folder / "kept.bin"
+                ondisk.unmoved(array, lambda a, b: ~np.isin(labels[a:b], runs), kept)
+                parts.append(kept)
+            last = done[-1][3]
+            clock = Clock(report, last["n_iterations"] - 1, last["n_iterations"])
+            clock.run("write", _write, array, output, parts, array.shape[0], dtype, folder,
+                      fields, [copies for _, _, copies, _ in done if copies is not None])
             atomic.sync(output)
             atomic.replace(output, destination, overwrite=overwrite, exists_message=exists)
-        records[0]["times"].update(first.times)
-        records[-1]["times"].update(clock.times)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
         if output.is_dir():
             shutil.rmtree(output, ignore_errors=True)
         output.unlink(missing_ok=True)
-    return stats(request, plan, cloud.rows, n, n_threads, records, held, tiles=tiled)
+    if labels is None:
+        found = done[0][3]
+        found["total_seconds"] = time.perf_counter() - started
+    else:
+        found = lidar.summary(
+            [(code, run["n_points"], run) for code, _, _, run in done],
+            int(array.shape[0] - sum(run["n_points"] for *_, run in done)), small, runs,
+            started)
+    found["iterations"][-1]["times"].update(clock.times)
+    return found
+
+
+class _FileRun(NamedTuple):
+    """What each run of :func:`denoise_file` takes: the input ``array`` and the call's
+    settings, checked."""
+    array: object
+    tile_points: int
+    duplicate_tolerance: float
+    iterations: object
+    preset: str
+    select_scales: object
+    sigma_n: float
+    orient: object
+    report: object
+
+
+def _file_labels(array, classification, classes):
+    """The class of each row of ``array``: a LAS/LAZ file's classification field (unless
+    ``classes`` is ``"all"``), or ``classification`` checked; None for one cloud."""
+    if isinstance(classes, str) and classes == "all":
+        return None
+    if isinstance(array, ondisk.LasFile):
+        return array.classification()
+    if classification is None:
+        return None
+    return lidar.check_labels(classification, array.shape[0])
+
+
+def _file_run(setting, keep, folder, runner, n_threads, started):
+    """One run of :func:`denoise_file` on the rows of ``setting.array`` that ``keep`` selects
+    (``keep(start, stop)``: a mask of rows ``start..stop-1``; None: every row), its scratch
+    files in ``folder``: the part files, the file of rows set aside as copies (or None) and
+    the run's ``stats``."""
+    folder.mkdir(exist_ok=True)
+    report, orient = setting.report, setting.orient
+    # The plan may change the preset's iterations; the buckets come before it.
+    first = Clock(report, 0, setting.iterations or PRESETS[setting.preset]["iterations"])
+    cloud = first.run("buckets", ondisk.Buckets, setting.array, folder, setting.tile_points,
+                      setting.duplicate_tolerance, keep)
+    n = check_distinct(cloud.shape[0], cloud.rows, None)
+    given = cloud.normals
+    if given is not None and orient is not None:
+        raise ValueError(f"orient applies to estimated normals; {setting.array.path} has "
+                         f"normals, whose signs are kept (drop orient)")
+    plan = planning.make(cloud, given, setting.preset, distinct=n,
+                         iterations=setting.iterations, layout=cloud.layout,
+                         select_scales=setting.select_scales, sigma_n=setting.sigma_n,
+                         shift_normals=PARAMS["shift_normals"])
+    request = Request("robust", setting.preset, "aware", None,
+                      {**PARAMS, "sigma_n": setting.sigma_n,
+                       "select_scales": plan.select_scales},
+                      orient, cloud.centre, report, started)
+    first.iterations = plan.iterations
+    if plan.cells is None:
+        _check_points_route(setting.preset)
+        spans = halo.tiles(n, setting.tile_points)
+        parts, records, held = _file_points(cloud, spans, plan, request, folder, runner,
+                                            first)
+        tiled = {"count": len(spans), "most_points": max(b - a for a, b in spans),
+                 "route": "halo"}
+    else:
+        parts, records, tiled, held = _file_cells(cloud, plan, request, folder, runner,
+                                                  first, setting.tile_points)
+    tiled.update(scheduler=runner.name, threads=runner.threads)
+    records[0]["times"].update(first.times)
+    return parts, cloud.copies if cloud.duplicates else None, stats(
+        request, plan, cloud.rows, n, n_threads, records, held, tiles=tiled)
 
 
 def _file_cells(cloud, plan, request, folder, runner, first, tile_points):
@@ -603,9 +749,9 @@ def _relative(orient, centre):
 
 
 def _write(array, output, parts, n, dtype, folder, fields, copies):
-    """The parts' points in the input's rows (``copies``: the rows that take their first
-    row's, :func:`pssd_fast.tiled.ondisk.write_rows`): an ``.npy`` or Zarr array, or a copy of the
-    LAS/LAZ input with those coordinates and the ``fields`` asked for."""
+    """The parts' points in the input's rows (``copies``: the files of the rows that take
+    their first row's, :func:`pssd_fast.tiled.ondisk.write_rows`): an ``.npy`` or Zarr array, or
+    a copy of the LAS/LAZ input with those coordinates and the ``fields`` asked for."""
     if isinstance(array, ondisk.NpyFile):
         ondisk.write_rows(output, parts, n, dtype, copies=copies)
         return
@@ -631,7 +777,7 @@ def _settings(preset, tile_points, iterations, client, options):
     unknown = sorted(set(options) - set(AT_DEFAULT) - set(robust))
     if unknown:
         raise TypeError(f"unknown parameter(s) {', '.join(unknown)}; valid: "
-                        f"{', '.join(sorted({*AT_DEFAULT, *robust} - set(PARAMS)))}")
+                        f"{', '.join(sorted({*AT_DEFAULT, *robust, *CLASSES} - set(PARAMS)))}")
     refused = [f"{name}={value!r}" for name, value in options.items()
                if name not in ("sigma_n", "select_scales")
                and not _at_default(value, AT_DEFAULT.get(name, robust.get(name)))]
