@@ -40,16 +40,20 @@ class Table:
     @classmethod
     def first_in(cls, path):
         """The first table of the markdown file ``path``."""
-        lines = Path(path).read_text().splitlines()
-        start = next((i for i, line in enumerate(lines) if line.startswith("|")), None)
-        if start is None:
-            raise ValueError(f"{path}: no markdown table")
-        run = []
-        for line in lines[start:]:
-            if not line.startswith("|"):
-                break
-            run.append([cell.strip() for cell in line.strip().strip("|").split("|")])
-        return cls(run[0], run[2:])
+        return cls.nth_in(path, 0)
+
+    @classmethod
+    def nth_in(cls, path, n):
+        """The ``n``-th table (from 0) of the markdown file ``path``."""
+        runs, run = [], []
+        for line in Path(path).read_text().splitlines() + [""]:
+            if line.startswith("|"):
+                run.append([cell.strip() for cell in line.strip().strip("|").split("|")])
+            elif run:
+                runs, run = runs + [run], []
+        if n >= len(runs):
+            raise ValueError(f"{path}: no markdown table number {n + 1}")
+        return cls(runs[n][0], runs[n][2:])
 
     def select(self, columns=None, keep=None):
         """Only ``columns`` (all by default), in their order, of the rows whose dict (column
@@ -159,8 +163,21 @@ def _edges_route(path):
     return Table(["points, noise", "default before", "`fast`", "default now"], rows).markdown()
 
 
+def _bullets(path):
+    """The first bulleted list of the file: the standings a script states in words."""
+    lines = Path(path).read_text().splitlines()
+    start = next((i for i, line in enumerate(lines) if line.startswith("- ")), None)
+    if start is None:
+        raise ValueError(f"{path}: no bulleted list")
+    end = next((i for i in range(start, len(lines)) if not lines[i].startswith("- ")),
+               len(lines))
+    return "\n".join(lines[start:end])
+
+
 #: View name -> function of the results file that returns the block's markdown.
-VIEWS = {"table": lambda path: Table.first_in(path).markdown(), "cgal": _cgal,
+VIEWS = {"table": lambda path: Table.first_in(path).markdown(),
+         "times": lambda path: Table.nth_in(path, 1).markdown(), "standings": _bullets,
+         "cgal": _cgal,
          "cgal-errors": _cgal_errors, "paper-rows": _paper_rows, "scan-sizes": _scan_sizes,
          "stages": _stages, "fast-vs-jet": _fast_vs_jet, "edges-route": _edges_route}
 

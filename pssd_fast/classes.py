@@ -29,21 +29,39 @@ def select(classification, classes, n, options):
     small to denoise; what ``stats["classes"]["classes"]`` says; and the fewest points a run
     takes. ValueError or TypeError naming what is wrong. ``options``: the call's other
     options (``k`` and ``preset`` decide what is too small)."""
-    least = _least(options)
+    least = least_points(options)
     whole = [(None, np.arange(n))], [], "all", least
-    if isinstance(classes, str) and classes not in NAMED:
-        raise ValueError(f"classes must be class codes, 'each' or 'all'; got {classes!r}")
-    if classification is None and classes != "all":
-        raise ValueError("classes and classification go together: classification=... gives "
-                         "each point's class, classes=... those to denoise")
-    labels = None if classification is None else _labels(classification, n)
-    if labels is None or classes == "all":
+    check_classes(classification, classes)
+    labels = None if classification is None else check_labels(classification, n)
+    if labels is None or _name(classes) == "all":
         return whole
     codes, rows = _by_class(labels)
+    chosen, small = choose(codes, [r.shape[0] for r in rows], classes, least)
+    if chosen is None:
+        return whole
+    rows = dict(zip(codes.tolist(), rows))
+    return [(code, rows[code]) for code in chosen], small, chosen, least
+
+
+def check_classes(classification, classes):
+    """ValueError where ``classes`` is no choice, or is given without a ``classification``."""
+    if isinstance(classes, str) and classes not in NAMED:
+        raise ValueError(f"classes must be class codes, 'each' or 'all'; got {classes!r}")
+    if classification is None and classes is not None and _name(classes) != "all":
+        raise ValueError("classes and classification go together: classification=... gives "
+                         "each point's class, classes=... those to denoise")
+
+
+def choose(codes, sizes, classes, least):
+    """The classes of a classification to denoise, each on its own: their codes (increasing;
+    None where the cloud runs as one) and ``(code, points)`` of those too small to run
+    (fewer than ``least`` points); ``codes``: the classes present, increasing, with their
+    ``sizes``. ValueError or TypeError naming what is wrong."""
+    codes = np.asarray(codes)
     present = ", ".join(str(c) for c in codes[:20]) + (", ..." if len(codes) > 20 else "")
     if classes is None:
         if np.isin(codes, UNCLASSIFIED).all():
-            return whole
+            return None, []
         wanted = np.isin(codes, list(SURFACE_CLASSES))
         if not wanted.any():
             raise ValueError(
@@ -51,7 +69,7 @@ def select(classification, classes, n, options):
                 f"classification denoises by default; the classes present are {present}: name "
                 f"the classes to denoise (classes= or --classes: codes, each, or all for every "
                 f"point as one cloud)")
-    elif classes == "each":
+    elif _name(classes) == "each":
         wanted = np.ones(len(codes), np.bool_)
     else:
         asked = _codes(classes)
@@ -59,16 +77,16 @@ def select(classification, classes, n, options):
         if not wanted.any():
             raise ValueError(f"no point is of class {', '.join(map(str, asked))}; the classes "
                              f"present are {present}")
-    chosen = [(int(c), r) for c, r, w in zip(codes, rows, wanted) if w]
+    chosen = [(int(c), int(size)) for c, size, w in zip(codes, sizes, wanted) if w]
     small = []
-    if classes is None or classes == "each":
+    if classes is None or _name(classes) == "each":
         # Classes the library chose: those too small for a run are left as they are.
-        small = [(c, len(r)) for c, r in chosen if len(r) < least]
-        chosen = [(c, r) for c, r in chosen if len(r) >= least]
+        small = [(c, size) for c, size in chosen if size < least]
+        chosen = [(c, size) for c, size in chosen if size >= least]
         if not chosen:
             raise ValueError(f"no class to denoise has the {least} points a run needs; the "
                              f"classes present are {present}")
-    return chosen, small, [c for c, _ in chosen], least
+    return [c for c, _ in chosen], small
 
 
 def warn_small(small, least, stacklevel):
@@ -108,17 +126,26 @@ def merge(pts, dtype, given, done, small, described, started):
         for name, values in arrays.items():
             if values is not None:
                 values[at] = getattr(part, name)
-    by_size = max(done, key=lambda run: run[1].shape[0])[2].stats
-    stats = {**by_size, **{name: sum(part.stats[name] for _, _, part in done)
-                           for name in SUMMED}}
-    stats["outliers"] = _outliers([part.stats["outliers"] for _, _, part in done])
-    stats["total_seconds"] = time.perf_counter() - started
-    stats["classes"] = {
-        "classes": described, "denoised": int(chosen.sum()), "untouched": int(n - chosen.sum()),
-        "too_small": [code for code, _ in small],
-        "runs": {} if described == "all" else {code: part.stats for code, _, part in done}}
+    stats = summary([(code, rows.shape[0], part.stats) for code, rows, part in done],
+                    int(n - chosen.sum()), small, described, started)
     return DenoiseResult(points=out_points, normals=out_normals, kept=kept, stats=stats,
                          **arrays)
+
+
+def summary(runs, untouched, small, described, started):
+    """The ``stats`` of a classes call from those of its ``runs`` (``(code, points,
+    stats)``), the number of points of no run (``untouched``) and the classes too ``small``:
+    the largest run's, with :data:`SUMMED` and the outliers summed over the runs and
+    ``stats["classes"]`` added."""
+    stats = {**max(runs, key=lambda run: run[1])[2],
+             **{name: sum(run[2][name] for run in runs) for name in SUMMED}}
+    stats["outliers"] = _outliers([run[2]["outliers"] for run in runs])
+    stats["total_seconds"] = time.perf_counter() - started
+    stats["classes"] = {
+        "classes": described, "denoised": int(sum(run[1] for run in runs)),
+        "untouched": untouched, "too_small": [code for code, _ in small],
+        "runs": {} if described == "all" else {code: found for code, _, found in runs}}
+    return stats
 
 
 def given_normals(normals, n, chosen):
@@ -136,7 +163,12 @@ def given_normals(normals, n, chosen):
     return given
 
 
-def _labels(classification, n):
+def _name(classes):
+    """``classes`` where it is a name, else None (codes)."""
+    return classes if isinstance(classes, str) else None
+
+
+def check_labels(classification, n):
     """``classification`` as an array of ``n`` integers, checked."""
     labels = np.asarray(classification)
     if labels.shape != (n,):
@@ -167,7 +199,7 @@ def _codes(classes):
     return wanted
 
 
-def _least(options):
+def least_points(options):
     """The fewest points a run with ``options`` takes: ``k + 1``, the preset's."""
     k = options.get("k")
     if isinstance(k, numbers.Integral) and not isinstance(k, bool):

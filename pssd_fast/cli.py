@@ -167,8 +167,8 @@ def _parser():
     den.add_argument("--tile-points", type=int, default=None, metavar="N",
                      help="run in tiles of at most N points on Dask (pip install "
                           "'pssd_fast[dask]'), with the same result; presets default and fast, "
-                          "where they work on cell means; a classified input (LAS/LAZ) only "
-                          "with --classes all")
+                          "where they work on cell means; a classified input keeps its "
+                          "classes apart as without it (see --classes)")
     den.add_argument("--scheduler", default=None, metavar="WHERE",
                      help="where the tiles run: threads (default), processes, sync, or a Dask "
                           "scheduler's address")
@@ -207,15 +207,16 @@ def _parser():
         "render", help="draw a point cloud as a picture",
         description="Draw FILE coloured by a per-point field, fitted to the picture. "
                     "classification (ASPRS colours, a legend naming the classes present), "
-                    "intensity (grey, 2nd to 98th percentile) and rgb (red, green, blue of 8 "
-                    "or 16 bits) are FILE's own; displacement too, in FILE's units (named "
-                    "where a LAS file's coordinate system says them), 0 to its 98th "
-                    "percentile. likelihood and feature are taken from FILE when it holds "
-                    "them (as pssd denoise writes them), else computed by the same denoise "
-                    "run, so they equal what pssd denoise with the same options would store; "
-                    "curvature is the mean curvature of FILE's points (k=25 MLS fits) times "
-                    "the bounding-box diagonal; height is the coordinate along the up axis. "
-                    "Files without normals are shaded with estimated ones.")
+                    "intensity (grey, 2nd to 98th percentile) and rgb (red, green, blue of 8 or "
+                    "16 bits) are FILE's own; displacement too (as pssd denoise --fields "
+                    "displacement writes it), in FILE's units (named where a LAS file's "
+                    "coordinate system says them), 0 to its 98th percentile. likelihood and "
+                    "feature are taken from FILE when it holds them (as pssd denoise --fields "
+                    "writes them), else computed by the same denoise run, so they equal what "
+                    "pssd denoise with the same options would store; curvature is the mean "
+                    "curvature of FILE's points (k=25 MLS fits) times the bounding-box diagonal; "
+                    "height is the coordinate along the up axis. Files without normals are "
+                    "shaded with estimated ones.")
     render.add_argument("file", metavar="FILE", type=Path)
     render.add_argument("-o", "--output", type=Path, required=True,
                         help="picture to write; the format follows the extension: "
@@ -521,15 +522,16 @@ def _outlier_score(args, cloud, runs, say):
 
 
 def _run_tiled(points, normals, args, method_params, progress, orient, remove_outliers,
-               **labels):
-    """``--tile-points``: :func:`pssd_fast.tiled.denoise` with the options it shares."""
+               **options):
+    """``--tile-points``: :func:`pssd_fast.tiled.denoise` with the options it shares
+    (``options``: ``extras`` and the classes, as :func:`pssd_fast.denoise` takes them)."""
     from . import tiled
 
     _check_tiled(args, method_params, remove_outliers)
     return tiled.denoise(points, normals, tile_points=args.tile_points, client=args.scheduler,
                          preset=args.preset, iterations=args.iterations, orient=orient,
                          duplicate_tolerance=args.duplicate_tolerance, n_jobs=args.n_jobs,
-                         progress=progress, **method_params)
+                         progress=progress, **options, **method_params)
 
 
 def _flag(dest):
@@ -585,8 +587,6 @@ def _denoise_on_disk(args, params, inp, out, say):
 
     _check_tiled(args, params, args.remove_outliers)
     las = FILE_KINDS[Path(inp).suffix.lower()] == "las"
-    if las and args.classes != "all":
-        _refuse_classes(inp)
     if not las and args.classes not in (None, "all"):
         raise CommandError(f"--classes: {inp} has no classification field")
     names = _field_names(args)
@@ -607,15 +607,17 @@ def _denoise_on_disk(args, params, inp, out, say):
                                    extras=bool({"likelihood", "feature_intensity"} & set(fields)),
                                    duplicate_tolerance=args.duplicate_tolerance,
                                    n_jobs=args.n_jobs, progress=progress, overwrite=args.force,
-                                   **params)
+                                   classes=args.classes if las else None, **params)
     finally:
         progress.close()
     if not args.quiet:
         tiles = stats["tiles"]
-        print(f"{inp} -> {out}: {stats['n_points']:,} points, method {args.method}, "
+        # With classes, n_points counts the points denoised.
+        total = stats["n_points"] + stats.get("classes", {}).get("untouched", 0)
+        print(f"{inp} -> {out}: {total:,} points, method {args.method}, "
               f"{stats['n_iterations']} iterations, {stats['total_seconds']:.2f} s; "
-              f"{tiles['count']} tiles of at most {tiles['most_points']:,} points, out of core",
-              file=say)
+              f"{tiles['count']} tiles of at most {tiles['most_points']:,} points, out of core"
+              f"{_classes_done(stats)}", file=say)
 
 
 def _denoise(args):
@@ -725,8 +727,6 @@ def _labels(args, cloud, name):
         raise CommandError(f"{name}: {_one_line(exc)}") from None
     if runs[0][0] is None:
         return {}, None  # the file's classes are 0 and 1 only: no classification
-    if args.tile_points is not None:
-        _refuse_classes(name)
     return {"classification": classification, "classes": args.classes}, [r for _, r in runs]
 
 
@@ -739,15 +739,6 @@ def _classes_done(stats):
     return (f"; class{'es' * (len(codes) > 1)} {', '.join(map(str, codes))} denoised"
             f"{' each on its own' * (len(codes) > 1)}, {done['untouched']:,} points of other "
             f"classes kept")
-
-
-def _refuse_classes(name):
-    """``--tile-points`` denoises every point as one cloud: a classified input needs ``--classes
-    all``."""
-    raise CommandError(f"--tile-points denoises every point as one cloud and cannot keep the "
-                       f"classes of {name} apart; pass --classes all to denoise it as one "
-                       f"cloud, or leave out --tile-points to denoise its classes each on its "
-                       f"own")
 
 
 def _read(path, args, fmt=None):

@@ -66,7 +66,11 @@ class DenoiseResult:
         cells of the coarse-to-fine route and its final fit, else None; ``"noise"``: the noise
         it estimated, else None), ``"duplicates"`` (rows merged into another at their position,
         :mod:`pssd_fast.duplicates`), ``"held_points"`` (the points of ``held``) and
-        ``"total_seconds"``. JSON-serialisable.
+        ``"total_seconds"``. With a ``classification``, the largest class's run's, with
+        ``n_points``, ``duplicates``, ``held_points`` and ``outliers`` summed over the runs and
+        the call's ``total_seconds``; ``"classes"`` holds the codes denoised (or ``"all"``),
+        the points ``"denoised"`` and ``"untouched"``, the classes ``"too_small"`` and each
+        run's ``stats`` (``"runs"``). JSON-serialisable.
     """
 
     points: np.ndarray

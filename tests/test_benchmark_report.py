@@ -74,3 +74,15 @@ def test_a_results_file_without_a_table_is_refused(tmp_path, results):
     doc.write_text(block("results/prose.md#table", ""))
     with pytest.raises(ValueError, match="no markdown table"):
         report.update(doc, results)
+
+
+def test_the_second_table_and_the_bullets_are_views_of_their_own(tmp_path, results):
+    second = "| c |\n|---|\n| 4 |"
+    (results / "two.md").write_text(f"{TABLE}\n\nTimes:\n\n{second}\n\n- first\n- second\n\n"
+                                    "- not this one\n")
+    assert report.render("results/two.md#times", results) == second
+    assert report.render("results/two.md#standings", results) == "- first\n- second"
+    with pytest.raises(ValueError, match="no markdown table number 2"):
+        report.render("results/x.md#times", results)
+    with pytest.raises(ValueError, match="no bulleted list"):
+        report.render("results/x.md#standings", results)

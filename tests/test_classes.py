@@ -282,6 +282,13 @@ def test_pssd_denoise_keeps_the_classes_of_a_las_file_apart(tmp_path, survey):
     trees = labels == 5
     assert (laspy.read(str(tmp_path / "all.las")).points.array[trees]
             != before.points.array[trees]).any()
+    # --tile-points keeps them apart too, out of core, with the same records.
+    status, text, err = pssd("denoise", source, tmp_path / "tiles.las", *quick,
+                             "--tile-points", "2000")
+    assert status == 0, err
+    assert "4,813 points" in text and "1,213 points of other classes kept" in text, text
+    assert (laspy.read(str(tmp_path / "tiles.las")).points.array.tobytes()
+            == after.points.array.tobytes())
     # The outlier score of each class among its own points, as --remove-outliers takes it.
     status, _, err = pssd("denoise", source, tmp_path / "scored.las", *quick, "--fields",
                           "outlier_score")
@@ -312,12 +319,80 @@ def test_pssd_denoise_orients_the_classes_of_a_las_file_up(tmp_path, survey):
     assert (np.asarray(laspy.read(str(tmp_path / "out.las"))["nz"])[denoised] > 0).all()
 
 
-def test_tile_points_need_classes_all_for_a_classified_las_file(tmp_path, survey):
+def test_tiled_runs_keep_classes_apart(survey):
+    """tiled.denoise with a classification: each class tiled on its own, the result of
+    denoise bit for bit, the other classes kept as denoise keeps them."""
+    tiled = pytest.importorskip("pssd_fast.tiled")
+    pytest.importorskip("dask")
+    points, labels = survey
+    normals = np.tile([0.0, 0.0, 2.0], (len(points), 1))
+    normals[labels == 5] = np.nan  # none given to the trees, which are not denoised
+    got, want = {}, {}
+    for run, more in ((got, {"tile_points": 1000, "client": "sync"}), (want, {})):
+        with pytest.warns(pssd_fast.DenoiseWarning, match=r"class 17 \(5 points\)"):
+            run["default"] = (tiled.denoise if more else pssd_fast.denoise)(
+                points, classification=labels, **QUICK, **more)
+        run["named"] = (tiled.denoise if more else pssd_fast.denoise)(
+            points, normals, classification=labels, classes=[2, 6], **QUICK, **more)
+    for case in got:
+        for name in ("points", "normals", "likelihood", "feature_intensity", "displacement",
+                     "held", "kept"):
+            np.testing.assert_array_equal(getattr(got[case], name), getattr(want[case], name),
+                                          err_msg=f"{case}: {name}")
+        classes = got[case].stats["classes"]
+        assert {**classes, "runs": sorted(classes["runs"])} == {
+            **want[case].stats["classes"], "runs": [2, 6]}
+        assert got[case].stats["classes"]["runs"][2]["tiles"]["count"] >= 3
+    assert got["default"].stats["classes"]["too_small"] == [17]
+    assert np.isnan(got["named"].normals[labels == 5]).all()
+
+
+def test_a_classified_file_tiled_out_of_core_is_the_in_memory_file(tmp_path, survey,
+                                                                    monkeypatch):
+    """denoise_file splits a LAS file by its classification as pssd denoise does in memory
+    (chunks that mix the classes, each class binned on its own): the same records, byte for
+    byte, the other classes' as read; an .npy file takes classification=, its copies too."""
+    pytest.importorskip("dask")
+    from pssd_fast import tiled
+    from pssd_fast.tiled import ondisk
+
+    monkeypatch.setattr(ondisk, "CHUNK_POINTS", 1500)
     points, labels = survey
     source = tmp_path / "survey.las"
-    _survey_las(source, points, labels)
-    status, _, err = pssd("denoise", source, tmp_path / "tiles.las", "--tile-points", "2000")
-    assert status == 1 and "pass --classes all to denoise it as one cloud" in err, err
+    laspy = _survey_las(source, points, labels)
+    fields = ("likelihood", "feature_intensity", "displacement")
+    status, _, err = pssd("denoise", source, tmp_path / "want.las", "--iterations", "1",
+                          "--fields", ",".join(fields))
+    assert status == 0, err
+    with pytest.warns(pssd_fast.DenoiseWarning, match=r"class 17 \(5 points\)"):
+        stats = tiled.denoise_file(source, tmp_path / "out.las", tile_points=1000,
+                                   client="sync", orient="up", fields=fields, **QUICK)
+    before, got, want = (laspy.read(str(tmp_path / name))
+                         for name in ("survey.las", "out.las", "want.las"))
+    assert got.points.array.tobytes() == want.points.array.tobytes()
+    kept = ~np.isin(labels, (2, 6))
+    for name in before.point_format.dimension_names:
+        np.testing.assert_array_equal(np.asarray(got[name])[kept],
+                                      np.asarray(before[name])[kept], err_msg=name)
+    assert np.isnan(np.asarray(got["likelihood"])[kept]).all()
+    assert (np.asarray(got["displacement"])[kept] == 0).all()
+    assert (stats["classes"]["classes"], stats["classes"]["untouched"], stats["n_points"]) == (
+        [2, 6], 1213, 3600)
+    with pytest.raises(ValueError, match="classes of survey.las are its classification field"):
+        tiled.denoise_file(source, tmp_path / "no.las", classification=labels)
+    # An .npy file, with copies of rows in several classes, and every class on its own.
+    copies = np.vstack([points, points[:40]])
+    classes = np.concatenate([labels, labels[:40]])
+    np.save(tmp_path / "in.npy", copies)
+    with pytest.warns(pssd_fast.DenoiseWarning, match="classes 7 .*17"):
+        stats = tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy", tile_points=1000,
+                                   client="sync", classification=classes, classes="each",
+                                   **QUICK)
+        whole = pssd_fast.denoise(copies, classification=classes, classes="each", **QUICK)
+    np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), whole.points)
+    # The copies in the denoised classes: one of the 40 rows is of class 17.
+    assert stats["duplicates"] == whole.stats["duplicates"] == 39
+    assert stats["classes"]["classes"] == [2, 5, 6]
 
 
 def _autzen():

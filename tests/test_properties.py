@@ -31,6 +31,8 @@ def clouds(draw):
     return points.astype(dtype), k, draw(st.sampled_from(pssd_fast.METHODS))
 
 
+# float32 coordinates at 5e5 lose detail on purpose here: the warning saying so is expected
+@pytest.mark.filterwarnings("ignore::pssd_fast.DenoiseWarning")
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(clouds())
 def test_denoise_is_total_and_pure(case):

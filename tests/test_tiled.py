@@ -193,6 +193,14 @@ def test_progress_hears_of_every_tile(noisy):
     ({"iterations": 0}, ValueError, "iterations must be at least 1"),
     ({"preset": "fastest"}, ValueError, "unknown preset 'fastest'"),
     ({"method": "mls", "lam": 0.5}, ValueError, "lam"),
+    ({"classes": [2]}, ValueError, "classes and classification go together"),
+    ({"classification": np.zeros(100, np.uint8), "classes": "some"}, ValueError,
+     "class codes, 'each' or 'all'"),
+    ({"classification": np.zeros(100, np.uint8), "classes": [2]}, ValueError,
+     "no point is of class 2; the classes present are 0"),
+    ({"classification": np.full(100, 5, np.uint8)}, ValueError, "no point is of a surface"),
+    ({"classification": np.zeros(10, np.uint8), "classes": [2]}, ValueError, r"shape \(100,\)"),
+    ({"classification": np.zeros(100), "classes": [2]}, TypeError, "integers"),
     ({"sigma": 0.1}, TypeError, "unknown parameter"),
 ])
 def test_bad_arguments_are_named(kwargs, error, match):
@@ -417,8 +425,12 @@ NEEDS_EVERY_POINT = "denoise_file runs the default method .* need them all"
     ({"method": "mls"}, ValueError, NEEDS_EVERY_POINT),
     ({"method": "bilateral"}, ValueError, NEEDS_EVERY_POINT),
     ({"remove_outliers": True}, ValueError, "remove_outliers need them all"),
-    ({"classification": np.zeros(50, int)}, ValueError, "classification need them all"),
-    ({"classes": [2]}, ValueError, "classes need them all"),
+    ({"classes": [2]}, ValueError, "classes and classification go together"),
+    ({"classification": np.full(50, 2, np.uint8), "classes": "some"}, ValueError,
+     "class codes, 'each' or 'all'"),
+    ({"classification": np.full(50, 2, np.uint8), "classes": [6]}, ValueError,
+     "no point is of class 6; the classes present are 2"),
+    ({"classification": np.full(40, 2, np.uint8)}, ValueError, r"shape \(50,\)"),
 ])
 def test_bad_file_arguments_are_named(tmp_path, kwargs, error, match):
     np.save(tmp_path / "in.npy", np.zeros((50, 3)))

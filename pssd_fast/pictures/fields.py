@@ -160,7 +160,7 @@ def field_values(name, points, normals=None, stored=None, *, progress=None, **de
         return rgb_colours(*arrays) if name == "rgb" else arrays[0].astype(np.float64)
     if name in FROM_CLOUD:
         what = "red, green and blue" if name == "rgb" else name
-        hint = ("; render the output of pssd denoise, which stores it"
+        hint = ("; render the output of pssd denoise --fields displacement, which stores it"
                 if name == "displacement" else "")
         fields = ", ".join(stored) if stored else "none"
         raise ValueError(f"the cloud holds no {what}{hint}; colour it by "

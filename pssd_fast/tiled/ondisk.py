@@ -115,6 +115,30 @@ class LasFile:
         after a seek, where a read from the start fails. Only other starts seek.
         """
         from ..io._common import NORMALS
+
+        records = self._records(start, stop)
+        header = self.header
+        with np.errstate(invalid="ignore", over="ignore"):  # NaN and Inf are refused later
+            points = np.column_stack([records.array[c] * s + o for c, s, o in
+                                      zip("XYZ", header.scales, header.offsets, strict=True)])
+        normals = None
+        if self.has_normals:
+            # As pssd_fast.io.read takes them.
+            normals = np.column_stack([np.asarray(records[c]) for c in NORMALS]).astype(
+                np.float64)
+        return points, normals
+
+    def classification(self):
+        """Each point's class (the ``classification`` field, as :func:`pssd_fast.io.read`
+        reads it), read in chunks."""
+        found = np.empty(self.shape[0], np.uint8)
+        for start in range(0, self.shape[0], CHUNK_POINTS):
+            values = np.asarray(self._records(start, start + CHUNK_POINTS)["classification"])
+            found[start:start + values.shape[0]] = values
+        return found
+
+    def _records(self, start, stop):
+        """The records of rows ``start..stop-1`` (see :meth:`chunk`)."""
         from ..io.las import corrupt, failures, read_records
 
         stop = min(stop, self.shape[0])
@@ -136,17 +160,8 @@ class LasFile:
             raise ValueError(f"{self.path}: truncated; its header claims {self.shape[0]:,} "
                              f"points, but point {start + len(records):,} is missing")
         header = self.header
-        records = self.laspy.ScaleAwarePointRecord(records, header.point_format, header.scales,
-                                                   header.offsets)
-        with np.errstate(invalid="ignore", over="ignore"):  # NaN and Inf are refused later
-            points = np.column_stack([records.array[c] * s + o for c, s, o in
-                                      zip("XYZ", header.scales, header.offsets, strict=True)])
-        normals = None
-        if self.has_normals:
-            # As pssd_fast.io.read takes them.
-            normals = np.column_stack([np.asarray(records[c]) for c in NORMALS]).astype(
-                np.float64)
-        return points, normals
+        return self.laspy.ScaleAwarePointRecord(records, header.point_format, header.scales,
+                                                header.offsets)
 
     def close(self):
         """Close the reader :meth:`chunk` keeps open between calls, if any."""
@@ -251,15 +266,21 @@ def _named(exc):
     return " ".join(f"{type(exc).__name__}: {exc}".split())
 
 
-def chunks(array):
-    """``(start, points, normals)`` over ``array`` (n, 3) of real numbers, each chunk as float64
-    and checked for NaN and Inf; ``normals``: the file's, of unit length as
-    :func:`pssd_fast.denoise` makes them, or None."""
-    for start in range(0, array.shape[0], CHUNK_POINTS):
-        stop = start + CHUNK_POINTS
-        points, normals = (array.chunk(start, stop) if hasattr(array, "chunk")
-                           else (array[start:stop], None))
+def chunks(array, keep=None):
+    """``(rows, points, normals)`` over ``array`` (n, 3) of real numbers, each chunk as
+    float64 and checked for NaN and Inf; ``normals``: the file's, of unit length as
+    :func:`pssd_fast.denoise` makes them, or None. ``keep(start, stop)``: a mask of the rows
+    ``start..stop-1`` to take (every row where None); ``rows``: the rows taken."""
+    for start, points, normals in _read(array):
+        # Every point is checked, as denoise checks those of a classification's classes.
         points = _finite(np.ascontiguousarray(points, dtype=np.float64), start, "points")
+        rows = np.arange(start, start + points.shape[0])
+        if keep is not None:
+            taken = keep(start, start + points.shape[0])
+            if not taken.any():
+                continue
+            rows, points = rows[taken], points[taken]
+            normals = None if normals is None else normals[taken]
         if normals is not None:
             normals = _finite(normals, start, "normals")
             length = np.linalg.norm(normals, axis=1)
@@ -269,7 +290,32 @@ def chunks(array):
                                  f"{start} on, the first is row "
                                  f"{start + int(np.flatnonzero(zero)[0])}")
             normals = normals / length[:, None]
+        yield rows, points, normals
+
+
+def _read(array):
+    """``(start, points, normals)`` over ``array`` by chunks of :data:`CHUNK_POINTS` rows, as
+    stored (normals: the file's, or None)."""
+    for start in range(0, array.shape[0], CHUNK_POINTS):
+        stop = start + CHUNK_POINTS
+        points, normals = (array.chunk(start, stop) if hasattr(array, "chunk")
+                           else (array[start:stop], None))
         yield start, points, normals
+
+
+def unmoved(array, keep, path):
+    """The rows of ``array`` that ``keep`` selects (as :func:`chunks` takes it) as
+    :data:`PART` records in a new file at ``path``, as :func:`pssd_fast.denoise` returns
+    the points of the classes it does not denoise: their coordinates and normals as read
+    (NaN without), NaN likelihood and feature intensity, zero displacement."""
+    with open(path, "wb") as out:
+        for start, points, normals in _read(array):
+            rows = np.flatnonzero(keep(start, start + points.shape[0]))
+            normals = (np.full((rows.shape[0], 3), np.nan) if normals is None
+                       else normals[rows])
+            nan = np.full(rows.shape[0], np.nan)
+            part_records(rows + start, points[rows], normals, nan, nan,
+                         np.zeros(rows.shape[0])).tofile(out)
 
 
 def _finite(values, start, name):
@@ -287,18 +333,20 @@ class Buckets:
     (what the noise probe reads), and :meth:`each` for the rest. The rows at the position of
     an earlier row (:mod:`pssd_fast.duplicates`; ``tolerance``: ``denoise``'s
     ``duplicate_tolerance``) are set aside in the :data:`COPY` file ``copies``,
-    ``duplicates`` of them, out of ``rows`` rows in all."""
+    ``duplicates`` of them, out of ``rows`` rows in all: the rows of ``array`` that ``keep``
+    selects (as :func:`chunks` takes it; every row where None), each keeping its row."""
 
-    def __init__(self, array, folder, tile_points, tolerance=0.0):
-        n = array.shape[0]
-        check_size(n)
-        self.rows = n
+    def __init__(self, array, folder, tile_points, tolerance=0.0, keep=None):
+        n = 0
         low = np.full(3, np.inf)
         high = np.full(3, -np.inf)
         self.dtype = RECORD_NORMALS if getattr(array, "has_normals", False) else RECORD
-        for _, points, _ in chunks(array):
+        for _, points, _ in chunks(array, keep):
+            n += points.shape[0]
             lo, hi = bounds(points)
             low, high = np.minimum(low, lo), np.maximum(high, hi)
+        check_size(n)
+        self.rows = n
         self.centre = 0.5 * (low + high)
         # The grid of the default method's cells starts at the low corner of every row, as in
         # core.
@@ -306,7 +354,7 @@ class Buckets:
         origin = low  # of the cubes of the tolerance
         shift = np.uint64(3 * MORTON_BITS - _PREFIX_BITS)
         histogram = np.zeros(1 << _PREFIX_BITS, np.int64)
-        for _, points, _ in chunks(array):
+        for _, points, _ in chunks(array, keep):
             prefix = (duplicates.codes(points, origin, high, tolerance) >> shift).astype(np.int64)
             histogram += np.bincount(prefix, minlength=1 << _PREFIX_BITS)
         bucket_of_bin = _bins(histogram, tile_points)
@@ -314,9 +362,9 @@ class Buckets:
         self.paths = [folder / f"bucket_{i}.bin" for i in range(int(bucket_of_bin.max()) + 1)]
         writers = [open(path, "wb") for path in self.paths]
         try:
-            for start, points, normals in chunks(array):
+            for rows, points, normals in chunks(array, keep):
                 records = np.empty(points.shape[0], self.dtype)
-                records["row"] = np.arange(start, start + points.shape[0])
+                records["row"] = rows
                 records["code"] = codes = duplicates.codes(points, origin, high, tolerance)
                 records["xyz"] = points
                 if normals is not None:
@@ -491,10 +539,10 @@ def _append(writers, target, records):
         records[a:b].tofile(writers[target[a]])
 
 
-def write_rows(path, parts, n, dtype, columns=("xyz",), copies=None):
+def write_rows(path, parts, n, dtype, columns=("xyz",), copies=()):
     """The records of the ``parts`` files (:data:`PART`, any order) into a new ``.npy`` file
     of ``(n, c)`` ``dtype``, in row order: the fields ``columns`` side by side; each row of
-    the ``copies`` file (:data:`COPY`) takes the record of its first row, with the
+    the ``copies`` files (:data:`COPY`) takes the record of its first row, with the
     displacement from its own input position. Memory stays bounded: the records are first
     binned by blocks of :data:`CHUNK_POINTS` rows, then each block is written whole."""
     folder = Path(parts[0]).parent
@@ -507,7 +555,7 @@ def write_rows(path, parts, n, dtype, columns=("xyz",), copies=None):
     finally:
         for writer in writers:
             writer.close()
-    if copies is not None:
+    if copies:
         _copy_records(blocks, copies)
     width = columns_width(columns)
     header = np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=(n, width))
@@ -524,14 +572,16 @@ def write_rows(path, parts, n, dtype, columns=("xyz",), copies=None):
 
 
 def _copy_records(blocks, copies):
-    """The record of each row of the ``copies`` file appended to the block of its row: its
+    """The record of each row of the ``copies`` files appended to the block of its row: its
     first row's record (found in that row's block), the displacement its own."""
     by_first = [block.with_name(f"{block.stem}_copies.bin") for block in blocks]
     writers = [open(path, "wb") for path in by_first]
     try:
-        for start in range(0, os.path.getsize(copies) // COPY.itemsize, CHUNK_POINTS):
-            aside = np.fromfile(copies, COPY, count=CHUNK_POINTS, offset=start * COPY.itemsize)
-            _append(writers, aside["first"] // CHUNK_POINTS, aside)
+        for found in copies:
+            for start in range(0, os.path.getsize(found) // COPY.itemsize, CHUNK_POINTS):
+                aside = np.fromfile(found, COPY, count=CHUNK_POINTS,
+                                    offset=start * COPY.itemsize)
+                _append(writers, aside["first"] // CHUNK_POINTS, aside)
     finally:
         for writer in writers:
             writer.close()

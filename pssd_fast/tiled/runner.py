@@ -12,10 +12,12 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from .. import atomic, executor
+from .. import classes as lidar
 from ..denoise import METHOD_DEFAULTS, checked_options
 from ..denoise import denoise as in_core
 from ..denoise import run as run_in_core
@@ -60,8 +62,9 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, **optio
     DenoiseResult
         Bit-identical to ``pssd_fast.denoise(points, normals, **options)`` (the normals'
         signs under ``orient`` aside: tiles turn each normal on its own, where one tile
-        propagates); ``stats["tiles"]`` gives the number of tiles, the scheduler and the
-        ``threads`` the tasks took. The paper's pipeline and the baselines run in one task.
+        propagates); ``stats["tiles"]`` gives the number of tiles, their most points, the
+        scheduler and the ``threads`` the tasks took. The paper's pipeline and the baselines
+        run in one task.
 
     Raises
     ------
@@ -70,6 +73,28 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, **optio
         ``client``.
     ImportError
         Without Dask.
+
+    Warns
+    -----
+    DenoiseWarning
+        As :func:`pssd_fast.denoise` warns (where classes chosen by default are too small to
+        denoise: each class chosen runs tiled on its own, the other points kept as they are).
+
+    Examples
+    --------
+    Three tiles of at most 1,000 points, run in this thread, give the in-memory result bit for
+    bit:
+
+    >>> import numpy as np
+    >>> import pssd_fast
+    >>> from pssd_fast import datasets, tiled
+    >>> points = datasets.make("cube", n_points=2000, seed=0).points
+    >>> result = tiled.denoise(points, tile_points=1000, client="sync")
+    >>> result.stats["tiles"]["count"], result.stats["tiles"]["most_points"]
+    (3, 965)
+    >>> in_memory = pssd_fast.denoise(points)
+    >>> np.array_equal(result.points, in_memory.points)
+    True
     """
     tile_points = check_int(tile_points, "tile_points", minimum=1)
     check_client(client)
@@ -111,7 +136,8 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
     source : path-like
         An ``.npy`` file of a real ``(n, 3)`` array, a Zarr array of that shape (or a Zarr
         group holding one as ``points``; ``pip install "pssd_fast[zarr]"``), or a LAS/LAZ file
-        (its ``nx``, ``ny``, ``nz`` are its normals where it has them).
+        (its ``nx``, ``ny``, ``nz`` are its normals where it has them; its ``classification``
+        field gives each point's class, see ``**options``).
     destination : path-like
         Of the kind of ``source``, written only when complete: the denoised ``(n, 3)`` points
         in the input's rows (``.npy``, or a Zarr array of the input's chunks), float32 for
@@ -132,23 +158,57 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
         Replace an existing ``destination``.
     **options
         :func:`pssd_fast.denoise`'s keyword arguments, for the default method (presets
-        "default" and "fast"). The paper's pipeline and the baselines, ``remove_outliers`` and
-        ``classification`` need every point at once: :func:`pssd_fast.io.read`, then
-        :func:`pssd_fast.denoise` or :func:`denoise`, runs them.
+        "default" and "fast"). The paper's pipeline and the baselines and ``remove_outliers``
+        need every point at once: :func:`pssd_fast.io.read`, then :func:`pssd_fast.denoise`
+        or :func:`denoise`, runs them. ``classification``: of an ``.npy`` or Zarr input, as
+        in :func:`pssd_fast.denoise`; a LAS/LAZ input's classes are its ``classification``
+        field (read first, in chunks, one byte a point), and it refuses ``classification``.
+        ``classes``: as in :func:`pssd_fast.denoise`, of either; each class chosen runs out
+        of core on its own (a run reads the file three times and takes the rows of its
+        class), and the rows of the other classes keep their coordinates (a LAS/LAZ record
+        byte for byte), their normals as read, NaN likelihood and feature intensity and zero
+        displacement, as ``pssd denoise`` writes them in memory.
 
     Returns
     -------
     dict
-        The run's ``stats``, as :func:`pssd_fast.denoise` gives them.
+        The run's ``stats``, as :func:`pssd_fast.denoise` gives them (with classes,
+        ``stats["classes"]`` says what ran).
 
     Raises
     ------
     ValueError
         Bad input, unknown fields, other formats, the options above that need every point,
-        or too few distinct positions.
+        too few distinct positions, or ``classification`` and ``classes`` as
+        :func:`pssd_fast.denoise` refuses them (``classification`` with a LAS/LAZ file).
     FileExistsError
         ``destination`` exists and ``overwrite`` is False: checked first, and again by the
         final rename, which never replaces what another writer put there meanwhile.
+
+    Warns
+    -----
+    DenoiseWarning
+        Where classes chosen by default are too small to denoise, as
+        :func:`pssd_fast.denoise` warns.
+
+    Examples
+    --------
+    A float32 ``.npy`` file in, its denoised rows out, of the same shape and dtype:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import numpy as np
+    >>> from pssd_fast import datasets, tiled
+    >>> points = datasets.make("cube", n_points=2000, seed=0).points.astype(np.float32)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     scan, clean = Path(folder, "scan.npy"), Path(folder, "clean.npy")
+    ...     np.save(scan, points)
+    ...     stats = tiled.denoise_file(scan, clean, tile_points=1000, client="sync")
+    ...     denoised = np.load(clean)
+    >>> denoised.shape, denoised.dtype
+    ((2000, 3), dtype('float32'))
+    >>> stats["n_points"], stats["tiles"]["count"], stats["plan"]["method"]
+    (2000, 2, 'default')
     """
     source, destination = Path(source), Path(destination)
     kinds = {path: FILE_KINDS.get(path.suffix.lower()) for path in (source, destination)}
@@ -160,6 +220,9 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
     check_client(client)
     _check_options(options)
     settings = _file_settings(options)
+    if kinds[source] == "las" and options.get("classification") is not None:
+        raise ValueError(f"the classes of {source.name} are its classification field; pass "
+                         f"classes=... alone")
     unknown = sorted(set(fields) - set(ondisk.RESULT_FIELDS))
     if unknown:
         raise ValueError(f"unknown field(s) {', '.join(unknown)}; choose from "
@@ -171,56 +234,126 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
         raise ValueError(f"the output {destination} would overwrite the input")
     array = {"npy": ondisk.NpyFile, "las": ondisk.LasFile, "zarr": ondisk.ZarrFile}[
         kinds[source]](source)
+    labels = _file_labels(array, options.get("classification"), options.get("classes"))
+    runs, small, least = [None], [], None
+    if labels is not None:
+        codes, counts = np.unique(labels, return_counts=True)
+        least = lidar.least_points(options)
+        found, small = lidar.choose(codes, counts, options.get("classes"), least)
+        if found is None:
+            labels = None  # classes 0 and 1 only: no classification
+        else:
+            runs = found
+    lidar.warn_small(small, least, stacklevel=2)
     dtype = np.dtype(np.float32) if array.dtype == np.float32 else np.dtype(np.float64)
     report = reporter(options.get("progress"))
     started = time.perf_counter()
     folder = Path(tempfile.mkdtemp(prefix="pssd_tiles_", dir=scratch or destination.parent))
     # Beside the destination, so that the last rename stays on one file system.
     output = atomic.temporary(destination)
+    setting = _FileRun(array, dtype, tile_points, settings, report)
     try:
         with threads(options.get("n_jobs")) as n_threads, \
                 Runner(client, n_threads, report) as runner:
-            first = Clock(report, 0, 1)
-            cloud = first.run("buckets", ondisk.Buckets, array, folder, tile_points,
-                              settings["duplicate_tolerance"])
-            n = check_distinct(cloud.shape[0], cloud.rows, None)
-            if cloud.normals is not None and settings["orient"] is not None:
-                raise ValueError(f"orient applies to estimated normals; {source} has normals, "
-                                 f"whose signs are kept (drop orient)")
-            plan, _ = planning.make(cloud, cloud.normals, settings["preset"], "default",
-                                    distinct=n, low=cloud.corner, k=settings["k"],
-                                    iterations=settings["iterations"])
-            request = Request("robust", settings["preset"], "default", None, settings["params"],
-                              settings["orient"], cloud.centre, report, started,
-                              settings["extras"])
-            store = Files(folder)
-            tiles = first.run("tiles", cloud.cells, plan, store, tile_points)
-            _, records = executor.run(plan, request, tiles, store, runner)
-            clock = Clock(report, plan.iterations - 1, plan.iterations)
-            parts = clock.run("parts", _parts, store, tiles, cloud.centre, dtype, folder)
-            clock.run("write", _write, array, output, parts, cloud.rows, dtype, folder, fields,
-                      cloud.copies if cloud.duplicates else None)
+            done = []
+            for code in runs:
+                if code is None:
+                    done.append((None, *_file_run(setting, None, folder, runner, n_threads,
+                                                  started)))
+                    continue
+                try:
+                    done.append((code, *_file_run(
+                        setting, lambda a, b, code=code: labels[a:b] == code,
+                        folder / f"class_{code}", runner, n_threads, time.perf_counter())))
+                except ValueError as exc:
+                    raise ValueError(f"the points of class {code}: {exc}") from exc
+            parts = [path for _, paths, _, _ in done for path in paths]
+            if labels is not None:
+                kept = folder / "kept.bin"
+                ondisk.unmoved(array, lambda a, b: ~np.isin(labels[a:b], runs), kept)
+                parts.append(kept)
+            last = done[-1][3]
+            clock = Clock(report, last["n_iterations"] - 1, last["n_iterations"])
+            clock.run("write", _write, array, output, parts, array.shape[0], dtype, folder,
+                      fields, [copies for _, _, copies, _ in done if copies is not None])
             atomic.sync(output)
             atomic.replace(output, destination, overwrite=overwrite, exists_message=exists)
-            held = sum(int(store.get(("out", i), ("held",))["held"].sum())
-                       for i in range(len(tiles)))
-        records[0]["times"].update(first.times)
-        records[-1]["times"].update(clock.times)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
         if output.is_dir():
             shutil.rmtree(output, ignore_errors=True)
         output.unlink(missing_ok=True)
-    return stats(request, plan, cloud.rows, n, n_threads, records, held,
-                 tiles={"count": len(tiles), "most_points": max(t.points for t in tiles),
-                        "scheduler": runner.name, "threads": runner.threads})
+    if labels is None:
+        found = done[0][3]
+        found["total_seconds"] = time.perf_counter() - started
+    else:
+        found = lidar.summary(
+            [(code, run["n_points"], run) for code, _, _, run in done],
+            int(array.shape[0] - sum(run["n_points"] for *_, run in done)), small, runs,
+            started)
+    found["iterations"][-1]["times"].update(clock.times)
+    return found
+
+
+class _FileRun(NamedTuple):
+    """What each run of :func:`denoise_file` takes: the input ``array``, the output's
+    ``dtype`` and the call's settings, checked."""
+    array: object
+    dtype: object
+    tile_points: int
+    settings: dict
+    report: object
+
+
+def _file_labels(array, classification, classes):
+    """The class of each row of ``array``: a LAS/LAZ file's classification field (unless
+    ``classes`` is ``"all"``), or ``classification`` checked; None for one cloud."""
+    if isinstance(classes, str) and classes == "all":
+        return None
+    if isinstance(array, ondisk.LasFile):
+        return array.classification()
+    if classification is None:
+        return None
+    return lidar.check_labels(classification, array.shape[0])
+
+
+def _file_run(setting, keep, folder, runner, n_threads, started):
+    """One run of :func:`denoise_file` on the rows of ``setting.array`` that ``keep`` selects
+    (``keep(start, stop)``: a mask of rows ``start..stop-1``; None: every row), its scratch
+    files in ``folder``: the part files, the file of rows set aside as copies (or None) and
+    the run's ``stats``."""
+    folder.mkdir(exist_ok=True)
+    settings, report = setting.settings, setting.report
+    first = Clock(report, 0, 1)
+    cloud = first.run("buckets", ondisk.Buckets, setting.array, folder, setting.tile_points,
+                      settings["duplicate_tolerance"], keep)
+    n = check_distinct(cloud.shape[0], cloud.rows, None)
+    if cloud.normals is not None and settings["orient"] is not None:
+        raise ValueError(f"orient applies to estimated normals; {setting.array.path} has "
+                         f"normals, whose signs are kept (drop orient)")
+    plan, _ = planning.make(cloud, cloud.normals, settings["preset"], "default",
+                            distinct=n, low=cloud.corner, k=settings["k"],
+                            iterations=settings["iterations"])
+    request = Request("robust", settings["preset"], "default", None, settings["params"],
+                      settings["orient"], cloud.centre, report, started, settings["extras"])
+    store = Files(folder)
+    tiles = first.run("tiles", cloud.cells, plan, store, setting.tile_points)
+    _, records = executor.run(plan, request, tiles, store, runner)
+    clock = Clock(report, plan.iterations - 1, plan.iterations)
+    parts = clock.run("parts", _parts, store, tiles, cloud.centre, setting.dtype, folder)
+    held = sum(int(store.get(("out", i), ("held",))["held"].sum()) for i in range(len(tiles)))
+    records[0]["times"].update(first.times)
+    records[-1]["times"].update(clock.times)
+    return parts, cloud.copies if cloud.duplicates else None, stats(
+        request, plan, cloud.rows, n, n_threads, records, held,
+        tiles={"count": len(tiles), "most_points": max(t.points for t in tiles),
+               "scheduler": runner.name, "threads": runner.threads})
 
 
 def _file_settings(options):
     """The options of a run from a file, checked as :func:`pssd_fast.denoise` checks them, and
     refused where they need every point at once."""
-    refused = [name for name in ("classification", "classes") if options.get(name) is not None]
-    refused += [name for name in ("remove_outliers",) if options.get(name)]
+    refused = [name for name in ("remove_outliers",) if options.get(name)]
     method = options.get("method", "robust")
     preset = options.get("preset", "default")
     if method != "robust" or preset == "paper":
@@ -230,8 +363,9 @@ def _file_settings(options):
                          f"'fast') and never holds every point; {', '.join(refused)} need "
                          f"them all: read the file with pssd_fast.io.read, then "
                          f"pssd_fast.denoise or tiled.denoise")
+    lidar.check_classes(options.get("classification"), options.get("classes"))
     # denoise's own checks, on a cloud it does not run: what it would refuse, this refuses.
-    # (The classes, at their default None, are denoise's, not the method's parameters.)
+    # (The classes are denoise's, not the method's parameters.)
     return checked_options({name: value for name, value in options.items()
                             if name not in ("classification", "classes")})
 
