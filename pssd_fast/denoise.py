@@ -270,23 +270,9 @@ def _by_class(points, normals, classification, classes, options):
     started = time.perf_counter()
     pts, dtype = as_points(points)
     check_precision(pts, dtype, stacklevel=4)
-    n = pts.shape[0]
-    runs, small, described, least = lidar.select(classification, classes, n, options)
-    lidar.warn_small(small, least, stacklevel=3)
-    chosen = np.zeros(n, np.bool_)
-    for _, rows in runs:
-        chosen[rows] = True
-    given = lidar.given_normals(normals, n, chosen)
-    done = []
-    for code, rows in runs:
-        try:
-            part = denoise(pts[rows], None if given is None else given[rows], **options)
-        except ValueError as exc:
-            if code is None:
-                raise
-            raise ValueError(f"the points of class {code}: {exc}") from exc
-        done.append((code, rows, part))
-    return lidar.merge(pts, dtype, given, done, small, described, started)
+    return lidar.denoise_each(pts, dtype, normals, classification, classes, options,
+                              lambda part, given: denoise(part, given, **options), started,
+                              stacklevel=3)
 
 
 def _check_pipeline_params(method, preset, pipeline, explicit, lam):
