@@ -97,6 +97,32 @@ def warn_small(small, least, stacklevel):
                       f"({least}); left as they are", DenoiseWarning, stacklevel=stacklevel + 1)
 
 
+def denoise_each(pts, dtype, normals, classification, classes, options, denoise, started,
+                 stacklevel):
+    """Each class that ``classification`` and ``classes`` choose denoised on its own by
+    ``denoise(points, normals)``, the other points kept as they are (:func:`merge`).
+    ``pts``: float64 coordinates, returned as ``dtype``; ``options``: the call's other
+    options (:func:`select`); ``stacklevel``: that of the caller's caller, for the warning
+    on classes too small to denoise."""
+    n = pts.shape[0]
+    runs, small, described, least = select(classification, classes, n, options)
+    warn_small(small, least, stacklevel=stacklevel + 1)
+    chosen = np.zeros(n, np.bool_)
+    for _, rows in runs:
+        chosen[rows] = True
+    given = given_normals(normals, n, chosen)
+    done = []
+    for code, rows in runs:
+        try:
+            part = denoise(pts[rows], None if given is None else given[rows])
+        except ValueError as exc:
+            if code is None:
+                raise
+            raise ValueError(f"the points of class {code}: {exc}") from exc
+        done.append((code, rows, part))
+    return merge(pts, dtype, given, done, small, described, started)
+
+
 def merge(pts, dtype, given, done, small, described, started):
     """One :class:`DenoiseResult` from the runs ``done`` (``(code, rows, result)``) on the
     float64 ``pts`` (``given``: the caller's float64 normals, or None): the rows of no run keep

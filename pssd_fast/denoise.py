@@ -304,24 +304,9 @@ def _by_class(points, normals, classification, classes, options, runner, tile_po
     started = time.perf_counter()
     pts, dtype = as_points(points)
     check_precision(pts, dtype, stacklevel=5)
-    n = pts.shape[0]
-    runs, small, described, least = lidar.select(classification, classes, n, options)
-    lidar.warn_small(small, least, stacklevel=4)
-    chosen = np.zeros(n, np.bool_)
-    for _, rows in runs:
-        chosen[rows] = True
-    given = lidar.given_normals(normals, n, chosen)
-    done = []
-    for code, rows in runs:
-        try:
-            part = _run(pts[rows], None if given is None else given[rows], runner,
-                        tile_points, store, **options)
-        except ValueError as exc:
-            if code is None:
-                raise
-            raise ValueError(f"the points of class {code}: {exc}") from exc
-        done.append((code, rows, part))
-    return lidar.merge(pts, dtype, given, done, small, described, started)
+    return lidar.denoise_each(pts, dtype, normals, classification, classes, options,
+                              lambda part, given: _run(part, given, runner, tile_points, store,
+                                                       **options), started, stacklevel=3)
 
 
 def _check_pipeline_params(method, preset, pipeline, explicit, lam, rebuild_graph):
