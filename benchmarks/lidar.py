@@ -47,11 +47,11 @@ def r16(points):
     return KDTree(centred).query(centred, k=17)[0][:, -1]
 
 
-def row(file, run, route, moved, spacing, held, seconds, knn):
+def row(file, run, how, moved, spacing, held, seconds, knn, same=None):
     ratio = moved / spacing
-    return {"file": file, "run": run, "route": route, "largest": float(ratio.max()),
+    return {"file": file, "run": run, "how": how, "largest": float(ratio.max()),
             "over_2": int((ratio > 2.0).sum()), "held": held, "seconds": seconds,
-            "per_knn": seconds / knn}
+            "per_knn": seconds / knn, "same": same}
 
 
 def measure(path, tile_points, log):
@@ -73,13 +73,11 @@ def measure(path, tile_points, log):
         log(rows[-1])
         if run not in TILED:
             continue
-        if run == "fast" and result.stats["auto_k"]["coarse"] is None:
-            log(f"{path.name}: fast iterates on these points, which does not tile")
-            continue
         started = time.perf_counter()
         tiles = tiled.denoise(points, tile_points=tile_points, client="sync", **options)
         rows.append(row(path.name, run, "tiled.denoise", tiles.displacement, spacing,
-                        tiles.stats["held_points"], time.perf_counter() - started, knn))
+                        tiles.stats["held_points"], time.perf_counter() - started, knn,
+                        bool(np.array_equal(tiles.points, result.points))))
         log(rows[-1])
         with tempfile.TemporaryDirectory() as folder:
             out = Path(folder) / f"out{path.suffix}"
@@ -87,9 +85,15 @@ def measure(path, tile_points, log):
             stats = tiled.denoise_file(path, out, tile_points=tile_points, client="sync",
                                        **options)
             seconds = time.perf_counter() - started
-            moved = np.linalg.norm(io.read(out).points - points, axis=1)
+            written = io.read(out).points
+            moved = np.linalg.norm(written - points, axis=1)
+            # One tile is the in-core run, written to the same quantised coordinates.
+            quantised = Path(folder) / f"in_core{path.suffix}"
+            tiled.denoise_file(path, quantised, tile_points=points.shape[0], client="sync",
+                               **options)
+            equal = bool(np.array_equal(io.read(quantised).points, written))
         rows.append(row(path.name, run, "denoise_file", moved, spacing,
-                        stats["held_points"], seconds, knn))
+                        stats["held_points"], seconds, knn, equal))
         log(rows[-1])
     return rows, {"points": int(points.shape[0]), "knn_seconds": knn,
                   "duplicates": int(result.stats["duplicates"])}
@@ -105,12 +109,13 @@ def markdown(rows, files):
     for name, info in files.items():
         lines.append(f"- `{name}`: {info['points']:,} points ({info['duplicates']:,} at the "
                      f"position of another), kNN query {info['knn_seconds']:.3f} s")
-    lines += ["", "| file | run | route | largest move / r16 | > 2 r16 | held | seconds | "
-              "/ kNN |", "|---|---|---|---|---|---|---|---|"]
+    lines += ["", "| file | run | how | largest move / r16 | > 2 r16 | held | seconds | "
+              "/ kNN | same as in core |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['file']} | {r['run']} | {r['route']} | {r['largest']:.2f} | "
+        same = "-" if r.get("same") is None else ("yes" if r["same"] else "**no**")
+        lines.append(f"| {r['file']} | {r['run']} | {r['how']} | {r['largest']:.2f} | "
                      f"{r['over_2']} | {r['held']} | {r['seconds']:.2f} | "
-                     f"{r['per_knn']:.0f} |")
+                     f"{r['per_knn']:.0f} | {same} |")
     return "\n".join(lines) + "\n"
 
 

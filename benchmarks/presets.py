@@ -18,10 +18,7 @@ iterations (``--paper-iterations`` for "paper", 1 by default: the issue's target
 iteration), reads its peak resident size, scores the result against the true surface and times
 pykdtree's k=25 query on the same points in Morton order, the reference of the ratio column.
 ``jet`` is CGAL's jet smoothing with k=48 and 2 passes (``pip install cgal``), the peer the
-``fast`` preset is measured against; ``scales`` and ``at-k`` are the preset "default" with
-``select_scales=True`` and ``False`` (the default decides by the size); ``edges`` is the
-default with its edges route taken wherever ``fast`` finds cells, whatever the size and noise
-(:data:`LIMITS`; the route's cost and accuracy beyond its limits). Clouds under 1,000,000
+``fast`` preset is measured against. Clouds under 1,000,000
 points are denoised and queried three times and the fastest of each kept (their times are a
 fraction of a second). Errors are in 1e-4 of the bounding-box diagonal: the mean distance to
 the true surface over all points, and over the points within 1% of the diagonal of a sharp
@@ -35,7 +32,8 @@ cells of an earlier run (``benchmarks/results/STEM.json``): the default at most
 :data:`TARGETS` ``"default_queries"`` kNN queries and its mean and edge errors at most
 ``"accuracy"`` times the better of the earlier default and ``fast`` in that cell; ``fast`` at
 most ``"fast_queries"`` queries and never farther from the truth than its input; and the
-exponent of the default's time from 10^5 to 10^7 points at each noise level; and, side by
+exponent of the default's time from 10^5 to 10^7 points at each noise level and the largest
+ratio of its cost between neighbouring sizes (no cliff); and, side by
 side in each cell, the most accurate of the runs measured there within the default's cost
 target and the cheapest within its accuracy target (what a target out of reach would cost).
 """
@@ -61,14 +59,6 @@ UNIT = 1e-4
 
 #: The peer of the ``fast`` preset: CGAL jet smoothing, k=48, 2 passes.
 JET = {"k": 48, "passes": 2}
-#: The pseudo-presets: the ``denoise`` parameters each stands for.
-VARIANTS = {"scales": {"preset": "default", "select_scales": True},
-            "at-k": {"preset": "default", "select_scales": False},
-            "edges": {"preset": "default"}}
-#: Pseudo-presets that move the limits of the default's routes (``pssd_fast.routes.plan``) in their
-#: own process: ``edges`` takes the edges route wherever ``fast`` finds cells, whatever the
-#: cloud's size and noise (the cost and accuracy of that route beyond its limits).
-LIMITS = {"edges": {"up_to": math.inf, "scales_up_to": 0}}
 #: Below this many points the runs and the reference query are repeated (best of three).
 REPEAT_BELOW = 1_000_000
 #: The grid of ``--grid``: sizes, and noise levels as fractions of the diagonal.
@@ -76,7 +66,8 @@ GRID_SIZES = (10_000, 30_000, 100_000, 300_000, 1_000_000, 3_000_000, 10_000_000
 GRID_NOISES = (0.0005, 0.001, 0.0025, 0.005, 0.01)
 #: What ``--against`` checks: kNN queries of the default and of ``fast``, the default's errors
 #: over the better of the baseline's default and ``fast``, the exponent of the default's time.
-TARGETS = {"default_queries": 8.0, "fast_queries": 3.0, "accuracy": 1.03, "exponent": 1.1}
+TARGETS = {"default_queries": 8.0, "fast_queries": 3.0, "accuracy": 1.05, "exponent": 1.1,
+           "neighbours": 1.5}
 
 
 def child(path, noise, preset, iterations):
@@ -105,19 +96,20 @@ def child(path, noise, preset, iterations):
     ordered = np.ascontiguousarray(points[morton_order(points)])
     knn = min(knn_query_seconds(ordered, 25) for _ in range(repeats))
     cell = {"total": total, "knn_query": knn, "k": JET["k"], "iterations": JET["passes"],
-            "noise_estimate": None, "stages": {}, "probe_seconds": None, "coarse": None,
-            "route": None}
+            "noise_estimate": None, "stages": {}, "probe_seconds": None, "cell_edge": None,
+            "spacing": None}
     if stats is not None:
         stages = {}
         for record in stats["iterations"]:
             for stage, seconds in record["times"].items():
                 stages[stage] = stages.get(stage, 0.0) + seconds
-        probe = stats["auto_k"]
+        probe, plan = stats["auto_k"], stats["plan"]
         cell.update({"k": stats["k"], "iterations": stats["n_iterations"],
                      "noise_estimate": stats["noise"], "stages": stages,
-                     "probe_seconds": None if probe is None else probe["seconds"],
-                     "coarse": None if probe is None else probe.get("coarse"),
-                     "route": stats["plan"]["route"] if stats.get("plan") else None})
+                     "probe_seconds": None if probe is None else probe["seconds"]})
+        if plan.get("method") == "default":
+            cell.update({"cell_edge": plan["cell_edge"],
+                         "spacing": plan["noise"]["spacing"]})
     print(json.dumps({
         **cell, "mean_before": float(before.mean()), "edge_before": float(before[edge].mean()),
         "mean_after": float(after.mean()), "edge_after": float(after[edge].mean()),
@@ -130,14 +122,9 @@ def _denoise(points, preset, iterations, repeats):
     import pssd_fast
     from pssd_fast import datasets
 
-    run = {"iterations": iterations, **VARIANTS.get(preset, {"preset": preset})}
-    if preset in LIMITS:
-        from pssd_fast.routes import plan
-
-        plan.LIGHT["up_to"] = LIMITS[preset]["up_to"]
-        plan.PRESETS["default"]["scales_up_to"] = LIMITS[preset]["scales_up_to"]
-    # Every kernel (the grid query of long lists too), then the preset's own calls, compiled
-    # or loaded before timing; the second cloud takes the coarse-to-fine route.
+    run = {"iterations": iterations, "preset": preset}
+    # Every kernel, then the preset's own calls (cells of one point and of several), compiled
+    # or loaded before timing.
     pssd_fast.warmup()
     pssd_fast.denoise(points[:5000], **run)
     pssd_fast.denoise(datasets.cad_part(n_points=20000, noise=0.02, seed=1).points, **run)
@@ -163,13 +150,12 @@ def measure(path, noise, preset, iterations, threads):
 
 
 def table(cells):
-    lines = ["| points | noise | threads | preset | cells (points each) | k | iterations | noisy "
+    lines = ["| points | noise | threads | preset | cell edge / spacing | k | iterations | noisy "
              "mean / edge | denoised mean / edge | kNN k=25 (s) | total (s) | total / kNN | peak "
              "RSS (MB) | bytes/point |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for c in cells:
-        coarse = c.get("coarse")
-        grid = "–" if not coarse else f"{coarse['cells']:,} ({coarse['mean_points']:.1f})"
+        grid = "–" if not c.get("cell_edge") else f"{c['cell_edge'] / c['spacing']:.2f}"
         name = _name(c)
         lines.append(f"| {c['points']:,} | {c['noise']:.2%} | {c['threads']} | {name} | {grid} | "
                      f"{c['k']} | "
@@ -191,10 +177,8 @@ def table(cells):
 
 
 def _name(cell):
-    """A cell's preset as the tables name it, with the route its run took."""
-    name = {"jet": "CGAL jet", "scales": "default, select_scales", "at-k": "default, fit at k",
-            "edges": "default, edges route anywhere"}.get(cell["preset"], cell["preset"])
-    return name + (f" ({cell['route']})" if cell.get("route") else "")
+    """A cell's preset as the tables name it."""
+    return {"jet": "CGAL jet"}.get(cell["preset"], cell["preset"])
 
 
 def frontier(cells, baseline):
@@ -275,6 +259,14 @@ def targets(cells, baseline):
             exponent = math.log(t1 / t0) / math.log(n1 / n0)
             lines.append(f"- default's time at {noise:.2%} noise, {n0:,} to {n1:,} points: "
                          f"N^{exponent:.2f} (target at most N^{TARGETS['exponent']})")
+        steps = [max(a / b, b / a) for a, b in zip(*(
+            [c["total"] / c["knn_query"] for c in sorted(
+                (c for c in cells if c["preset"] == "default" and c["noise"] == noise),
+                key=lambda c: c["points"])][i:] for i in (0, 1)))]
+        if steps:
+            lines.append(f"- default's cost per point at {noise:.2%} noise between neighbouring "
+                         f"sizes: at most {max(steps):.2f}x (target at most "
+                         f"{TARGETS['neighbours']}x)")
     return "\n".join(lines) + "\n"
 
 

@@ -6,7 +6,7 @@ Usage::
     python -m benchmarks.tiled --points 2000000 --tile-points 1000000 --workers 2
     python -m benchmarks.tiled --format laz --out tiled_laz
     python -m benchmarks.tiled --noise 0.001 --points 500000 2000000 --tile-points 500000 \
-        --out tiled_halo       # a cloud the default iterates on its points: tiles with halos
+        --out tiled_halo       # low noise: cells of one point each
 
 The input is the generated CAD part (seed 0, noise 0.5% of the diagonal or ``--noise``) saved
 as ``.npy``, or
@@ -78,11 +78,9 @@ def child(kind, source, out, tile_points, workers):
                 lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024).values())
     passes = sum(record["times"].get(stage, 0.0) for record in stats["iterations"]
                  for stage in ("buckets", "tiles", "write"))
-    coarse = stats["auto_k"]["coarse"]
     print(json.dumps({"seconds": seconds, "driver_peak": resource.getrusage(
         resource.RUSAGE_SELF).ru_maxrss * 1024, "worker_peaks": peaks, "k": stats["k"],
-        "cells": coarse and coarse["cells"], "tiles": stats.get("tiles"),
-        "halo_widths": [r.get("halo_widths") for r in stats["iterations"]],
+        "tiles": stats.get("tiles"),
         "file_passes": passes}))
 
 
@@ -123,7 +121,7 @@ def table(cells):
              "(s) | driver peak (MB) | worker peaks (MB) | same as in-core |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for c in cells:
-        tiles = "-" if c["tiles"] is None else f"{c['tiles']['count']} ({c['tiles']['route']})"
+        tiles = "-" if c["tiles"] is None else f"{c['tiles']['count']:,}"
         workers = ", ".join(f"{p / 1e6:.0f}" for p in c["worker_peaks"]) or "-"
         lines.append(f"| {c['points']:,} | {c['kind']} | "
                      f"{'-' if c['kind'] == 'in-core' else format(c['tile_points'], ',')} | "
