@@ -5,10 +5,11 @@ One probe gives the noise ``sigma`` and the spacing ``s`` (:mod:`pssd_fast.noise
 are averaged over the cells of a grid of edge ``max(CELL["spacing"] s, CELL["noise"] sigma)``:
 where the noise is below the spacing a cell holds about one point and the cells are the points;
 where it spans several spacings the cells average it down. The feature-aware fit iterates on the
-cell means, each fitted over the means within ``RADIUS`` noise widths (at least ``LIST[0]`` of
-them, at most ``LIST[1]``); every point then moves onto the last fits of its nearest means. The
-points whose neighbourhood the surface fails to explain within the noise (a chi-square test on
-their residuals, ``TEST``) fit their own lists from their input positions (``REFINE``).
+cell means, each fitted over the means within ``RADIUS`` noise widths (at least
+``LIST["shortest"]`` of them, at most ``LIST["longest"]``); every point then moves onto the
+last fits of its nearest means. The points whose neighbourhood the surface fails to explain
+within the noise (a chi-square test on their residuals, ``TEST``) fit their own lists from
+their input positions (``REFINE``).
 
 Each step reads the items within a radius that the plan fixes before it runs
 (:class:`pssd_fast.plan.Plan`): a run in tiles gives every tile a halo of that radius and gets
@@ -29,23 +30,21 @@ from .progress import Clock
 CELL = {"spacing": 0.7, "noise": 1.5}
 #: A fit's list reaches this many noise widths.
 RADIUS = 8.0
-#: The fewest and the most means (or points) in a fit's list.
-LIST = (40, 160)
+#: The fewest and the most means (or points) in a fit's list, and how far a list may reach
+#: (``reach``), in radii of a list of its length on a uniform sample: lists in sparse regions
+#: are cut there rather than reaching across gaps.
+LIST = {"shortest": 40, "longest": 160, "reach": 2.0}
 #: Iterations of the fit on the cell means.
 ITERATIONS = 2
-#: The chi-square test: a neighbourhood fails where its residuals' mean square exceeds
-#: ``sigma^2 (1 + TEST sqrt(2 / m))``, ``m`` the points it holds.
-TEST = 3.0
+#: The chi-square test: a neighbourhood (a cell and its ``cells - 1`` nearest cells) fails
+#: where its residuals' mean square exceeds ``sigma^2 (1 + z sqrt(2 / m))``, ``m`` the points
+#: it holds.
+TEST = {"z": 3.0, "cells": 8}
 #: The failing points' own fits: their lists reach ``radius`` noise widths (at least ``k``
 #: points), and they iterate ``iterations`` times.
 REFINE = {"radius": 4.0, "k": 24, "iterations": 2}
-#: Cells in the chi-square test's neighbourhood of a cell (the cell itself first).
-TEST_CELLS = 8
 #: Nearest means whose fits a point moves onto (docs/DECISIONS.md, "Scan sizes").
 BLEND = 3
-#: How far a list may reach, in radii of a list of its length on a uniform sample: lists in
-#: sparse regions are cut there rather than reaching across gaps.
-REACH = 2.0
 
 
 class Cells(NamedTuple):
@@ -75,19 +74,19 @@ class Cells(NamedTuple):
 def list_length(sigma, spacing, edge, radius=None, shortest=None):
     """The means a fit reads: those within ``radius`` (default ``RADIUS``) noise widths, on a
     surface ``pi R^2`` over the area a mean covers (a cell's, or a point's where the cells are
-    smaller than the spacing), held within ``shortest`` (default ``LIST[0]``) and
-    ``LIST[1]``."""
+    smaller than the spacing), held within ``shortest`` (default ``LIST["shortest"]``)
+    and ``LIST["longest"]``."""
     radius = RADIUS if radius is None else radius
-    shortest = LIST[0] if shortest is None else shortest
+    shortest = LIST["shortest"] if shortest is None else shortest
     area = max(spacing, edge) ** 2
     k = math.pi * (radius * sigma) ** 2 / area if area > 0.0 else shortest
-    return int(max(shortest, min(LIST[1], round(k))))
+    return int(max(shortest, min(LIST["longest"], round(k))))
 
 
 def list_bound(k, spacing, edge):
-    """The farthest a list of ``k`` means may reach: ``REACH`` times the radius of ``k`` means
-    on a surface sampled evenly at the cells' density."""
-    return REACH * math.sqrt(k / math.pi) * max(spacing, edge)
+    """The farthest a list of ``k`` means may reach: ``LIST["reach"]`` times the radius of
+    ``k`` means on a surface sampled evenly at the cells' density."""
+    return LIST["reach"] * math.sqrt(k / math.pi) * max(spacing, edge)
 
 
 def cell_edge(sigma, spacing):
@@ -213,14 +212,14 @@ def cell_sums(cells, values):
 
 def failing(means, sums, counts, sigma, bound, ids=None):
     """Which cells' neighbourhoods fail the chi-square test (:data:`TEST`): the mean square
-    residual of the points of the cell and its ``TEST_CELLS - 1`` nearest cells within
+    residual of the points of the cell and its ``TEST["cells"] - 1`` nearest cells within
     ``bound`` (``means``: the cells' input means; ``sums``: each cell's sum of its points'
     squared steps onto the surface; ``counts``: its points), against ``sigma^2``."""
-    lists = bounded_graph(means, TEST_CELLS, bound, None, ids)
+    lists = bounded_graph(means, TEST["cells"], bound, None, ids)
     total = np.add.reduceat(sums[lists.indices], lists.indptr[:-1])
     points = np.add.reduceat(counts[lists.indices], lists.indptr[:-1]).astype(np.float64)
     noise2 = max(sigma * sigma, np.finfo(np.float64).tiny)
-    return total / np.maximum(points, 1.0) > noise2 * (1.0 + TEST * np.sqrt(
+    return total / np.maximum(points, 1.0) > noise2 * (1.0 + TEST["z"] * np.sqrt(
         2.0 / np.maximum(points, 1.0)))
 
 

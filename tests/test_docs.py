@@ -99,7 +99,7 @@ def test_the_readme_table_of_automatic_choices_holds_the_code_s_thresholds():
 
     names = {"CELL": method.CELL, "RADIUS": method.RADIUS, "LIST": method.LIST,
              "ITERATIONS": method.ITERATIONS, "TEST": method.TEST, "REFINE": method.REFINE,
-             "TEST_CELLS": method.TEST_CELLS, "BLEND": method.BLEND, "REACH": method.REACH,
+             "BLEND": method.BLEND,
              "PROBE": noise.PROBE, "PRESETS": plan.PRESETS, "AUTO_K": AUTO_K}
     rows = [[cell.strip().strip("`") for cell in line.strip("|").split("|")]
             for line in _readme_section("### Automatic choices").splitlines()

@@ -79,20 +79,20 @@ def test_the_sizes_follow_from_the_noise_and_the_spacing():
     assert edge == pytest.approx(0.007, rel=1e-15)
     # pi (8 sigma)^2 over the area a mean covers (the larger of the spacing and the edge).
     assert method.list_length(sigma, spacing, edge) == max(
-        method.LIST[0], round(math.pi * (method.RADIUS * sigma) ** 2 / spacing ** 2))
+        method.LIST["shortest"], round(math.pi * (method.RADIUS * sigma) ** 2 / spacing ** 2))
     noisy = 0.02  # cells of 1.5 sigma: pi 64 / 2.25 = 89 means
     assert method.list_length(noisy, spacing, method.cell_edge(noisy, spacing)) == round(
         math.pi * method.RADIUS ** 2 / method.CELL["noise"] ** 2) == 89
-    assert method.list_length(1.0, spacing, edge) == method.LIST[1]  # the most
-    assert method.list_length(0.0, spacing, edge) == method.LIST[0]  # no noise: the fewest
-    assert method.list_length(0.0, 0.0, 0.0) == method.LIST[0]
+    assert method.list_length(1.0, spacing, edge) == method.LIST["longest"]  # the most
+    assert method.list_length(0.0, spacing, edge) == method.LIST["shortest"]  # no noise: the fewest
+    assert method.list_length(0.0, 0.0, 0.0) == method.LIST["shortest"]
     # The refinement's lists: 4 noise widths over the spacing alone, at least 24 points.
     assert method.list_length(0.01, spacing, 0.0, 4.0, 24) == round(math.pi * 16) == 50
     assert method.list_length(sigma, spacing, 0.0, 4.0, 24) == 24
     for k in (40, 89, 160):
         for area_side in (spacing, 0.03):
             assert method.list_bound(k, spacing, area_side) == pytest.approx(
-                method.REACH * math.sqrt(k / math.pi) * max(spacing, area_side), rel=1e-15)
+                method.LIST["reach"] * math.sqrt(k / math.pi) * max(spacing, area_side), rel=1e-15)
 
 
 def _two_point_cells(residuals):
@@ -136,7 +136,7 @@ def test_failing_matches_the_reference():
     got = _failing(cells, residual2, sigma, 0.15)
     members = [cells.order[a:b] for a, b in zip(cells.starts[:-1], cells.starts[1:])]
     want = reference.method_failing(cells.points, members, residual2, sigma, 0.15,
-                                    method.TEST_CELLS, method.TEST)
+                                    method.TEST["cells"], method.TEST["z"])
     np.testing.assert_array_equal(got, want)
     assert 0 < got.sum() < len(got)
 
@@ -261,7 +261,7 @@ def test_the_method_matches_the_reference():
                                                   plan["bound"], method.BLEND)
     residual2 = ((moved - points) ** 2).sum(axis=1)
     fails = reference.method_failing(means, members, residual2, plan["noise"]["sigma"],
-                                     plan["bound"], method.TEST_CELLS, method.TEST)
+                                     plan["bound"], method.TEST["cells"], method.TEST["z"])
     flagged = np.zeros(len(points), bool)
     for failed, rows in zip(fails, members):
         flagged[rows] = failed
