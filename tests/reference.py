@@ -12,7 +12,7 @@ import numpy as np
 # Decisions shared with the kernels (docs/ALGORITHM.md and docs/DECISIONS.md).
 DEGENERATE_RATIO = 1e-12  # second covariance eigenvalue / largest below this: no plane
 FIT_TOL = 1e-9  # smallest eigenvalue of the column-normalised Gram matrix below this: singular
-# The robust fit of the feature-aware quadratic (docs/ALGORITHM.md, "Thin walls").
+# The robust fit of the feature-aware quadratic (docs/ALGORITHM.md, "One iteration", 4b).
 ROBUST_SPREAD = 0.5  # Welsch spread, as a fraction of the plain fit's weighted RMS residual
 ROBUST_MARGIN = 0.3  # the robust fit's Welsch score must beat the plain fit's by this fraction
 REFITS = 4  # refits to the own residuals after the fit anchored at the point's height
