@@ -300,7 +300,7 @@ def move(points, proj, filtered, lik, feat, lam):
 
 
 def cell_means(points, normals, order, starts, mass=None):
-    """Mean point of each group of :func:`pssd_fast.routes.coarse.group_cells`, and the unit mean
+    """Mean point of each group of :func:`pssd_fast.graph.cell_order`, and the unit mean
     of its ``normals`` (each turned to the side of the group's first; None without ``normals``),
     each point weighted by its ``mass`` if given. The sums run in ``order``, so the result does not
     depend on the thread count."""

@@ -58,24 +58,27 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         it (the other presets, Notes); the other two are the paper's baselines
         (docs/ALGORITHM.md, "The baselines").
     iterations : int or "auto", default "auto"
-        ``"auto"``: 4 ("default"; 2 where it takes "fast"'s cells), 2 ("fast", "paper").
-        ``stats["n_iterations"]`` says how many ran.
+        ``"auto"``: 2 (the default method's on its cell means, under "default" and "fast";
+        "paper"); the baselines 4 under "default", else 2. ``stats["n_iterations"]`` says how
+        many ran.
     k : int or "auto", default "auto"
-        Neighbours including the point itself, 10 to ``n - 1``. ``"auto"``: 25 ("paper"),
-        else from the noise a probe measures (``stats["auto_k"]``). Given, the iterations run
-        on the input points.
+        Neighbours including the point itself, 10 to ``n - 1``: under "default" and "fast" the
+        list length on the cell means, else of every point's list. ``"auto"``: 25 ("paper");
+        the default method's from the noise its probe measures (40 to 160,
+        ``stats["plan"]``); the baselines' from their own probe (``stats["auto_k"]``).
     lam : float, optional
         ``lambda`` in [0, 1] (Section 4.2), the likelihood term's weight. Preset "paper" only
         (default 0.5).
     preset : {"default", "fast", "paper"}, default "default"
-        ``"default"``: the feature-aware pipeline on the points, or on grid cell means where
-        the noise is large against the spacing, or above 50,000 points at low noise on
-        "fast"'s cells and then the points near features (docs/ALGORITHM.md, "Routes" and
-        "Presets"). ``"fast"``: the same, always on cell means. ``"paper"``: the paper's
+        ``"default"``: the default method: the feature-aware fit iterated on the means of grid
+        cells sized by the noise, every point moved onto the fits, and the points the fits
+        fail to explain fitted again on their own (docs/ALGORITHM.md, "The default method" and
+        "Presets"). ``"fast"``: the same without that refinement. ``"paper"``: the paper's
         formulation (k = 25, lambda = 0.5, 2 iterations).
     rebuild_graph : bool or "auto", default "auto"
-        Query the neighbours anew in each iteration (``True``) or keep the first lists,
-        re-sorted (``False``; docs/DECISIONS.md, "Graph and scheduling").
+        The paper's pipeline and the baselines: query the neighbours anew in each iteration
+        (``True``) or keep the first lists, re-sorted (``False``; docs/DECISIONS.md, "Graph and
+        scheduling"). The default method queries its lists in every step and refuses it.
     orient : {"outward", "up"} or array_like of shape (3,), optional
         Sign of the estimated normals, as in :func:`pssd_fast.estimate_normals`; ``None``:
         away from the centroid. Not with ``normals``. The positions do not depend on it.

@@ -43,7 +43,8 @@ TEST = {"z": 3.0, "cells": 8}
 #: The failing points' own fits: their lists reach ``radius`` noise widths (at least ``k``
 #: points), and they iterate ``iterations`` times.
 REFINE = {"radius": 4.0, "k": 24, "iterations": 2}
-#: Nearest means whose fits a point moves onto (docs/DECISIONS.md, "Scan sizes").
+#: Nearest means whose fits a point moves onto (docs/DECISIONS.md, "Scan sizes: one fit per
+#: surface point").
 BLEND = 3
 
 

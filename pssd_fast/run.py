@@ -39,10 +39,10 @@ class DenoiseResult:
         ``|p_noisy - p_denoised|``, the quantity of the paper's Table 1 and Fig. 8.
     held : (n,) bool ndarray
         Where a move of the point was refused and the point kept its place instead: a move
-        that was not finite, or longer than the radius of the neighbour list behind it (on the
-        points, in any iteration; on the cell means of the coarse-to-fine route, in the last
-        step onto their fits). ``stats["held_points"]`` counts them (docs/DECISIONS.md, "No
-        point flung").
+        that was not finite, or longer than the radius of the neighbour list behind it (the
+        paper's pipeline and the baselines: in any iteration; the default method: in the move
+        onto the cell means' fits or in the refinement). ``stats["held_points"]`` counts them
+        (docs/DECISIONS.md, "No point flung").
     outlier_score : (n,) ndarray or None
         With ``remove_outliers=True``: :func:`pssd_fast.outlier_score` of the input points
         (before any iteration, ``k = 64``) that the run computed to drop those above 1. Else
@@ -59,12 +59,14 @@ class DenoiseResult:
         ``mean_residual``), fallback counts (``fit_degree`` counts of cubic, quadratic and
         plane fits; ``degenerate_normals``; ``held_points``, points left in place because their
         step was not finite or longer than its list's radius), region sizes and the mean step;
-        plus the run's settings (``"k"``; ``"pipeline"``: "paper" or "aware"; ``"plan"``: the
-        route ("cells", "points" or "walks"), ``k``, ``rebuild_graph`` and ``select_scales``
-        the run took, docs/ALGORITHM.md, "Routes"; ``"auto_k"``:
-        the noise probe behind a ``k`` chosen from the data, else None, with ``"coarse"``: the
-        cells of the coarse-to-fine route and its final fit, else None; ``"noise"``: the noise
-        it estimated, else None), ``"duplicates"`` (rows merged into another at their position,
+        plus the run's settings (``"k"``; ``"pipeline"``: "default", "paper", "bilateral" or
+        "mls"; ``"plan"``: the one method the run
+        followed and what it chose, docs/ALGORITHM.md, "The plan": for the default method its
+        ``iterations``, ``k``, ``cell_edge``, ``bound``, the probe's ``noise`` and the
+        refinement's ``k`` and ``bound`` (None under "fast"); ``"auto_k"``: the default
+        method's probe time, or the baselines' noise probe behind a ``k`` chosen from the data,
+        else None; ``"noise"``: the noise it estimated, else None), ``"duplicates"`` (rows
+        merged into another at their position,
         :mod:`pssd_fast.duplicates`), ``"held_points"`` (the points of ``held``) and
         ``"total_seconds"``. With a ``classification``, the largest class's run's, with
         ``n_points``, ``duplicates``, ``held_points`` and ``outliers`` summed over the runs and

@@ -62,8 +62,6 @@ def test_citations_are_found_across_lines_and_in_lists():
                                "Scan sizes", "Scan sizes: coarse to fine"]
 
 
-@pytest.mark.xfail(strict=True, reason="pssd_fast/noise.py cites docs/DECISIONS.md, \"One "
-                   "noise probe\", a record not written yet")
 def test_every_citation_of_decisions_names_a_heading():
     titles = headings()
     found = [(path.relative_to(ROOT), title) for path in CITING if path.is_file()

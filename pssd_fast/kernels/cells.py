@@ -1,5 +1,5 @@
-"""Means of the points sharing a grid cell: the coarse cloud of the coarse-to-fine default
-(docs/ALGORITHM.md, "Coarse to fine")."""
+"""Means of the points sharing a grid cell: the cell means the default method iterates on
+(docs/ALGORITHM.md, "Cells")."""
 from numba import prange
 
 from .config import parallel_kernel

@@ -375,9 +375,9 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, robust, 
               degree, coef, taken):
     """Feature-aware local quadratic of each point's listed ``surface`` points, in the frame of
     the point and the normal of its first (nearest) listed one: the iterations of the default
-    pipeline (``surface`` is ``points``, each list starting with the point itself, so the frame
-    is ``p_i`` and ``n_i``) and the last step of the coarse to fine route (``surface``: the
-    denoised cell means; docs/ALGORITHM.md).
+    method on its cell means and on the points it refines (``surface`` is ``points``, each list
+    starting with the point itself, so the frame is ``p_i`` and ``n_i``; docs/ALGORITHM.md,
+    "One iteration").
 
     Parameters
     ----------
@@ -390,7 +390,7 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, robust, 
         used, so signs need not agree.
     mass : (m,) float64 or (0,)
         A factor on each surface point's weight (the number of input points a cell mean stands
-        for, in the coarse-to-fine route); no entries: every factor is 1.
+        for); no entries: every factor is 1.
     indptr, indices : CSR lists of ``surface`` rows for each of ``points``, nearest first
     sigma_n : float
         Width of the normal-agreement weight ``exp(-((1 - |n_i . n_j|) / sigma_n)^2)``; 0 or
