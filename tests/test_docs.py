@@ -86,8 +86,6 @@ def _readme_section(title):
     return text[start:text.index("\n#", start + len(title))]
 
 
-@pytest.mark.xfail(strict=True, reason="the README's table still lists the removed routes' "
-                   "constants; the one method's table is not written yet")
 def test_the_readme_table_of_automatic_choices_holds_the_code_s_thresholds():
     """At most 8 rows of the default method's constants, each the code's value."""
     import ast
