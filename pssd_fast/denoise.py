@@ -149,11 +149,11 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     >>> result.points.shape, result.points.dtype
     ((2000, 3), dtype('float64'))
     >>> result.stats["plan"]["method"], result.stats["k"], result.stats["n_iterations"]
-    ('default', 40, 2)
+    ('default', 80, 2)
     >>> def error(points):  # mean distance to the true cube, in 1e-4 of its diagonal
     ...     return f"{1e4 * cloud.surface_distance(points).mean() / cloud.diagonal:.0f}"
     >>> error(cloud.points), error(result.points)
-    ('40', '15')
+    ('40', '13')
     """
     return run(points, normals, dict(
         method=method, iterations=iterations, k=k, lam=lam, preset=preset,

@@ -33,16 +33,16 @@ RADIUS = 8.0
 #: The fewest and the most means (or points) in a fit's list, and how far a list may reach
 #: (``reach``), in radii of a list of its length on a uniform sample: lists in sparse regions
 #: are cut there rather than reaching across gaps.
-LIST = {"shortest": 40, "longest": 160, "reach": 2.0}
+LIST = {"shortest": 80, "longest": 160, "reach": 2.0}
 #: Iterations of the fit on the cell means.
 ITERATIONS = 2
 #: The chi-square test: a neighbourhood (a cell and its ``cells - 1`` nearest cells) fails
 #: where its residuals' mean square exceeds ``sigma^2 (1 + z sqrt(2 / m))``, ``m`` the points
 #: it holds.
-TEST = {"z": 3.0, "cells": 8}
+TEST = {"z": 1.0, "cells": 32}
 #: The failing points' own fits: their lists reach ``radius`` noise widths (at least ``k``
 #: points), and they iterate ``iterations`` times.
-REFINE = {"radius": 4.0, "k": 24, "iterations": 2}
+REFINE = {"radius": 4.0, "k": 40, "iterations": 2}
 #: Nearest means whose fits a point moves onto (docs/DECISIONS.md, "Scan sizes: one fit per
 #: surface point").
 BLEND = 3

@@ -111,16 +111,22 @@ def _failing(cells, residual2, sigma, bound):
 
 def test_failing_on_a_hand_made_case():
     """Cells of two points, sigma 1: alone (a bound below the cells' distance) a cell fails
-    where its mean square exceeds 1 + 3 sqrt(2 / 2) = 4; with its neighbours (8 cells, 16
-    points) where theirs exceeds 1 + 3 sqrt(2 / 16) = 2.06."""
-    cells, residual2 = _two_point_cells([4.0, 4.01, 0.0, 1.0, 2.0, 2.0, 3.0, 9.0])
+    where its mean square exceeds 1 + z sqrt(2 / 2); with its neighbours (all 8 cells, 16
+    points, as ``TEST["cells"]`` >= 8) where theirs exceeds 1 + z sqrt(2 / 16)."""
+    z = method.TEST["z"]
+    assert method.TEST["cells"] >= 8
+    squares = np.array([4.0, 4.01, 0.0, 1.0, 2.0, 2.0, 3.0, 9.0])
+    cells, residual2 = _two_point_cells(squares)
     alone = _failing(cells, residual2, 1.0, 0.5)
-    np.testing.assert_array_equal(alone, [False, True, False, False, False, False, False, True])
+    np.testing.assert_array_equal(alone, squares > 1.0 + z)
+    assert 0 < alone.sum() < 8
     together = _failing(cells, residual2, 1.0, 100.0)  # 25.01 / 8 = 3.13 a point
+    assert 3.13 > 1.0 + z * np.sqrt(2.0 / 16.0)
     np.testing.assert_array_equal(together, [True] * 8)
-    cells, residual2 = _two_point_cells([2.06, 2.06, 2.06, 2.06, 2.06, 2.06, 2.06, 2.06])
+    threshold = 1.0 + z * np.sqrt(2.0 / 16.0)
+    cells, residual2 = _two_point_cells([0.999 * threshold] * 8)
     assert not _failing(cells, residual2, 1.0, 100.0).any()
-    assert _failing(cells, residual2 * 1.001, 1.0, 100.0).all()
+    assert _failing(cells, residual2 * 1.002, 1.0, 100.0).all()
     # No noise: any residual fails, none does not.
     assert _failing(cells, residual2, 0.0, 100.0).all()
     assert not _failing(cells, 0 * residual2, 0.0, 100.0).any()
