@@ -54,7 +54,7 @@ def child(path, repeats=None):
     print(json.dumps({"seconds": seconds, "knn_query": knn, "warmup_seconds": warmup,
                       "load_before": load,
                       "threads": stats["n_jobs"], "iterations": stats["n_iterations"],
-                      "k": stats["k"], "route": stats["plan"]["method"]}))
+                      "k": stats["k"]}))
 
 
 def measure(path, threads, repeats=None):
@@ -86,12 +86,12 @@ def describe_machine():
 
 def table(cells, threads):
     """One row per (points, noise): each thread count's seconds and its ratio to the kNN
-    query, then the route and iterations of the run."""
+    query, then the list length and iterations of the run."""
     rows = {}
     for c in cells:
         rows.setdefault((c["points"], c["noise"]), {})[c["threads_asked"]] = c
     head = "| points | noise | " + " | ".join(
-        f"{t} thread{'s' * (t > 1)} (s) | x kNN" for t in threads) + " | route, iterations |"
+        f"{t} thread{'s' * (t > 1)} (s) | x kNN" for t in threads) + " | k, iterations |"
     lines = [head, "|" + "---|" * (3 + 2 * len(threads))]
     for (n, noise), by_threads in rows.items():
         cols = []
@@ -101,7 +101,7 @@ def table(cells, threads):
                      [f"{c['seconds']:.2f}", f"{c['seconds'] / c['knn_query']:.1f}"])
         first = next(iter(by_threads.values()))
         lines.append(f"| {n:,} | {noise:.2%} | " + " | ".join(cols)
-                     + f" | {first['route']}, {first['iterations']} |")
+                     + f" | {first['k']}, {first['iterations']} |")
     return "\n".join(lines) + "\n"
 
 
@@ -165,7 +165,7 @@ def main(argv=None):
                     cells.append(cell)
                     print(f"{n:>10,} points {noise:.2%} {threads} threads: "
                           f"{cell['seconds']:8.2f} s ({cell['seconds'] / cell['knn_query']:.1f}x "
-                          f"kNN), {cell['route']}, {cell['iterations']} iterations", flush=True)
+                          f"kNN), k = {cell['k']}, {cell['iterations']} iterations", flush=True)
                     save()
                 path.unlink()
     text = save()

@@ -6,7 +6,6 @@ Usage::
     python -m benchmarks.presets --sizes 100000 1000000 --presets default fast paper
     python -m benchmarks.presets --sizes 30000 100000 --noises 0.0025 0.005 0.01 \
         --presets fast jet --out fast_vs_jet
-    python -m benchmarks.presets --sizes 30000 100000 --presets at-k scales --out select_scales
     python -m benchmarks.presets --grid --presets default fast --threads 2 --jobs 7 \
         --out grid_baseline                        # the grid of sizes and noise levels
     python -m benchmarks.presets --grid --presets default fast --against grid_baseline \

@@ -48,10 +48,9 @@ def test_stage(benchmark, prepared, stage):
 
 
 @pytest.mark.parametrize("method, preset, options", [
-    ("robust", "default", {}), ("robust", "default", {"select_scales": True}),
-    ("robust", "fast", {}), ("robust", "paper", {}), ("bilateral", "paper", {}),
-    ("mls", "paper", {})], ids=["default", "default-select_scales", "fast", "paper",
-                                "bilateral", "mls"])
+    ("robust", "default", {}), ("robust", "fast", {}), ("robust", "paper", {}),
+    ("bilateral", "paper", {}), ("mls", "paper", {})],
+    ids=["default", "fast", "paper", "bilateral", "mls"])
 def test_method_one_iteration(benchmark, prepared, method, preset, options):
     n, points, _, _ = prepared
     benchmark.group = f"method-{n // 1000}k"
