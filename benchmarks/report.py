@@ -177,6 +177,8 @@ def _bullets(path):
 #: View name -> function of the results file that returns the block's markdown.
 VIEWS = {"table": lambda path: Table.first_in(path).markdown(),
          "times": lambda path: Table.nth_in(path, 1).markdown(), "standings": _bullets,
+         "targets": lambda path: Table.nth_in(path, 1).markdown(),
+         "frontier": lambda path: Table.nth_in(path, 2).markdown(),
          "cgal": _cgal,
          "cgal-errors": _cgal_errors, "paper-rows": _paper_rows, "scan-sizes": _scan_sizes,
          "stages": _stages, "fast-vs-jet": _fast_vs_jet, "edges-route": _edges_route}
