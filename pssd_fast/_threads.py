@@ -82,14 +82,18 @@ def resolve_n_jobs(n_jobs):
     are errors.
     """
     limit = numba.config.NUMBA_NUM_THREADS
+    n_jobs = check_n_jobs(n_jobs)
+    return limit if n_jobs in (None, -1) else min(n_jobs, limit)
+
+
+def check_n_jobs(n_jobs):
+    """``n_jobs`` checked: None, -1 or a positive int; TypeError or ValueError otherwise."""
     if n_jobs is None:
-        return limit
+        return None
     n_jobs = check_int(n_jobs, "n_jobs")
-    if n_jobs == -1:
-        return limit
-    if n_jobs < 1:
+    if n_jobs < 1 and n_jobs != -1:
         raise ValueError(f"n_jobs must be a positive integer, -1 or None (all cores); got {n_jobs}")
-    return min(n_jobs, limit)
+    return n_jobs
 
 
 @contextlib.contextmanager

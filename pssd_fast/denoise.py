@@ -7,32 +7,25 @@ from . import classes as lidar
 from . import core, duplicates, executor, interop
 from . import plan as planning
 from ._threads import threads
-from ._validation import (
-    as_normals, as_points, auto, check_choice, check_flag, check_float, check_int, check_k,
-    check_orient, check_precision, check_size,
-)
+from ._validation import as_normals, as_points, auto, check_k, check_precision, check_size
 from .graph import bounds
+from .parameters import (
+    BY_NAME, DEFAULT_ONLY, METHOD_DEFAULTS, METHODS, PAPER_ONLY, PARAMETERS, check,
+)
 from .plan import PRESETS
-from .progress import reporter
 from .run import (
     DenoiseResult, Input, Iterated, Request, check_distinct, iterate, outlier_scores, result,
     stats,
 )
 from .store import Memory
 
-#: Parameters of each method beyond the common ones, with their defaults.
-METHOD_DEFAULTS = {
-    "robust": {"h": "auto", **core.FEATURE_DEFAULTS, "likelihood": "exp", "sigma_n": 0.05,
-               "shift_normals": True, "keep_normals": False},
-    "bilateral": {"sigma_c": "auto", "sigma_s": "auto", "keep_normals": False},
-    "mls": {"h": "auto", "keep_normals": False},
-}
-#: Methods :func:`denoise` offers.
-METHODS = tuple(METHOD_DEFAULTS)
-#: Robust-method parameters that only the paper's pipeline uses, and those only the default
-#: method uses.
-PAPER_ONLY = ("h", "radius_factor", "delta", "alpha", "beta", "likelihood")
-DEFAULT_ONLY = ("sigma_n", "shift_normals")
+# Declared in pssd_fast.parameters; imported from here too.
+__all__ = ["DEFAULT_ONLY", "METHOD_DEFAULTS", "METHODS", "PAPER_ONLY", "checked_options",
+           "denoise", "run"]
+#: :func:`denoise`'s own keywords that :func:`checked_options` checks (the classes are
+#: checked with the points, :mod:`pssd_fast.classes`).
+_COMMON = tuple(p.name for p in PARAMETERS
+                if not p.method and p.name not in ("classification", "classes"))
 
 
 def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto", lam=None,
@@ -189,40 +182,32 @@ def _default(current, given, plan, request, runner, tile_points, store):
 
 
 def checked_options(options):
-    """:func:`denoise`'s keyword arguments ``options`` checked, as far as they can be without
-    the points (TypeError or ValueError naming what is wrong): a dict of the run's ``method``,
-    ``preset``, ``pipeline``, ``params`` (the method's), ``lam``, ``k`` and ``iterations``
-    (None: the run chooses), ``rebuild_graph``, ``orient``, ``remove_outliers``, ``extras``,
-    ``duplicate_tolerance``, ``n_jobs`` and ``report``."""
+    """:func:`denoise`'s keyword arguments ``options`` checked as :mod:`pssd_fast.parameters`
+    declares them, as far as they can be without the points (TypeError or ValueError naming
+    what is wrong): a dict of the run's ``method``, ``preset``, ``pipeline``, ``params`` (the
+    method's), ``lam``, ``k`` and ``iterations`` (None: the run chooses), ``rebuild_graph``,
+    ``orient``, ``remove_outliers``, ``extras``, ``duplicate_tolerance``, ``n_jobs`` and
+    ``report``."""
     options = dict(options)
-    method, preset = options.pop("method", "robust"), options.pop("preset", "default")
-    iterations, k = options.pop("iterations", "auto"), options.pop("k", "auto")
-    lam, rebuild_graph = options.pop("lam", None), options.pop("rebuild_graph", "auto")
-    orient = options.pop("orient", None)
-    remove_outliers, extras = options.pop("remove_outliers", False), options.pop("extras", False)
-    tolerance = options.pop("duplicate_tolerance", 0.0)
-    n_jobs, progress = options.pop("n_jobs", None), options.pop("progress", None)
-    check_choice(method, "method", METHODS)
-    check_choice(preset, "preset", tuple(PRESETS))
+    o = {name: options.pop(name, BY_NAME[name].default) for name in _COMMON}
+    method, preset = check("method", o["method"]), check("preset", o["preset"])
     setting = PRESETS[preset]
     pipeline = setting["pipeline"] if method == "robust" else method
     explicit = {name for name, value in options.items() if auto(value) is not None}
-    rebuild_graph = check_flag(rebuild_graph, "rebuild_graph")
+    rebuild_graph = check("rebuild_graph", o["rebuild_graph"])
     params = _method_params(method, options)
+    lam = o["lam"]
     _check_pipeline_params(method, preset, pipeline, explicit, lam, rebuild_graph)
     lam = setting["lam"] if lam is None else lam
-    for name, flag in (("remove_outliers", remove_outliers), ("extras", extras)):
-        if not isinstance(flag, (bool, np.bool_)):
-            raise TypeError(f"{name} must be True or False; got {flag!r}")
+    remove_outliers = check("remove_outliers", o["remove_outliers"])
+    extras = check("extras", o["extras"])
     return {"method": method, "preset": preset, "pipeline": pipeline, "params": params,
-            "lam": None if lam is None else check_float(lam, "lam", low=0.0, high=1.0),
-            "k": auto(k), "iterations": auto(iterations, lambda v: check_int(
-                v, "iterations", minimum=1)),
-            "rebuild_graph": rebuild_graph,
-            "orient": None if orient is None else check_orient(orient),
-            "remove_outliers": bool(remove_outliers), "extras": bool(extras),
-            "duplicate_tolerance": duplicates.check_tolerance(tolerance), "n_jobs": n_jobs,
-            "report": reporter(progress)}
+            "lam": check("lam", lam), "k": check("k", o["k"]),
+            "iterations": check("iterations", o["iterations"]),
+            "rebuild_graph": rebuild_graph, "orient": check("orient", o["orient"]),
+            "remove_outliers": remove_outliers, "extras": extras,
+            "duplicate_tolerance": check("duplicate_tolerance", o["duplicate_tolerance"]),
+            "n_jobs": check("n_jobs", o["n_jobs"]), "report": check("progress", o["progress"])}
 
 
 def _run(points, normals, runner, tile_points, store, **options):
@@ -344,17 +329,4 @@ def _method_params(method, method_params):
         raise TypeError(f"unknown parameter(s) {', '.join(unknown)} for method {method!r}; "
                         f"valid: {', '.join(defaults)}")
     params = {**defaults, **method_params}
-    for name in ("h", "sigma_c", "sigma_s"):
-        if name in params:
-            params[name] = auto(params[name], lambda v: check_float(v, name, positive=True))
-    for name in ("radius_factor", "delta", "alpha", "beta", "sigma_n"):
-        if name in params:
-            params[name] = check_float(params[name], name, positive=True)
-    if "likelihood" in params:
-        check_choice(params["likelihood"], "likelihood", tuple(core.LIKELIHOOD_FORMS))
-    for name in ("keep_normals", "shift_normals"):
-        if name in params:
-            if not isinstance(params[name], (bool, np.bool_)):
-                raise TypeError(f"{name} must be True or False; got {params[name]!r}")
-            params[name] = bool(params[name])
-    return params
+    return {name: check(name, value) for name, value in params.items()}

@@ -112,7 +112,7 @@ class Request:
     lam : float or None
         The paper's pipeline's ``lambda`` (else None).
     params : dict
-        The method's parameters (:data:`pssd_fast.denoise.METHOD_DEFAULTS`), checked.
+        The method's parameters (:data:`pssd_fast.parameters.METHOD_DEFAULTS`), checked.
     orient : str, (3,) ndarray or None
         The first iteration's sign of the normals.
     centre : (3,) ndarray

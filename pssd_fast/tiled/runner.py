@@ -7,7 +7,6 @@ executor of :func:`pssd_fast.denoise` too): :func:`denoise` tiles an array in me
 
 Dask is an optional dependency: ``pip install "pssd_fast[dask]"``.
 """
-import inspect
 import shutil
 import tempfile
 import time
@@ -18,12 +17,12 @@ import numpy as np
 
 from .. import atomic, executor
 from .. import classes as lidar
-from ..denoise import METHOD_DEFAULTS, checked_options
-from ..denoise import denoise as in_core
+from ..denoise import checked_options
 from ..denoise import run as run_in_core
 from .. import plan as planning
 from .._threads import threads
 from .._validation import check_int
+from ..parameters import BY_NAME
 from ..progress import Clock, reporter
 from ..run import Request, check_distinct, stats
 from ..store import Files, Memory
@@ -111,11 +110,9 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, **optio
 
 
 def _check_options(options):
-    """TypeError naming the keywords :func:`pssd_fast.denoise` does not take (its method
-    parameters it checks itself)."""
-    known = set(inspect.signature(in_core).parameters) - {"points", "normals"}
-    unknown = sorted(set(options) - known - set(METHOD_DEFAULTS["robust"])
-                     - set(METHOD_DEFAULTS["bilateral"]))
+    """TypeError naming the keywords that no declaration of :mod:`pssd_fast.parameters` names
+    (which method takes a method parameter :func:`pssd_fast.denoise` checks itself)."""
+    unknown = sorted(set(options) - set(BY_NAME))
     if unknown:
         raise TypeError(f"unknown parameter(s) {', '.join(unknown)}; tiled runs take "
                         f"pssd_fast.denoise's")
