@@ -14,23 +14,14 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .parameters import BY_NAME, PARAMETERS
+from .plan import PRESETS
 from .progress import TimeLeft, describe
 
-#: Per-method options of ``pssd denoise``: option dest -> (methods that take it, help).
-METHOD_OPTIONS = {
-    "h": (("robust", "mls"), "MLS Gaussian width (default: mean distance to the k-th "
-                             "neighbour)"),
-    "radius_factor": (("robust",), "R = radius_factor * mean spacing for the region-grown "
-                                   "neighbourhood (10)"),
-    "delta": (("robust",), "feature threshold delta of eq. (3) (0.2)"),
-    "alpha": (("robust",), "feature threshold alpha of eq. (3) (0.3)"),
-    "beta": (("robust",), "feature threshold beta of eq. (3) (0.3)"),
-    "likelihood": (("robust",), "sampling likelihood form: exp, ratio or residual (exp)"),
-    "sigma_n": (("robust",), "normal-agreement width of the feature-aware fit (0.05); presets "
-                             "default and fast"),
-    "sigma_c": (("bilateral",), "BIL spatial width (default: half the list radius)"),
-    "sigma_s": (("bilateral",), "BIL height width (default: std of the heights)"),
-}
+#: Per-method options of ``pssd denoise`` that take a value: option dest -> (methods that take
+#: it, help), as :mod:`pssd_fast.parameters` declares them.
+METHOD_OPTIONS = {p.name: (p.methods, p.help) for p in PARAMETERS
+                  if p.method and p.kind != "bool"}
 #: What ``pssd render --color`` offers (``pssd_fast.pictures.COLOR_FIELDS``).
 COLORS = ("height", "classification", "intensity", "rgb", "likelihood", "feature", "curvature",
           "displacement")
@@ -136,34 +127,23 @@ def _parser():
                           f"none (default: none, so that OUT has the input's attributes only; "
                           f"an input's own normals are always updated, and normals are added "
                           f"only when named)")
-    den.add_argument("--method", choices=("robust", "bilateral", "mls"), default="robust",
-                     help="robust (the paper's method), bilateral (BIL) or mls (default robust)")
+    _declared(den, "method")
     _add_common(den)
-    for dest, (methods, text) in METHOD_OPTIONS.items():
-        kind = str if dest == "likelihood" else float
-        den.add_argument("--" + dest.replace("_", "-"), dest=dest, type=kind, default=None,
-                         help=f"{text}; method {' or '.join(methods)}")
-    den.add_argument("--keep-normals", action="store_true",
-                     help="use the file's normals in every iteration instead of re-estimating")
-    den.add_argument("--no-shift-normals", dest="shift_normals", action="store_false",
-                     help="first iteration of presets default and fast: keep each point's own "
-                          "PCA normal instead of the flattest nearby list's")
-    den.add_argument("--orient", type=_orientation, default=None, metavar="HOW",
-                     help="sign of the estimated normals: outward, up, or a viewpoint X,Y,Z "
-                          "(normals towards it), made consistent over the neighbour graph "
-                          "(default: up for .las/.laz input, else each normal away from the "
-                          "centroid)")
-    den.add_argument("--remove-outliers", action="store_true",
-                     help="drop the points whose outlier score exceeds 1 before denoising "
-                          "(--fields outlier_score writes the score)")
-    den.add_argument("--classes", type=_classes, default=None, metavar="LIST",
-                     help="which classes of the input's classification field to denoise, "
-                          "each on its own: codes such as 2,6 (ground, buildings), each (every "
-                          "class), or all (every point as one cloud, classes ignored); the "
-                          "points of other classes keep their records and are no point's "
-                          "neighbours (default: the surface classes 2, 6, 9, 10, 11 and 17 "
-                          "present; a file of classes 0 and 1 only, never classified or "
-                          "unclassified, as one cloud)")
+    for dest in METHOD_OPTIONS:
+        # No choices for --likelihood: pssd_fast.denoise names a bad one.
+        _declared(den, dest, choices=None, more=_applies(BY_NAME[dest]))
+    _declared(den, "keep_normals", more=": the file's")
+    _declared(den, "shift_normals", "--no-shift-normals", more="; this option keeps its own")
+    _declared(den, "orient", type=_orientation, metavar="HOW",
+              more="; a viewpoint as X,Y,Z; for .las/.laz input by default up")
+    _declared(den, "remove_outliers", more=" (--fields outlier_score writes the score)")
+    _declared(den, "classes", type=_classes, metavar="LIST",
+              more=", by the input's classification field: codes such as 2,6 (ground, "
+                   "buildings), each (every class present), or all (every point as one cloud, "
+                   "classes ignored); the points of other classes keep their records and are no "
+                   "point's neighbours (by default the surface classes 2, 6, 9, 10, 11 and 17 "
+                   "present; a file of classes 0 and 1 only, never classified or "
+                   "unclassified, as one cloud)")
     den.add_argument("--tile-points", type=int, default=None, metavar="N",
                      help="run in tiles of at most N points on Dask (pip install "
                           "'pssd_fast[dask]'), with the same result; presets default and fast, "
@@ -274,25 +254,49 @@ def _orientation(text):
 
 
 def _add_common(parser):
-    parser.add_argument("--iterations", type=int, default=None,
-                        help="iterations (preset: 4 default, 2 fast, 2 paper)")
-    parser.add_argument("--preset", choices=("default", "fast", "paper"), default="default",
-                        help="default: feature-aware fit, k from the estimated noise, 4 "
-                             "iterations (on cell means where the noise spans many point "
-                             "spacings); fast: the same always on cell means, 2 iterations; "
-                             "paper: the paper's method (k=25, lam=0.5, 2 iterations)")
-    parser.add_argument("--k", type=int, default=None, help="neighbours per point (preset)")
-    parser.add_argument("--lam", type=float, default=None,
-                        help="lambda, weight of the likelihood term (preset)")
-    parser.add_argument("--rebuild-graph", action=argparse.BooleanOptionalAction, default=None,
-                        help="find the neighbours anew in every iteration (preset: yes for "
-                             "default and paper, no for fast)")
-    parser.add_argument("--n-jobs", "--threads", dest="n_jobs", type=int, default=None,
-                        help="threads (default: all cores); the result does not depend on it")
-    parser.add_argument("--duplicate-tolerance", type=float, default=0.0, metavar="D",
-                        help="rows in one cube of edge D (in the file's units, cubes from the "
-                             "bounding box's low corner) are one position, denoised as one "
-                             "point (default 0: only rows with equal coordinates)")
+    for name in ("iterations", "preset", "k", "lam", "rebuild_graph"):
+        _declared(parser, name)
+    _declared(parser, "n_jobs", "--n-jobs", "--threads")
+    _declared(parser, "duplicate_tolerance", metavar="D",
+              more="; in the file's units, cubes from the bounding box's low corner")
+
+
+def _declared(parser, name, *flags, more="", **settings):
+    """Add the option of :func:`pssd_fast.denoise`'s parameter ``name`` as
+    :mod:`pssd_fast.parameters` declares it: its type, choices, default and help (then
+    ``more``); ``flags`` (default ``--name``) and ``settings`` as ``add_argument`` takes them
+    override. Where the library chooses (``"auto"``) or a method parameter goes unsaid, the
+    default is None."""
+    declared = BY_NAME[name]
+    option = {"dest": name, "help": declared.help + more}
+    if declared.kind == "bool":
+        option["action"] = (argparse.BooleanOptionalAction if declared.auto
+                            else "store_false" if declared.default else "store_true")
+    elif declared.kind in ("int", "float"):
+        option["type"] = int if declared.kind == "int" else float
+    if declared.kind == "choice":
+        option["choices"] = declared.choices
+    option["default"] = (None if declared.auto or (declared.method and declared.kind != "bool")
+                         else declared.default)
+    option.update(settings)
+    parser.add_argument(*(flags or ["--" + name.replace("_", "-")]), **option)
+
+
+def _applies(declared):
+    """Where a method parameter applies, for its option's help: its default, its choices,
+    and its methods (``method robust (preset paper) or mls``)."""
+    text = f": {', '.join(declared.choices)}" if declared.kind == "choice" else ""
+    if not declared.auto:
+        text += f" ({declared.default:g})" if declared.kind == "float" else (
+            f" ({declared.default})")
+    methods = []
+    for method in declared.methods:
+        presets = [name for name, setting in PRESETS.items()
+                   if setting["pipeline"] in declared.pipelines]
+        if method == "robust" and declared.pipelines and len(presets) < len(PRESETS):
+            method += f" (preset{'s' * (len(presets) > 1)} {' and '.join(presets)})"
+        methods.append(method)
+    return f"{text}; method {' or '.join(methods)}"
 
 
 def _add_columns(parser):

@@ -108,25 +108,30 @@ def _of_method(*pipelines):
     return {"method": True, "pipelines": pipelines}
 
 
+#: The range of a positive float.
+_POSITIVE = {"low": 0.0, "low_open": True}
+
 #: Every parameter of :func:`pssd_fast.denoise` (but ``points`` and ``normals``), its own
 #: keywords in its signature's order, then the method parameters.
 PARAMETERS = (
     Parameter("method", "choice", "robust", "robust (the paper's method and its refinement), "
-              "bilateral (BIL) or mls", choices=("robust", "bilateral", "mls")),
-    Parameter("iterations", "int", "auto", "iterations (auto: the preset's)", low=1, auto=True),
-    Parameter("k", "int", "auto", f"neighbours per point, {MIN_K} to n - 1 (auto: the "
-              f"preset's, or chosen from the noise)", low=MIN_K, auto=True),
-    Parameter("lam", "float", None, "lambda, the weight of the likelihood term (default: the "
-              "preset's)", low=0.0, high=1.0, pipelines=("paper",)),
+              "bilateral (BIL) or mls (MLS projection)", choices=("robust", "bilateral", "mls")),
+    Parameter("iterations", "int", "auto", "iterations (by default the preset's)", low=1,
+              auto=True),
+    Parameter("k", "int", "auto", f"neighbours per point, {MIN_K} to n - 1 (by default "
+              f"the preset's, or chosen from the estimated noise)", low=MIN_K, auto=True),
+    Parameter("lam", "float", None, "lambda, the weight of the likelihood term (by default "
+              "the preset's)", low=0.0, high=1.0, pipelines=("paper",)),
     Parameter("preset", "choice", "default", "default: the feature-aware fit on cell means "
               "sized by the noise, then refined; fast: the same without the refinement; "
               "paper: the paper's method (k=25, lam=0.5, 2 iterations)",
               choices=tuple(PRESETS)),
     Parameter("rebuild_graph", "bool", "auto", "find the neighbours anew in every iteration "
-              "(auto: the preset's; the paper's pipeline and the baselines)", auto=True,
+              "(by default the preset's; the paper's pipeline and the baselines)", auto=True,
               pipelines=("paper", "bilateral", "mls")),
     Parameter("orient", "orient", None, f"sign of the estimated normals: "
-              f"{' or '.join(ORIENTATIONS)} or a viewpoint (default: away from the centroid)",
+              f"{', '.join(ORIENTATIONS)} or a viewpoint (normals towards it), made consistent "
+              f"over the neighbour graph (by default each away from the centroid)",
               choices=ORIENTATIONS, checker=check_orient),
     Parameter("remove_outliers", "bool", False, "drop the points whose outlier score exceeds 1 "
               "before denoising"),
@@ -137,31 +142,31 @@ PARAMETERS = (
     Parameter("classification", "labels", None, "a class code per point (LAS classification)"),
     Parameter("classes", "classes", None, "the classes to denoise, each on its own: codes, "
               "each or all", choices=("each", "all")),
-    Parameter("n_jobs", "int", None, "threads, -1 or None: all (the result does not depend on "
-              "it)", low=1, checker=check_n_jobs),
+    Parameter("n_jobs", "int", None, "threads (by default all cores); the result does not "
+              "depend on it", low=1, checker=check_n_jobs),
     Parameter("progress", "callable", None, "True: a line per stage on stderr; or a callable "
               "given (iteration, iterations, stage, seconds)", checker=reporter),
-    Parameter("h", "float", "auto", "MLS Gaussian width (auto: the mean distance to the k-th "
-              "neighbour)", low=0.0, low_open=True, auto=True, **_of_method("paper", "mls")),
+    Parameter("h", "float", "auto", "MLS Gaussian width (by default the mean distance to the "
+              "k-th neighbour)", auto=True, **_POSITIVE, **_of_method("paper", "mls")),
     Parameter("radius_factor", "float", core.FEATURE_DEFAULTS["radius_factor"],
-              "R = radius_factor * mean spacing for the region-grown neighbourhood", low=0.0,
-              low_open=True, **_of_method("paper")),
-    Parameter("delta", "float", core.FEATURE_DEFAULTS["delta"], "feature threshold delta of "
-              "eq. (3)", low=0.0, low_open=True, **_of_method("paper")),
-    Parameter("alpha", "float", core.FEATURE_DEFAULTS["alpha"], "feature threshold alpha of "
-              "eq. (3)", low=0.0, low_open=True, **_of_method("paper")),
-    Parameter("beta", "float", core.FEATURE_DEFAULTS["beta"], "feature threshold beta of "
-              "eq. (3)", low=0.0, low_open=True, **_of_method("paper")),
+              "R = radius_factor * mean spacing for the region-grown neighbourhood",
+              **_POSITIVE, **_of_method("paper")),
+    Parameter("delta", "float", core.FEATURE_DEFAULTS["delta"],
+              "feature threshold delta of eq. (3)", **_POSITIVE, **_of_method("paper")),
+    Parameter("alpha", "float", core.FEATURE_DEFAULTS["alpha"],
+              "feature threshold alpha of eq. (3)", **_POSITIVE, **_of_method("paper")),
+    Parameter("beta", "float", core.FEATURE_DEFAULTS["beta"],
+              "feature threshold beta of eq. (3)", **_POSITIVE, **_of_method("paper")),
     Parameter("likelihood", "choice", "exp", "sampling likelihood form",
               choices=tuple(core.LIKELIHOOD_FORMS), **_of_method("paper")),
     Parameter("sigma_n", "float", 0.05, "normal-agreement width of the feature-aware fit",
-              low=0.0, low_open=True, **_of_method("default")),
+              **_POSITIVE, **_of_method("default")),
     Parameter("shift_normals", "bool", True, "first iteration: each point's normal from the "
-              "flattest nearby list (False: its own PCA normal)", **_of_method("default")),
-    Parameter("sigma_c", "float", "auto", "BIL spatial width (auto: half the list radius)",
-              low=0.0, low_open=True, auto=True, **_of_method("bilateral")),
-    Parameter("sigma_s", "float", "auto", "BIL height width (auto: the std of the heights)",
-              low=0.0, low_open=True, auto=True, **_of_method("bilateral")),
+              "flattest nearby list, not its own PCA normal", **_of_method("default")),
+    Parameter("sigma_c", "float", "auto", "BIL spatial width (by default half the list radius)",
+              auto=True, **_POSITIVE, **_of_method("bilateral")),
+    Parameter("sigma_s", "float", "auto", "BIL height width (by default the std of the heights)",
+              auto=True, **_POSITIVE, **_of_method("bilateral")),
     Parameter("keep_normals", "bool", False, "use the given normals in every iteration "
               "instead of estimating them anew", method=True),
 )
