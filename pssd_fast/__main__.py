@@ -5,7 +5,8 @@ import time
 import numpy as np
 
 from . import __version__, datasets
-from .denoise import PRESETS, denoise
+from .cli import add_parameter
+from .denoise import denoise
 from .jit import cache
 
 
@@ -17,17 +18,10 @@ def main(argv=None):
     parser.add_argument("--points", type=int, default=60_000, help="points sampled (60000)")
     parser.add_argument("--noise", type=float, default=0.0025,
                         help="Gaussian noise sigma as a fraction of the diagonal (0.0025)")
-    parser.add_argument("--iterations", type=int, default=None,
-                        help="iterations (preset: 4 default, 2 fast, 2 paper)")
-    parser.add_argument("--preset", choices=tuple(PRESETS), default="default",
-                        help="default: feature-aware, k from the noise; fast: the same on "
-                             "cell means, 2 iterations; paper: the paper's method (k=25, "
-                             "lambda=0.5)")
-    parser.add_argument("--k", type=int, default=None, help="neighbours per point (preset)")
-    parser.add_argument("--lam", type=float, default=None,
-                        help="weight lambda (preset 'paper' only)")
+    for name in ("iterations", "preset", "k", "lam"):
+        add_parameter(parser, name)
     parser.add_argument("--seed", type=int, default=0, help="random seed (0)")
-    parser.add_argument("--n-jobs", type=int, default=None, help="threads (all cores)")
+    add_parameter(parser, "n_jobs", "--n-jobs")
     args = parser.parse_args(argv)
 
     cloud = datasets.cad_part(n_points=args.points, noise=args.noise, seed=args.seed)

@@ -127,23 +127,23 @@ def _parser():
                           f"none (default: none, so that OUT has the input's attributes only; "
                           f"an input's own normals are always updated, and normals are added "
                           f"only when named)")
-    _declared(den, "method")
+    add_parameter(den, "method")
     _add_common(den)
     for dest in METHOD_OPTIONS:
         # No choices for --likelihood: pssd_fast.denoise names a bad one.
-        _declared(den, dest, choices=None, more=_applies(BY_NAME[dest]))
-    _declared(den, "keep_normals", more=": the file's")
-    _declared(den, "shift_normals", "--no-shift-normals", more="; this option keeps its own")
-    _declared(den, "orient", type=_orientation, metavar="HOW",
-              more="; a viewpoint as X,Y,Z; for .las/.laz input by default up")
-    _declared(den, "remove_outliers", more=" (--fields outlier_score writes the score)")
-    _declared(den, "classes", type=_classes, metavar="LIST",
-              more=", by the input's classification field: codes such as 2,6 (ground, "
-                   "buildings), each (every class present), or all (every point as one cloud, "
-                   "classes ignored); the points of other classes keep their records and are no "
-                   "point's neighbours (by default the surface classes 2, 6, 9, 10, 11 and 17 "
-                   "present; a file of classes 0 and 1 only, never classified or "
-                   "unclassified, as one cloud)")
+        add_parameter(den, dest, choices=None, more=_applies(BY_NAME[dest]))
+    add_parameter(den, "keep_normals", more=": the file's")
+    add_parameter(den, "shift_normals", "--no-shift-normals", more="; this option keeps its own")
+    add_parameter(den, "orient", type=_orientation, metavar="HOW",
+                  more="; a viewpoint as X,Y,Z; for .las/.laz input by default up")
+    add_parameter(den, "remove_outliers", more=" (--fields outlier_score writes the score)")
+    add_parameter(den, "classes", type=_classes, metavar="LIST",
+                  more=", by the input's classification field: codes such as 2,6 (ground, "
+                       "buildings), each (every class present), or all (every point as one "
+                       "cloud, classes ignored); the points of other classes keep their "
+                       "records and are no point's neighbours (by default the surface classes "
+                       "2, 6, 9, 10, 11 and 17 present; a file of classes 0 and 1 only, never "
+                       "classified or unclassified, as one cloud)")
     den.add_argument("--tile-points", type=int, default=None, metavar="N",
                      help="run in tiles of at most N points on Dask (pip install "
                           "'pssd_fast[dask]'), with the same result; presets default and fast, "
@@ -255,18 +255,32 @@ def _orientation(text):
 
 def _add_common(parser):
     for name in ("iterations", "preset", "k", "lam", "rebuild_graph"):
-        _declared(parser, name)
-    _declared(parser, "n_jobs", "--n-jobs", "--threads")
-    _declared(parser, "duplicate_tolerance", metavar="D",
-              more="; in the file's units, cubes from the bounding box's low corner")
+        add_parameter(parser, name)
+    add_parameter(parser, "n_jobs", "--n-jobs", "--threads")
+    add_parameter(parser, "duplicate_tolerance", metavar="D",
+                  more="; in the file's units, cubes from the bounding box's low corner")
 
 
-def _declared(parser, name, *flags, more="", **settings):
-    """Add the option of :func:`pssd_fast.denoise`'s parameter ``name`` as
-    :mod:`pssd_fast.parameters` declares it: its type, choices, default and help (then
-    ``more``); ``flags`` (default ``--name``) and ``settings`` as ``add_argument`` takes them
-    override. Where the library chooses (``"auto"``) or a method parameter goes unsaid, the
-    default is None."""
+def add_parameter(parser, name, *flags, more="", **settings):
+    """Add the option of :func:`pssd_fast.denoise`'s parameter ``name`` to ``parser``, as
+    :mod:`pssd_fast.parameters` declares it.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        Where the option goes.
+    name : str
+        The parameter, which is the option's ``dest``.
+    *flags : str
+        The option's flags (default ``--name``, underscores as hyphens).
+    more : str
+        Said after the declared help.
+    **settings
+        ``add_argument``'s keywords, over those of the declaration: the type (``int`` or
+        ``float``), a flag's action (``store_true``, ``store_false``, or ``--x``/``--no-x``
+        for ``"auto"``), the choices and the default (None where the library chooses, and
+        for a method parameter not given).
+    """
     declared = BY_NAME[name]
     option = {"dest": name, "help": declared.help + more}
     if declared.kind == "bool":
