@@ -42,7 +42,8 @@ class Parameter:
     low, high : float or int, optional
         Its range (None: unbounded on that side); ``high`` is included.
     low_open : bool
-        Whether ``low`` itself is refused (``h > 0``) rather than allowed (``lam >= 0``).
+        Whether ``low`` itself is refused (``h > 0``) rather than allowed (``lam >= 0``); an
+        open range starts at 0.
     choices : tuple of str
         What a ``"choice"`` takes.
     auto : bool
@@ -68,6 +69,12 @@ class Parameter:
     method: bool = False
     pipelines: tuple = ()
     checker: Optional[Callable] = None
+
+    def __post_init__(self):
+        # An open range starts at 0 only: its message is "must be positive".
+        if self.kind not in KINDS or (self.low_open and self.low != 0):
+            raise ValueError(f"parameter {self.name}: kind {self.kind!r}, low {self.low}, "
+                             f"low_open {self.low_open}")
 
     @property
     def methods(self):

@@ -214,3 +214,10 @@ def test_the_tiled_runs_take_every_declared_parameter_and_no_other():
     runner._check_options({p.name: p.default for p in PARAMETERS})
     with pytest.raises(TypeError, match="unknown parameter.*smoothness; tiled runs take"):
         runner._check_options({"smoothness": 1, "k": 20})
+
+
+def test_a_declaration_outside_the_checks_is_refused():
+    with pytest.raises(ValueError, match="parameter x"):
+        parameters.Parameter("x", "float", 1.0, "x", low=1.0, low_open=True)
+    with pytest.raises(ValueError, match="parameter x"):
+        parameters.Parameter("x", "complex", 1.0, "x")
