@@ -201,6 +201,18 @@ def nearest_within(data, queries, k, bound, ids=None):
     ``ids`` (each data point's place in the whole cloud) where given. The query runs in chunks
     of ``QUERY_ENTRIES // (k + 1)`` rows.
     """
+    m = queries.shape[0]
+    rows = np.empty((m, k), np.int64)
+    distances = np.empty((m, k))
+    lengths = np.empty(m, np.int64)
+    for start, stop, found, dists, kept in _nearest_blocks(data, queries, k, bound, ids):
+        rows[start:stop], distances[start:stop], lengths[start:stop] = found, dists, kept
+    return rows, distances, lengths
+
+
+def _nearest_blocks(data, queries, k, bound, ids):
+    """:func:`nearest_within` one chunk of queries at a time: ``(start, stop, rows,
+    distances, lengths)`` of the queries ``start:stop``."""
     n = data.shape[0]
     m = queries.shape[0]
     q = min(k + 1, n)
@@ -210,9 +222,6 @@ def nearest_within(data, queries, k, bound, ids=None):
     query = _grid_query(data, q) if grid else None
     tree = None if grid else kdtree(data)
     ids = _NO_IDS if ids is None else np.ascontiguousarray(ids, np.int64)
-    rows = np.empty((m, k), np.int64)
-    distances = np.empty((m, k))
-    lengths = np.empty(m, np.int64)
     chunk = max(1, QUERY_ENTRIES // (k + 1))
     for start in range(0, m, chunk):
         stop = min(m, start + chunk)
@@ -230,9 +239,11 @@ def nearest_within(data, queries, k, bound, ids=None):
             pad = k + 1 - q
             dists = np.column_stack((dists, np.full((stop - start, pad), np.inf)))
             found = np.column_stack((found, np.full((stop - start, pad), n)))
-        keep_nearest(dists, found, n, ids, rows[start:stop], distances[start:stop],
-                     lengths[start:stop])
-    return rows, distances, lengths
+        rows = np.empty((stop - start, k), np.int64)
+        distances = np.empty((stop - start, k))
+        lengths = np.empty(stop - start, np.int64)
+        keep_nearest(dists, found, n, ids, rows, distances, lengths)
+        yield start, stop, rows, distances, lengths
 
 
 def bounded_graph(points, k, bound, rows=None, ids=None):
@@ -243,17 +254,29 @@ def bounded_graph(points, k, bound, rows=None, ids=None):
     n = points.shape[0]
     queries = points if rows is None else points[rows]
     rows = np.arange(n) if rows is None else np.asarray(rows, np.int64)
-    found, dists, counts = nearest_within(points, queries, k, bound, ids)
+    dtype = np.int32 if n < 2**31 else np.int64
+    counts = np.empty(rows.shape[0], np.int64)
+    radius = np.zeros(n)
+    nearest = np.zeros(n)
+    pieces = []
+    # Each chunk's lists are kept as soon as they are found: the (q, k) arrays of the whole
+    # query would take four times the lists' own memory.
+    for start, stop, found, dists, kept in _nearest_blocks(points, queries, k, bound, ids):
+        counts[start:stop] = kept
+        pieces.append(found[np.arange(k) < kept[:, None]].astype(dtype))
+        at = rows[start:stop]
+        radius[at] = dists[np.arange(stop - start), kept - 1]
+        nearest[at] = np.where(kept > 1, dists[:, min(1, k - 1)], 0.0)
     lengths = np.ones(n, np.int64)
     lengths[rows] = counts
     indptr = np.concatenate(([0], np.cumsum(lengths)))
-    indices = np.arange(n, dtype=np.int32 if n < 2**31 else np.int64).repeat(lengths)
-    keep = np.arange(k) < counts[:, None]
-    indices[np.repeat(indptr[rows], counts) + np.nonzero(keep)[1]] = found[keep]
-    radius = np.zeros(n)
-    nearest = np.zeros(n)
-    radius[rows] = dists[np.arange(rows.shape[0]), counts - 1]
-    nearest[rows] = np.where(counts > 1, dists[:, min(1, k - 1)], 0.0)
+    if rows.shape[0] == n:  # every point's list, in the points' order
+        indices = np.concatenate(pieces) if pieces else np.empty(0, dtype)
+    else:
+        indices = np.arange(n, dtype=dtype).repeat(lengths)
+        keep = np.arange(counts.max(initial=0)) < counts[:, None]
+        indices[np.repeat(indptr[rows], counts) + np.nonzero(keep)[1]] = np.concatenate(
+            pieces or [np.empty(0, dtype)])
     return ListScales(indptr, indices, radius, nearest)
 
 
