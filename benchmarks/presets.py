@@ -17,11 +17,11 @@ iterations (``--paper-iterations`` for "paper", 1 by default: the issue's target
 iteration), reads its peak resident size, scores the result against the true surface and times
 pykdtree's k=25 query on the same points in Morton order, the reference of the ratio column.
 ``jet`` is CGAL's jet smoothing with k=48 and 2 passes (``pip install cgal``), the peer the
-``fast`` preset is measured against. Clouds under 1,000,000
-points are denoised and queried three times and the fastest of each kept (their times are a
-fraction of a second). Errors are in 1e-4 of the bounding-box diagonal: the mean distance to
-the true surface over all points, and over the points within 1% of the diagonal of a sharp
-edge. Writes ``benchmarks/results/presets.md`` and ``.json`` (``--out``), after every cell.
+``fast`` preset is measured against. Clouds under 1,000,000 points are denoised and queried
+three times and the fastest of each kept (their times are a fraction of a second). Errors are
+in 1e-4 of the bounding-box diagonal: the mean distance to the true surface over all points,
+and over the points within 1% of the diagonal of a sharp edge. Writes
+``benchmarks/results/presets.md`` and ``.json`` (``--out``), after every cell.
 
 ``--grid`` measures every size of :data:`GRID_SIZES` at every noise of :data:`GRID_NOISES`;
 ``--jobs`` runs that many cells at once, each with ``--threads`` threads (cells then share the
@@ -32,9 +32,9 @@ cells of an earlier run (``benchmarks/results/STEM.json``): the default at most
 ``"accuracy"`` times the better of the earlier default and ``fast`` in that cell; ``fast`` at
 most ``"fast_queries"`` queries and never farther from the truth than its input; and the
 exponent of the default's time from 10^5 to 10^7 points at each noise level and the largest
-ratio of its cost between neighbouring sizes (no cliff); and, side by
-side in each cell, the most accurate of the runs measured there within the default's cost
-target and the cheapest within its accuracy target (what a target out of reach would cost).
+ratio of its cost between neighbouring sizes (no cliff); and, side by side in each cell, the
+most accurate of the runs measured there within the default's cost target and the cheapest
+within its accuracy target (what a target out of reach would cost).
 """
 import argparse
 import concurrent.futures

@@ -36,7 +36,8 @@ def test_kernels_import_nothing_from_the_python_layer():
 #: The package's layers, bottom first, as README's "How it works" lists them: a module imports
 #: only from its own layer and the layers before it.
 LAYERS = (("kernels",), ("jit", "_threads", "_validation", "interop", "progress", "atomic"),
-          ("graph", "core", "duplicates", "io"), ("pipelines",), ("noise", "method", "plan", "parameters"),
+          ("graph", "core", "duplicates", "io"), ("pipelines",),
+          ("noise", "method", "plan", "parameters"),
           ("run", "executor", "regions", "store"), ("denoise", "classes", "stages", "warmup"),
           ("tiled",),
           ("pictures", "datasets", "cli", "pdal_filter", "__main__", "__init__"))
