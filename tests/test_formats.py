@@ -98,6 +98,13 @@ def test_bad_header_lines(tmp_path, header, match):
         pio.read(write_text(tmp_path / "a.xyz", [header, *rows(PTS, RGB)]))
 
 
+def test_a_csv_header_with_an_empty_name_is_refused(tmp_path):
+    """Found by the readers' fuzz: an empty name between two commas."""
+    path = write_text(tmp_path / "a.csv", ["x,y,z,,green,blue", *rows(PTS, RGB, sep=",")])
+    with pytest.raises(PointCloudFileError, match="header line 1 leaves column 4 without a name"):
+        pio.read(path)
+
+
 def test_a_comment_that_names_nothing_stays_a_comment(tmp_path):
     path = write_text(tmp_path / "a.xyz", ["# scanned on monday", *rows(PTS)])
     cloud = pio.read(path)

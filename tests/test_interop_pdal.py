@@ -149,7 +149,8 @@ def test_the_stand_in_refuses_what_pdal_refuses(view):
 @pytest.mark.slow
 def test_the_stage_on_the_shared_survey():
     """The default stage on a part of the shared airborne survey (10,675 points, 2,538 of them
-    ground): the unclassified returns keep their coordinates, and no ground point moves 3 m."""
+    ground; in feet): the unclassified returns keep their coordinates, and no ground point
+    moves 1 m (3.28 feet; measured: 3.14 at most)."""
     pytest.importorskip("laspy")
     path = Path(os.environ.get("PSSD_LIDAR") or DEFAULT_LIDAR_DIR) / "autzen_trim.laz"
     if not path.is_file():
@@ -162,4 +163,4 @@ def test_the_stage_on_the_shared_survey():
     ground = part["Classification"] == 2
     np.testing.assert_array_equal(xyz(out, ~ground), xyz(part, ~ground))
     moved = np.linalg.norm(xyz(out, ground) - xyz(part, ground), axis=1)
-    assert moved.max() < 3.0 and np.median(moved) > 0
+    assert moved.max() < 1.0 / 0.3048 and np.median(moved) > 0

@@ -99,6 +99,8 @@ def _names_problem(tokens, names, ncols):
     """What keeps ``names`` (canonical ``tokens``) from naming ``ncols`` columns, or None."""
     if len(names) != ncols:
         return f"names {len(names)} columns but the data has {ncols}"
+    if not all(names):
+        return f"leaves column {names.index('') + 1} without a name"
     if any(_is_number(t) for t in tokens):
         return "mixes names and numbers"
     if not set(COORDS) <= set(names):
