@@ -34,3 +34,16 @@ def test_the_side_by_side_says_where_no_run_meets_a_target():
 def test_cells_without_a_baseline_are_left_out():
     assert "200,000" not in presets.frontier([_cell("default", 5.0, 1.0, 2.0, points=200_000)],
                                              BASELINE)
+
+
+def test_small_clouds_have_their_own_cost_target():
+    """20 kNN queries below 100,000 points, 8 from there."""
+    assert presets.query_target(30_000) == 20.0 and presets.query_target(100_000) == 8.0
+    baseline = [_cell("default", 30.0, 1.0, 2.0, points=30_000),
+                _cell("fast", 3.0, 1.2, 4.0, points=30_000)]
+    (row,) = [line for line in presets.frontier([_cell("default", 15.0, 1.0, 2.0, points=30_000)],
+                                                baseline).splitlines()
+              if line.startswith("| 30,000")]
+    assert row.split("|")[3].strip().startswith("default: 15.0 queries")
+    assert _row([_cell("default", 15.0, 1.0, 2.0)]) == [
+        "none measured", "default: 15.0 queries, 1.00 / 2.00 (1.00 x)"]
