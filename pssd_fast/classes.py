@@ -3,6 +3,7 @@
 import numbers
 import time
 import warnings
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -113,14 +114,21 @@ def denoise_each(pts, dtype, normals, classification, classes, options, denoise,
     given = given_normals(normals, n, chosen)
     done = []
     for code, rows in runs:
-        try:
+        with naming(code):
             part = denoise(pts[rows], None if given is None else given[rows])
-        except ValueError as exc:
-            if code is None:
-                raise
-            raise ValueError(f"the points of class {code}: {exc}") from exc
         done.append((code, rows, part))
     return merge(pts, dtype, given, done, small, described, started)
+
+
+@contextmanager
+def naming(code):
+    """A ValueError of the run of class ``code`` says which class it was (None: no class)."""
+    try:
+        yield
+    except ValueError as exc:
+        if code is None:
+            raise
+        raise ValueError(f"the points of class {code}: {exc}") from exc
 
 
 def merge(pts, dtype, given, done, small, described, started):

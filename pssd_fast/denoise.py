@@ -57,7 +57,7 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     k : int or "auto", default "auto"
         Neighbours including the point itself, 10 to ``n - 1``: under "default" and "fast" the
         list length on the cell means, else of every point's list. ``"auto"``: 25 ("paper");
-        the default method's from the noise its probe measures (40 to 160,
+        the default method's from the noise its probe measures (80 to 160,
         ``stats["plan"]``); the baselines' from their own probe (``stats["auto_k"]``).
     lam : float, optional
         ``lambda`` in [0, 1] (Section 4.2), the likelihood term's weight. Preset "paper" only

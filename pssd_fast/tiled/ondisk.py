@@ -455,18 +455,18 @@ class Buckets:
         def keys_of(records, shift=None):
             return cell_keys(records["xyz"] - self.centre, plan.low, plan.edge, shift)
 
-        # One shift for every bucket: the whole cloud's cell coordinates.
-        top = max(int(keys_of(records)[1].max(initial=0)) for records in self.each())
+        # One shift for every bucket, from the whole cloud's largest cell coordinate: that of
+        # its high corner, rounded as each point's is (graph.cell_keys).
+        top = int(((self.high - plan.low) * (1.0 / plan.edge)).max())
         shift = max(0, top.bit_length() - MORTON_BITS)
-        codes = [keys_of(records, shift)[0] for records in self.each()]
-        # The codes' first bits: as many as they use, less the prefix.
-        prefix = np.uint64(max(0, int(max(c.max() for c in codes)).bit_length()
-                               - _PREFIX_BITS))
+        # The codes' first bits: as many as they use, less the prefix; a bucket's codes at a
+        # time, so that memory follows the buckets.
+        largest = max(int(keys_of(records, shift)[0].max(initial=0)) for records in self.each())
+        prefix = np.uint64(max(0, largest.bit_length() - _PREFIX_BITS))
         histogram = np.zeros(1 << _PREFIX_BITS, np.int64)
-        for code in codes:
-            histogram += np.bincount((code >> prefix).astype(np.int64),
+        for records in self.each():
+            histogram += np.bincount((keys_of(records, shift)[0] >> prefix).astype(np.int64),
                                      minlength=1 << _PREFIX_BITS)
-        del codes
         bucket_of_bin = _bins(histogram, tile_points)
         paths = [self.folder / f"cells_{i}.bin" for i in range(int(bucket_of_bin.max()) + 1)]
         cell_record = np.dtype([("gid", np.int64), ("code", np.uint64), *[

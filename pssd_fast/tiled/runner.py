@@ -254,16 +254,12 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
                 Runner(client, n_threads, report) as runner:
             done = []
             for code in runs:
-                if code is None:
-                    done.append((None, *_file_run(setting, None, folder, runner, n_threads,
-                                                  started)))
-                    continue
-                try:
-                    done.append((code, *_file_run(
-                        setting, lambda a, b, code=code: labels[a:b] == code,
-                        folder / f"class_{code}", runner, n_threads, time.perf_counter())))
-                except ValueError as exc:
-                    raise ValueError(f"the points of class {code}: {exc}") from exc
+                with lidar.naming(code):
+                    done.append((code, *(_file_run(
+                        setting, None, folder, runner, n_threads, started) if code is None
+                        else _file_run(setting, lambda a, b, code=code: labels[a:b] == code,
+                                       folder / f"class_{code}", runner, n_threads,
+                                       time.perf_counter()))))
             parts = [path for _, paths, _, _ in done for path in paths]
             if labels is not None:
                 kept = folder / "kept.bin"
