@@ -60,8 +60,8 @@ class DenoiseResult:
         plane fits; ``degenerate_normals``; ``held_points``, points left in place because their
         step was not finite or longer than its list's radius), region sizes and the mean step;
         plus the run's settings (``"k"``; ``"pipeline"``: "default", "paper", "bilateral" or
-        "mls"; ``"plan"``: the one method the run
-        followed and what it chose, docs/ALGORITHM.md, "The plan": for the default method its
+        "mls"; ``"plan"``: the one method the run followed and what it chose,
+        docs/ALGORITHM.md, "The plan": for the default method its
         ``iterations``, ``k``, ``cell_edge``, ``bound``, the probe's ``noise`` and the
         refinement's ``k`` and ``bound`` (None under "fast"); ``"auto_k"``: the default
         method's probe time, or the baselines' noise probe behind a ``k`` chosen from the data,
