@@ -27,6 +27,7 @@ AWARE_FIT_DEGREES = {"quadratic": 6, "plane": 3, "mean_height": 1, "none": 0}
 # where it took the robust fit.
 _NO_COEF = np.empty((0, 7))
 _NO_TAKEN = np.empty(0, np.bool_)
+_NO_LEVERAGE = np.empty(0)
 
 
 def default_h(graph, h=None):
@@ -192,7 +193,7 @@ def aware_fit(points, nrm, graph, sigma_n, mass=None, robust=False):
     degree = np.empty(n, np.int8)
     mass = np.empty(0) if mass is None else mass
     kernels.mls.aware_fit(points, points, nrm, mass, graph.indptr, graph.indices, sigma_n,
-                          robust, height, rms, degree, _NO_COEF, _NO_TAKEN)
+                          robust, height, rms, degree, _NO_COEF, _NO_TAKEN, _NO_LEVERAGE)
     return height, rms, degree
 
 
@@ -206,7 +207,7 @@ def robust_fits(points, nrm, graph, sigma_n):
     coef = np.empty((n, 7))
     taken = np.empty(n, np.bool_)
     kernels.mls.aware_fit(points, points, nrm, np.empty(0), graph.indptr, graph.indices,
-                          sigma_n, True, height, rms, degree, coef, taken)
+                          sigma_n, True, height, rms, degree, coef, taken, _NO_LEVERAGE)
     return height, rms, degree, coef, taken
 
 
@@ -220,8 +221,19 @@ def surface_fits(surface, nrm, lists, sigma_n, mass=None):
     coef = np.empty((m, 7))
     kernels.mls.aware_fit(surface, surface, nrm, np.empty(0) if mass is None else mass,
                           lists.indptr, lists.indices, sigma_n, False, np.empty(m), rms, degree,
-                          coef, _NO_TAKEN)
+                          coef, _NO_TAKEN, _NO_LEVERAGE)
     return coef, rms, degree
+
+
+def own_fits(points, nrm, lists, sigma_n):
+    """:func:`aware_fit` with its robust alternative on lists that start with the point
+    itself: the height, RMS residual, degree, and the plain fit's leverage on the point."""
+    n = points.shape[0]
+    height, rms, leverage = np.empty(n), np.empty(n), np.empty(n)
+    degree = np.empty(n, np.int8)
+    kernels.mls.aware_fit(points, points, nrm, np.empty(0), lists.indptr, lists.indices,
+                          sigma_n, True, height, rms, degree, _NO_COEF, _NO_TAKEN, leverage)
+    return height, rms, degree, leverage
 
 
 def evaluate_fits(points, surface, nrm, coef, nearest, distance):

@@ -125,6 +125,14 @@ def run(plan, request, tiles, store, runner=None):
     records[-1]["cells"] = sum(tile.cells for tile in tiles)
     refined = False
     if plan.refine is not None:
+        if plan.own_noise:
+            # The own fits read the points within three of their lists' bounds: the lists,
+            # the members' PCA normals and their filtered normals.
+            _tally(clock, runner.map("tile_noise", plan.iterations - 1, plan.iterations, _noise, [
+                (store, [("own", j) for j in range(len(tiles))],
+                 [t.point_boxes for t in tiles], i, None if whole else regions.widened(
+                     tiles[i].point_boxes, 3 * plan.refine[1]), plan, sigma_n)
+                for i in range(len(tiles))]))
         keys = [("test", i) for i in range(len(tiles))]
         flagged = clock.run("test", runner.map, "tile_test", plan.iterations - 1,
                             plan.iterations, _test, [
@@ -210,18 +218,43 @@ def _project(store, fits, boxes, i, region, plan, n_jobs):
     cells = store.get(("cells", i, 0), ("xyz", "mass", "gid"))
     local = points["cell"] - cells["gid"][0]
     sums = np.bincount(local, np.einsum("ij,ij->i", step, step), cells["gid"].shape[0])
-    store.put(("test", i), {"xyz": cells["xyz"], "sums": sums, "mass": cells["mass"],
-                            "gid": cells["gid"]})
+    entry = {"xyz": cells["xyz"], "sums": sums, "mass": cells["mass"], "gid": cells["gid"]}
+    if plan.own_noise:
+        # Each point's own noise comes in the next round (_noise).
+        store.put(("own", i), {"xyz": points["xyz"], "hints": normals, "gid": points["gid"]})
+    store.put(("test", i), entry)
+
+
+def _noise(store, keys, boxes, i, region, plan, sigma_n, n_jobs):
+    """A tile's task of the points' own noise (:func:`pssd_fast.method.own_noise` on its
+    points and their halo, at their input positions): the sums over each of its cells of its
+    points' noise variances and of what their own fits leave of them, added to its
+    ``("test", i)`` entry."""
+    items = gather(store, keys, i, boxes, region, ("xyz", "hints", "gid"), "xyz")
+    n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
+    clock = Clock(None, 0, 1)
+    with threads(n_jobs):
+        noise2, spread2 = clock.run("own_noise", method.own_noise, items["xyz"],
+                                    items["hints"], *plan.refine, sigma_n, items["gid"])
+    cell = store.get(("points", i), ("cell",))["cell"]
+    entry = store.get(("test", i))
+    local, m = cell - entry["gid"][0], entry["gid"].shape[0]
+    entry.update(noise=np.bincount(local, noise2[:n_own], m),
+                 spread=np.bincount(local, spread2[:n_own], m))
+    store.put(("test", i), entry)
+    return clock.times
 
 
 def _test(store, keys, boxes, i, region, plan, n_jobs):
     """A tile's task of the chi-square test: its points' flags (``("flags", i)``), from their
     cells'; the number flagged."""
-    cells = gather(store, keys, i, boxes, region, ("xyz", "sums", "mass", "gid"), "xyz")
+    names = ("xyz", "sums", "mass", "gid") + (("noise", "spread") if plan.own_noise else ())
+    cells = gather(store, keys, i, boxes, region, names, "xyz")
     n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
     with threads(n_jobs):
         fails = method.failing(cells["xyz"], cells["sums"], cells["mass"], plan.noise.sigma,
-                               plan.bound, cells["gid"])[:n_own]
+                               plan.bound, cells["gid"], (cells["noise"], cells["spread"])
+                               if plan.own_noise else None)[:n_own]
     points = store.get(("points", i), ("cell",))
     flagged = fails[points["cell"] - cells["gid"][0]]
     store.put(("flags", i), {"flagged": flagged})

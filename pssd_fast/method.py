@@ -36,10 +36,15 @@ RADIUS = 8.0
 LIST = {"shortest": 80, "longest": 160, "reach": 2.0}
 #: Iterations of the fit on the cell means.
 ITERATIONS = 2
-#: The chi-square test: a neighbourhood (a cell and its ``cells - 1`` nearest cells) fails
-#: where its residuals' mean square exceeds ``sigma^2 (1 + z sqrt(2 / m))``, ``m`` the points
-#: it holds.
-TEST = {"z": 1.0, "cells": 32}
+#: The test of the fits (docs/ALGORITHM.md, "The test and the refinement"): a neighbourhood
+#: (a cell and its ``cells - 1`` nearest cells, ``m`` points) fails where its points' squared
+#: steps onto the fits add up to more than the probe's noise by ``z`` standard deviations of a
+#: chi-square of ``m`` degrees (``sqrt(2 / m)`` relative); or, where the points' own fits have
+#: lists spanning at least ``span`` noise widths, more than the points' own noise (their
+#: squared residuals about their own fits, over ``reads``: what those read of a noisy plane's
+#: variance) by ``z_own`` standard deviations of the ratio of two such chi-squares
+#: (``sqrt(4 / m)``), plus what their own fits would leave of it.
+TEST = {"z": 1.0, "cells": 32, "span": 3.0, "reads": 0.91, "z_own": 4.0}
 #: The failing points' own fits: their lists reach ``radius`` noise widths (at least ``k``
 #: points), and they iterate ``iterations`` times.
 REFINE = {"radius": 4.0, "k": 40, "iterations": 2}
@@ -88,6 +93,14 @@ def list_bound(k, spacing, edge):
     """The farthest a list of ``k`` means may reach: ``LIST["reach"]`` times the radius of
     ``k`` means on a surface sampled evenly at the cells' density."""
     return LIST["reach"] * math.sqrt(k / math.pi) * max(spacing, edge)
+
+
+def own_lists_span(k, spacing, sigma):
+    """Whether lists of ``k`` points, of radius ``sqrt(k / pi)`` spacings on an even sample,
+    span ``TEST["span"]`` noise widths: the least at which a fit's residuals read the noise
+    rather than a part of it (a narrower list holds the points nearest the point's own height,
+    docs/ALGORITHM.md, "The test")."""
+    return math.sqrt(k / math.pi) * spacing >= TEST["span"] * sigma
 
 
 def cell_edge(sigma, spacing):
@@ -211,17 +224,42 @@ def cell_sums(cells, values):
     return np.add.reduceat(values[cells.order], cells.starts[:-1])
 
 
-def failing(means, sums, counts, sigma, bound, ids=None):
-    """Which cells' neighbourhoods fail the chi-square test (:data:`TEST`): the mean square
-    residual of the points of the cell and its ``TEST["cells"] - 1`` nearest cells within
-    ``bound`` (``means``: the cells' input means; ``sums``: each cell's sum of its points'
-    squared steps onto the surface; ``counts``: its points), against ``sigma^2``."""
+def failing(means, sums, counts, sigma, bound, ids=None, own=None):
+    """Which cells' neighbourhoods fail the test (:data:`TEST`): over the points of the cell
+    and its ``TEST["cells"] - 1`` nearest cells within ``bound`` (``means``: the cells' input
+    means; ``counts``: their points; ``m`` the points in all), the sum of the points' squared
+    steps onto the fits (``sums``, per cell) above ``m sigma^2 (1 + z sqrt(2 / m))``; or, where
+    ``own`` gives per cell the points' own noise variances and what their own fits would leave
+    of them (:func:`own_noise`), above the sum of the first times ``1 + z_own sqrt(4 / m)``
+    plus the sum of the second: the fits' bias against what each point's own fit would
+    cost."""
     lists = bounded_graph(means, TEST["cells"], bound, None, ids)
-    total = np.add.reduceat(sums[lists.indices], lists.indptr[:-1])
-    points = np.add.reduceat(counts[lists.indices], lists.indptr[:-1]).astype(np.float64)
+
+    def summed(values):
+        return np.add.reduceat(values[lists.indices], lists.indptr[:-1])
+
+    total, points = summed(sums), np.maximum(summed(counts.astype(np.float64)), 1.0)
     noise2 = max(sigma * sigma, np.finfo(np.float64).tiny)
-    return total / np.maximum(points, 1.0) > noise2 * (1.0 + TEST["z"] * np.sqrt(
-        2.0 / np.maximum(points, 1.0)))
+    fails = total > points * noise2 * (1.0 + TEST["z"] * np.sqrt(2.0 / points))
+    if own is not None:
+        noise2, spread2 = (summed(values) for values in own)
+        fails |= total > spread2 + noise2 * (1.0 + TEST["z_own"] * np.sqrt(4.0 / points))
+    return fails
+
+
+def own_noise(points, hints, k, bound, sigma_n, ids=None):
+    """Each point's noise as its own fit sees it, and the variance that fit leaves: its
+    squared residual about the feature-aware quadratic (robust alternative included) of its
+    ``k`` nearest points within ``bound`` (ties ordered by ``ids``), PCA normals signed along
+    ``hints`` (where not finite: away from the centre), over ``1 - H``, ``H`` the plain fit's
+    leverage on the point; and that times ``H``."""
+    lists = bounded_graph(points, k, bound, None, ids)
+    signs = np.where(np.isfinite(hints).all(axis=1)[:, None], hints, points)
+    filtered = core.filter_normals(points, _normals(points, lists, signs, None), lists)
+    height, _, _, leverage = core.own_fits(points, filtered, lists, sigma_n)
+    noise2 = height * height / (TEST["reads"] * np.maximum(1.0 - leverage,
+                                                           np.finfo(np.float64).eps))
+    return noise2, noise2 * leverage
 
 
 def refine_step(current, normals, flagged, k, bound, sigma_n, given, clock, first, ids=None,

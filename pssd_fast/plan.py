@@ -53,6 +53,9 @@ class Plan:
         The grid's corner: the cloud's low corner (default method).
     refine : tuple or None
         ``(k, bound)`` of the failing points' own lists; None: no refinement ("fast").
+    own_noise : bool
+        Whether the test reads each point's noise from its own fit over those lists (they span
+        at least ``TEST["span"]`` noise widths), else the probe's ``sigma``.
     rebuild_graph : bool
         The paper's pipeline and the baselines: whether each iteration queries its lists
         anew.
@@ -69,6 +72,7 @@ class Plan:
     bound: Optional[float] = None
     low: Optional[np.ndarray] = field(default=None, compare=False)
     refine: Optional[tuple] = None
+    own_noise: bool = False
     rebuild_graph: bool = False
     probe: Optional[dict] = None
 
@@ -80,7 +84,7 @@ class Plan:
         return {"method": "default", "iterations": self.iterations, "k": self.k,
                 "cell_edge": self.edge, "bound": self.bound, "noise": self.noise.record(),
                 "refine": None if self.refine is None else
-                {"k": self.refine[0], "bound": self.refine[1]}}
+                {"k": self.refine[0], "bound": self.refine[1], "own_noise": self.own_noise}}
 
 
 def make(points, given, preset, pipeline, *, distinct, low, k=None, iterations=None,
@@ -132,10 +136,12 @@ def _default(points, setting, distinct, low, k, iterations):
         k = min(method.list_length(found.sigma, found.spacing, edge), distinct - 1)
     bound = method.list_bound(k, found.spacing, edge)
     refine = None
+    own = False
     if setting["refine"]:
         k_r = min(method.list_length(found.sigma, found.spacing, 0.0, method.REFINE["radius"],
                                      method.REFINE["k"]), distinct - 1)
         refine = (k_r, method.list_bound(k_r, found.spacing, 0.0))
+        own = method.own_lists_span(k_r, found.spacing, found.sigma)
     return Plan("default", method.ITERATIONS if iterations is None else iterations, k,
                 noise=found, edge=edge, bound=bound, low=np.asarray(low, np.float64),
-                refine=refine, probe={"seconds": seconds})
+                refine=refine, own_noise=own, probe={"seconds": seconds})

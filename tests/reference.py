@@ -719,15 +719,62 @@ def method_project(points, origins, normals, lists, mass, bound, blend=3, sigma_
     return moved, out_normals
 
 
-def method_failing(means, members, residual2, sigma, bound, cells=8, test=3.0):
-    """Whether each cell fails the chi-square test: over the points of the cell and of its
-    ``cells - 1`` nearest cells within ``bound`` (``members``: each cell's points), the mean
-    square residual above ``sigma^2 (1 + test sqrt(2 / m))``, ``m`` the points."""
+def method_failing(means, members, residual2, sigma, bound, cells=8, test=3.0, own=None,
+                   test_own=2.0):
+    """Whether each cell fails the test: over the points of the cell and of its ``cells - 1``
+    nearest cells within ``bound`` (``members``: each cell's points; ``m`` the points), the sum
+    of the squared residuals above ``m sigma^2 (1 + test sqrt(2 / m))``; or, with ``own`` (each
+    point's noise variance and what its own fit leaves), above the sum of the first times
+    ``1 + test_own sqrt(4 / m)`` plus the sum of the second."""
     out = []
     for near, _ in nearest_within(means, means, cells, bound):
         rows = np.concatenate([members[c] for c in near])
-        out.append(residual2[rows].mean() > sigma ** 2 * (1 + test * np.sqrt(2 / len(rows))))
+        m = len(rows)
+        fails = residual2[rows].sum() > m * sigma ** 2 * (1 + test * np.sqrt(2 / m))
+        if own is not None:
+            noise2, spread2 = own
+            fails |= residual2[rows].sum() > spread2[rows].sum() + noise2[rows].sum() * (
+                1 + test_own * np.sqrt(4 / m))
+        out.append(fails)
     return np.array(out)
+
+
+def own_leverage(origin, n, pts, nrms, sigma_n):
+    """The plain fit of :func:`frame_coefficients` (no robust alternative): the weight of the
+    first listed point, the origin itself, in the fitted height, ``w_0 (X' W X)^-1_00`` over
+    the columns fitted; 0 where the first point is not the origin or nothing was fitted."""
+    rel = pts - origin
+    if not (rel[0] == 0).all():
+        return 0.0
+    d2 = (rel ** 2).sum(axis=1)
+    radius2 = d2.max()
+    weights = np.exp(-d2 / radius2) if radius2 > 0 else np.ones(len(pts))
+    if sigma_n > 0:
+        agree = np.minimum(np.abs(nrms @ n), 1.0)
+        weights = weights * np.exp(-((1 - agree) / sigma_n) ** 2)
+    u, v = _basis(n)
+    scale = np.sqrt(radius2) if radius2 > 0 else 1.0
+    design = _monomials(rel @ u / scale, rel @ v / scale)[:, :6]
+    _, fitted = _solve(design, weights, rel @ n, 6)
+    if fitted == 0:
+        return 0.0
+    cols = design[:, :fitted]
+    return weights[0] * np.linalg.inv(cols.T @ (weights[:, None] * cols))[0, 0]
+
+
+def method_own_noise(points, hints, k, bound, sigma_n=0.05, reads=1.0):
+    """Each point's noise by its own fit: lists of its ``k`` nearest within ``bound``, PCA
+    normals signed along ``hints``, filtered; the squared height of its feature-aware quadratic
+    (robust alternative included) over ``reads (1 - H)``, ``H`` the plain fit's leverage
+    (:func:`own_leverage`); and that times ``H``."""
+    lists = bounded_lists(points, k, bound)
+    nrm = _signed(pca_normals(points, lists), hints)
+    filtered = filter_normals(points, nrm, lists)
+    height, _, _ = aware_fit(points, filtered, lists, sigma_n, robust=True)
+    leverage = np.array([own_leverage(points[i], filtered[i], points[m], filtered[m], sigma_n)
+                         for i, m in enumerate(lists)])
+    noise2 = height ** 2 / (reads * (1 - leverage))
+    return noise2, noise2 * leverage
 
 
 def method_refine(start, normals, flagged, k, bound, iterations=2, sigma_n=0.05, given=None,

@@ -222,10 +222,12 @@ def test_stats_describe_the_default_run(noisy):
     for record in stats["iterations"]:
         assert {"neighbors", "normals", "filter", "mls", "update"} <= set(record["times"])
         assert sum(record["fit_degree"].values()) == cells  # the fits are the means'
-    # The last iteration also moves every point onto the fits and refines those that fail.
+    # The last iteration also moves every point onto the fits, reads the points' own noise
+    # (where the plan says so), tests and refines those that fail.
+    own = {"own_noise"} if stats["plan"]["refine"]["own_noise"] else set()
     assert set(stats["iterations"][-1]["times"]) == {
         "neighbors", "normals", "filter", "mls", "update", "project", "test",
-        "refine_neighbors", "refine_normals", "refine_fit"}
+        "refine_neighbors", "refine_normals", "refine_fit"} | own
     import json
 
     json.dumps(stats)
@@ -512,12 +514,14 @@ def test_progress_reports_every_stage(noisy, capsys):
     result = pssd_fast.denoise(noisy, iterations=2, extras=True,
                                progress=lambda *args: seen.append(args))
     means = ["neighbors", "normals", "filter", "mls", "update"]
-    # The last iteration: every point onto the fits, the test, the failing points' own fits
-    # (two iterations of three stages), the extras.
+    # The last iteration: every point onto the fits, the points' own noise (this cloud's
+    # refits span it), the test, the failing points' own fits (two iterations of three
+    # stages), the extras.
     refined = ["refine_neighbors", "refine_normals", "refine_fit"] * 2
     assert result.stats["iterations"][-1]["refined"] > 0
+    assert result.stats["plan"]["refine"]["own_noise"]
     assert [(i, s) for i, _, s, _ in seen] == [(1, s) for s in means] + [
-        (2, s) for s in means + ["project", "test"] + refined + ["extras"]]
+        (2, s) for s in means + ["project", "own_noise", "test"] + refined + ["extras"]]
     assert all(t >= 0 for *_, t in seen)
     pssd_fast.denoise(noisy, iterations=1, method="mls", progress=True)
     err = capsys.readouterr().err

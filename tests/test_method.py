@@ -102,11 +102,12 @@ def _two_point_cells(residuals):
     return cells, np.repeat(np.asarray(residuals, float), 2)
 
 
-def _failing(cells, residual2, sigma, bound):
+def _failing(cells, residual2, sigma, bound, own=None):
     """:func:`pssd_fast.method.failing` of the cells, ``residual2`` each point's squared
-    step."""
+    step; ``own``: each point's own noise variance and what its own fit leaves, or None."""
     return method.failing(cells.points, method.cell_sums(cells, residual2), cells.counts, sigma,
-                          bound)
+                          bound, None, None if own is None else tuple(
+                              method.cell_sums(cells, values) for values in own))
 
 
 def test_failing_on_a_hand_made_case():
@@ -145,6 +146,63 @@ def test_failing_matches_the_reference():
                                     method.TEST["cells"], method.TEST["z"])
     np.testing.assert_array_equal(got, want)
     assert 0 < got.sum() < len(got)
+    # The points' own noise, varying, and what their own fits leave of it: their test fails
+    # where either does.
+    own2 = sigma ** 2 * rng.uniform(0.2, 0.8, len(points))
+    spread2 = own2 * rng.uniform(0.0, 0.3, len(points))
+    got_own = _failing(cells, residual2, sigma, 0.15, (own2, spread2))
+    want = reference.method_failing(cells.points, members, residual2, sigma, 0.15,
+                                    method.TEST["cells"], method.TEST["z"], (own2, spread2),
+                                    method.TEST["z_own"])
+    np.testing.assert_array_equal(got_own, want)
+    assert (got_own >= got).all() and got_own.sum() > got.sum()
+
+
+def test_what_own_fits_leave_raises_the_bar():
+    """Where the probe's noise is far above the steps, a neighbourhood fails by the points'
+    own noise: where its steps exceed that by more than ``1 + z_own sqrt(4 / m)`` plus what
+    the own fits would leave (cells of two points, own noise 1, all 8 cells together)."""
+    bar = 1.0 + method.TEST["z_own"] * np.sqrt(4.0 / 16.0)
+    cells, residual2 = _two_point_cells([bar + 0.2] * 8)
+    ones = np.ones(16)
+    assert not _failing(cells, residual2, 10.0, 100.0).any()
+    assert _failing(cells, residual2, 10.0, 100.0, (ones, 0 * ones)).all()
+    assert not _failing(cells, residual2, 10.0, 100.0, (ones, np.full(16, 0.21))).any()
+    assert _failing(cells, residual2, 10.0, 100.0, (ones, np.full(16, 0.19))).all()
+
+
+@pytest.mark.parametrize("name", ["wavy", "sheets", "duplicates"])
+def test_own_noise_matches_the_reference(name):
+    """Each point's noise read by its own fit, and what the fit leaves, against the
+    reference: a noisy height field, two sheets 4 noise widths apart, and coincident points."""
+    rng = np.random.default_rng(11)
+    if name == "wavy":
+        points = _ordered(wavy(600, noise=0.01, seed=8))
+    elif name == "sheets":
+        xy = rng.uniform(0, 1, (600, 2))
+        points = _ordered(np.column_stack([xy, np.repeat([0.0, 0.04], 300)
+                                           + rng.normal(0, 0.01, 600)]))
+    else:
+        points = _ordered(np.repeat(wavy(150, noise=0.01, seed=9), 4, axis=0))
+    hints = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    got = method.own_noise(points, hints, 24, 0.4, 0.05)
+    want = reference.method_own_noise(points, hints, 24, 0.4, 0.05, method.TEST["reads"])
+    for g, w in zip(got, want):
+        np.testing.assert_allclose(g, w, rtol=1e-7, atol=1e-12)
+    assert (got[1] <= got[0]).all() and (got[0] >= 0).all()
+
+
+def test_own_noise_reads_a_planes_noise():
+    """On a noisy plane whose lists span many noise widths, the own fits read its noise
+    (``TEST["reads"]`` corrects what they read of it): the mean of the points' variances
+    within 10% of sigma^2, what the fits leave below a quarter of it."""
+    rng = np.random.default_rng(12)
+    points = _ordered(np.column_stack([rng.uniform(0, 1, (4000, 2)),
+                                       rng.normal(0, 0.002, 4000)]))
+    noise2, spread2 = method.own_noise(points, np.tile([0.0, 0.0, 1.0], (4000, 1)), 40, 1.0,
+                                       0.05)
+    assert abs(noise2.mean() / 0.002 ** 2 - 1.0) < 0.1
+    assert 0.0 < spread2.mean() < 0.25 * noise2.mean()
 
 
 @pytest.fixture(scope="module")
@@ -361,10 +419,13 @@ def test_stats_describe_one_method(part):
     assert plan["k"] == stats["k"] == method.list_length(sigma, spacing, edge)
     assert plan["bound"] == method.list_bound(plan["k"], spacing, edge)
     k_r = method.list_length(sigma, spacing, 0.0, method.REFINE["radius"], method.REFINE["k"])
-    assert plan["refine"] == {"k": k_r, "bound": method.list_bound(k_r, spacing, 0.0)}
+    own = math.sqrt(k_r / math.pi) * spacing >= method.TEST["span"] * sigma
+    assert plan["refine"] == {"k": k_r, "bound": method.list_bound(k_r, spacing, 0.0),
+                              "own_noise": own}
+    assert own  # 0.25% noise: the own lists span the noise
     last = stats["iterations"][-1]
     assert 0 < last["refined"] < len(part.points) and 0 < last["cells"] <= len(part.points)
-    assert {"neighbors", "normals", "filter", "mls", "update", "project", "test",
+    assert {"neighbors", "normals", "filter", "mls", "update", "project", "own_noise", "test",
             "refine_neighbors", "refine_normals", "refine_fit"} == set(last["times"])
     json.dumps(stats)
     # "fast" is the same method without the refinement: the same plan otherwise, and the

@@ -1,6 +1,7 @@
 """The run plan (pssd_fast.plan): made once, frozen, what each preset and method decides, and
 what ``stats`` says of it (docs/ALGORITHM.md, "The plan")."""
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -47,12 +48,23 @@ def test_the_default_method_s_plan(quiet, preset):
         k_r = method.list_length(probe.sigma, probe.spacing, 0.0, method.REFINE["radius"],
                                  method.REFINE["k"])
         assert found.refine == (k_r, method.list_bound(k_r, probe.spacing, 0.0))
+        # The test reads the points' own noise where their lists span TEST["span"] widths.
+        assert found.own_noise == method.own_lists_span(k_r, probe.spacing, probe.sigma)
     assert not found.rebuild_graph and set(found.probe) == {"seconds"}
     assert found.describe() == {
         "method": "default", "iterations": found.iterations, "k": k, "cell_edge": edge,
         "bound": found.bound, "noise": probe.record(),
         "refine": None if found.refine is None else {"k": found.refine[0],
-                                                     "bound": found.refine[1]}}
+                                                     "bound": found.refine[1],
+                                                     "own_noise": found.own_noise}}
+
+
+def test_own_lists_span_the_noise():
+    """Lists of ``k`` points span ``sqrt(k / pi)`` spacings: wide enough at ``TEST["span"]``
+    noise widths, not below."""
+    span = method.TEST["span"]
+    assert method.own_lists_span(40, 1.0, math.sqrt(40 / math.pi) / span)
+    assert not method.own_lists_span(40, 1.0, 1.0001 * math.sqrt(40 / math.pi) / span)
 
 
 def test_the_callers_choices_override_the_preset_s(quiet):

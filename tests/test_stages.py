@@ -207,6 +207,24 @@ def test_aware_fit(cloud, sigma_n, weighted):
         np.testing.assert_allclose(rms, 0, atol=1e-15)
 
 
+@pytest.mark.parametrize("sigma_n", [0.0, 0.05])
+def test_own_fits_leverage(cloud, sigma_n):
+    """The plain fit's leverage on each point (its list holds it first) against the
+    reference, degenerate clouds included; the heights are those of the robust fit."""
+    name, points, k = cloud
+    graph, lists = _setup(points, k)
+    nrm = _normals_for(name, points, lists)
+    height, rms, degree, leverage = core.own_fits(points, nrm, graph, sigma_n)
+    ref = reference.aware_fit(points, nrm, lists, sigma_n, robust=True)
+    np.testing.assert_array_equal(degree, ref[2])
+    scale = np.ptp(points, axis=0).max()
+    np.testing.assert_allclose(height, ref[0], atol=1e-9 * scale, rtol=0)
+    want = [reference.own_leverage(points[i], nrm[i], points[m], nrm[m], sigma_n)
+            for i, m in enumerate(lists)]
+    np.testing.assert_allclose(leverage, want, atol=1e-9, rtol=1e-7)
+    assert ((leverage >= 0) & (leverage <= 1 + 1e-9)).all()
+
+
 def two_sheets(n=200, gap=4.0, sigma=0.01, seed=6):
     """Two noisy parallel unit squares ``gap`` noise deviations apart, their normals (+z) and
     each point's own sheet height."""

@@ -298,7 +298,8 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
     """Weighted quadratic over the listed ``points`` in the frame of origin ``(px, py, pz)`` and
     unit axis ``(nx, ny, nz)``: the height ``g(0, 0)``, the weighted RMS residual, the number
     of coefficients fitted (see :func:`aware_fit`) and the inverse of the list radius that
-    scales the tangent coordinates, and whether the robust fit was taken; ``b`` holds the
+    scales the tangent coordinates, whether the robust fit was taken, and the plain fit's
+    leverage on the origin where the list holds it first (:func:`_leverage`); ``b`` holds the
     coefficients. With ``robust``, the fit of :func:`_robust_fit` replaces the plain one where
     it explains the list better."""
     ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
@@ -330,6 +331,7 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
         base[t] = wgt
         _basis(x, y, phi, t)
     m = _solve(phi, base, zs, count, 6, a, b)
+    leverage = _leverage(a, m, base, phi, zs, count)
     _residuals(phi, b, m, zs, count, xs)
     rms = _weighted_rms(base, xs, count)
     taken = False
@@ -344,7 +346,27 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
             for p in range(6):
                 b[p] = other[p]
             rms = _weighted_rms(base, xs, count)  # xs: the residuals about ``other``
-    return b[0], rms, m, inv_r, taken
+    return b[0], rms, m, inv_r, taken, leverage
+
+
+@helper
+def _leverage(lower, m, base, phi, zs, count):
+    """The weight of the list's first entry in its own fitted height, ``H_00 = w_0 (A^-1)_00``
+    (``lower``: the factor of the fit's ``m`` coefficients), where that entry is the origin
+    itself; else 0. The residual of the origin about the fit has ``1 - H_00`` of its noise's
+    variance."""
+    if m == 0 or count == 0 or phi[1, 0] != 0.0 or phi[2, 0] != 0.0 or zs[0] != 0.0:
+        return 0.0
+    # (A^-1)_00 = |L^-1 e0|^2: forward substitution of e0.
+    total = 0.0
+    y = np.zeros(6)
+    for k in range(m):
+        s = 1.0 if k == 0 else 0.0
+        for j in range(k):
+            s -= lower[k, j] * y[j]
+        y[k] = s / lower[k, k]
+        total += y[k] * y[k]
+    return base[0] * total
 
 
 @helper
@@ -372,7 +394,7 @@ def _weighted_rms(wts, xs, count):
 
 @parallel_kernel
 def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, robust, height, rms,
-              degree, coef, taken):
+              degree, coef, taken, leverage):
     """Feature-aware local quadratic of each point's listed ``surface`` points, in the frame of
     the point and the normal of its first (nearest) listed one: the iterations of the default
     method on its cell means and on the points it refines (``surface`` is ``points``, each list
@@ -412,6 +434,9 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, robust, 
         x^2``; those not fitted are 0) and ``1 / r_i``, for :func:`evaluate_fits`.
     taken : (n,) bool or (0,)
         Output, if it has entries: whether the robust fit replaced the plain one.
+    leverage : (n,) float64 or (0,)
+        Output, if it has entries: the plain fit's leverage on the point, where its list holds
+        it first (:func:`_leverage`), else 0.
 
     Notes
     -----
@@ -444,9 +469,11 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, robust, 
                     coef[i, :] = 0.0
                 if taken.shape[0] > 0:
                     taken[i] = False
+                if leverage.shape[0] > 0:
+                    leverage[i] = 0.0
                 continue
             first = indices[start]
-            height[i], rms[i], degree[i], inv_r, robust_taken = _frame_fit(
+            height[i], rms[i], degree[i], inv_r, robust_taken, own = _frame_fit(
                 points[i, 0], points[i, 1], points[i, 2], normals[first, 0],
                 normals[first, 1], normals[first, 2], surface, normals, mass, indices, start,
                 count, inv_sigma_n, robust, wts, base, xs, zs, a, b, other, phi)
@@ -455,6 +482,8 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, robust, 
                 coef[i, 6] = inv_r
             if taken.shape[0] > 0:
                 taken[i] = robust_taken
+            if leverage.shape[0] > 0:
+                leverage[i] = own
 
 
 @parallel_kernel
