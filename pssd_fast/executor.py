@@ -10,7 +10,8 @@ its results, bit for bit, whatever the tiles (:func:`pssd_fast.graph.nearest_wit
 
 The rounds: the iterations on the cell means (a halo of four list bounds in the first, whose
 normals are shifted, three after); every point onto the last fits of its nearest means (one
-bound); the chi-square test of each cell (one bound); the failing points' own iterations (four
+bound); where the plan says so, each point's own noise from its own fit (three bounds of the
+refinement's lists); the test of each cell (one bound); the failing points' own iterations (four
 bounds of their lists, then three). The cells themselves come first
 (:func:`group`, or :mod:`pssd_fast.tiled.ondisk` out of core): each tile holds whole cells,
 consecutive along their Morton curve, and its points grouped by cell.
@@ -246,8 +247,8 @@ def _noise(store, keys, boxes, i, region, plan, sigma_n, n_jobs):
 
 
 def _test(store, keys, boxes, i, region, plan, n_jobs):
-    """A tile's task of the chi-square test: its points' flags (``("flags", i)``), from their
-    cells'; the number flagged."""
+    """A tile's task of the test (:func:`pssd_fast.method.failing`): its points' flags
+    (``("flags", i)``), from their cells'; the number flagged."""
     names = ("xyz", "sums", "mass", "gid") + (("noise", "spread") if plan.own_noise else ())
     cells = gather(store, keys, i, boxes, region, names, "xyz")
     n_own = store.get(keys[i], ("gid",))["gid"].shape[0]

@@ -8,7 +8,8 @@ where it spans several spacings the cells average it down. The feature-aware fit
 cell means, each fitted over the means within ``RADIUS`` noise widths (at least
 ``LIST["shortest"]`` of them, at most ``LIST["longest"]``); every point then moves onto the
 last fits of its nearest means. The points whose neighbourhood the surface fails to explain
-within the noise (a chi-square test on their residuals, ``TEST``) fit their own lists from
+within the noise (a test of their steps against the probe's noise and their own fits'
+residuals, ``TEST``) fit their own lists from
 their input positions (``REFINE``).
 
 Each step reads the items within a radius that the plan fixes before it runs
@@ -98,8 +99,8 @@ def list_bound(k, spacing, edge):
 def own_lists_span(k, spacing, sigma):
     """Whether lists of ``k`` points, of radius ``sqrt(k / pi)`` spacings on an even sample,
     span ``TEST["span"]`` noise widths: the least at which a fit's residuals read the noise
-    rather than a part of it (a narrower list holds the points nearest the point's own height,
-    docs/ALGORITHM.md, "The test")."""
+    rather than a part of it (a narrower list holds the points nearest the point's own height;
+    docs/ALGORITHM.md, "The test and the refinement")."""
     return math.sqrt(k / math.pi) * spacing >= TEST["span"] * sigma
 
 

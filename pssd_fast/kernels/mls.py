@@ -331,7 +331,7 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
         base[t] = wgt
         _basis(x, y, phi, t)
     m = _solve(phi, base, zs, count, 6, a, b)
-    leverage = _leverage(a, m, base, phi, zs, count)
+    leverage = _leverage(a, m, base, phi, zs, count, other)
     _residuals(phi, b, m, zs, count, xs)
     rms = _weighted_rms(base, xs, count)
     taken = False
@@ -350,16 +350,15 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
 
 
 @helper
-def _leverage(lower, m, base, phi, zs, count):
+def _leverage(lower, m, base, phi, zs, count, y):
     """The weight of the list's first entry in its own fitted height, ``H_00 = w_0 (A^-1)_00``
     (``lower``: the factor of the fit's ``m`` coefficients), where that entry is the origin
     itself; else 0. The residual of the origin about the fit has ``1 - H_00`` of its noise's
-    variance."""
+    variance. ``y`` is scratch (6)."""
     if m == 0 or count == 0 or phi[1, 0] != 0.0 or phi[2, 0] != 0.0 or zs[0] != 0.0:
         return 0.0
     # (A^-1)_00 = |L^-1 e0|^2: forward substitution of e0.
     total = 0.0
-    y = np.zeros(6)
     for k in range(m):
         s = 1.0 if k == 0 else 0.0
         for j in range(k):
