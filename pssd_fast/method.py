@@ -240,8 +240,8 @@ def failing(means, sums, counts, sigma, bound, ids=None, own=None):
         return np.add.reduceat(values[lists.indices], lists.indptr[:-1])
 
     total, points = summed(sums), np.maximum(summed(counts.astype(np.float64)), 1.0)
-    noise2 = max(sigma * sigma, np.finfo(np.float64).tiny)
-    fails = total > points * noise2 * (1.0 + TEST["z"] * np.sqrt(2.0 / points))
+    sigma2 = max(sigma * sigma, np.finfo(np.float64).tiny)
+    fails = total > points * sigma2 * (1.0 + TEST["z"] * np.sqrt(2.0 / points))
     if own is not None:
         noise2, spread2 = (summed(values) for values in own)
         fails |= total > spread2 + noise2 * (1.0 + TEST["z_own"] * np.sqrt(4.0 / points))

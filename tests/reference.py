@@ -147,10 +147,10 @@ def frame_fit(origin, n, pts, nrms, sigma_n, mass=None, robust=False):
     return coef[0], rms, fitted
 
 
-def frame_coefficients(origin, n, pts, nrms, sigma_n, mass=None, robust=False):
-    """:func:`frame_fit`'s quadratic itself: its six coefficients (in the tangent coordinates
-    of :func:`_basis` over the list radius), that radius, the RMS residual and the number of
-    coefficients fitted."""
+def _frame(origin, n, pts, nrms, sigma_n, mass=None):
+    """The listed points in the frame of ``origin`` and axis ``n``: tangent coordinates over
+    the list radius, heights, the weights (distance, normal agreement, ``mass``) and that
+    radius."""
     rel = pts - origin
     d2 = (rel ** 2).sum(axis=1)
     radius2 = d2.max()
@@ -162,7 +162,14 @@ def frame_coefficients(origin, n, pts, nrms, sigma_n, mass=None, robust=False):
         weights = weights * mass
     u, v = _basis(n)
     scale = np.sqrt(radius2) if radius2 > 0 else 1.0
-    x, y, z = rel @ u / scale, rel @ v / scale, rel @ n
+    return rel @ u / scale, rel @ v / scale, rel @ n, weights, scale
+
+
+def frame_coefficients(origin, n, pts, nrms, sigma_n, mass=None, robust=False):
+    """:func:`frame_fit`'s quadratic itself: its six coefficients (in the tangent coordinates
+    of :func:`_basis` over the list radius), that radius, the RMS residual and the number of
+    coefficients fitted."""
+    x, y, z, weights, scale = _frame(origin, n, pts, nrms, sigma_n, mass)
     design = _monomials(x, y)[:, :6]
     coef, fitted = _solve(design, weights, z, 6)
     rms = _rms(weights, z - design @ coef)
@@ -743,19 +750,11 @@ def own_leverage(origin, n, pts, nrms, sigma_n):
     """The plain fit of :func:`frame_coefficients` (no robust alternative): the weight of the
     first listed point, the origin itself, in the fitted height, ``w_0 (X' W X)^-1_00`` over
     the columns fitted; 0 where the first point is not the origin or nothing was fitted."""
-    rel = pts - origin
-    if not (rel[0] == 0).all():
+    if not (pts[0] == origin).all():
         return 0.0
-    d2 = (rel ** 2).sum(axis=1)
-    radius2 = d2.max()
-    weights = np.exp(-d2 / radius2) if radius2 > 0 else np.ones(len(pts))
-    if sigma_n > 0:
-        agree = np.minimum(np.abs(nrms @ n), 1.0)
-        weights = weights * np.exp(-((1 - agree) / sigma_n) ** 2)
-    u, v = _basis(n)
-    scale = np.sqrt(radius2) if radius2 > 0 else 1.0
-    design = _monomials(rel @ u / scale, rel @ v / scale)[:, :6]
-    _, fitted = _solve(design, weights, rel @ n, 6)
+    x, y, z, weights, _ = _frame(origin, n, pts, nrms, sigma_n)
+    design = _monomials(x, y)[:, :6]
+    _, fitted = _solve(design, weights, z, 6)
     if fitted == 0:
         return 0.0
     cols = design[:, :fitted]
