@@ -1,6 +1,7 @@
 """pssd_fast.io: round trips that keep every attribute, and one test per refused file."""
 import contextlib
 import dataclasses
+import gzip
 import struct
 import sys
 import tracemalloc
@@ -133,7 +134,12 @@ def test_ply_write_moves_points_adds_field_and_keeps_the_rest(tmp_path, mode):
 def test_ply_unchanged_write_reproduces_the_file_byte_for_byte(tmp_path, mode):
     make_ply(tmp_path / "a.ply", mode)
     pio.write(tmp_path / "b.ply", pio.read(tmp_path / "a.ply"))
-    assert (tmp_path / "b.ply").read_bytes() == (tmp_path / "a.ply").read_bytes()
+    pio.write(tmp_path / "c.ply", pio.read(tmp_path / "b.ply"))
+    # plyfile writes ASCII floats in 18 digits, pssd_fast in the fewest that read back: an
+    # ASCII file it wrote comes back byte for byte, a binary file any writer wrote.
+    assert (tmp_path / "c.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
+    if mode != "ascii":
+        assert (tmp_path / "b.ply").read_bytes() == (tmp_path / "a.ply").read_bytes()
 
 
 @needs_plyfile
@@ -150,6 +156,194 @@ def test_ply_new_normals_and_replaced_field_keep_property_types(tmp_path):
     np.testing.assert_array_equal(data["label"], np.arange(5))
     with pytest.raises(PointCloudFileError, match="'label' does not fit the uint8"):
         pio.write(tmp_path / "c.ply", cloud, fields={"label": np.full(5, 300.0)})
+
+
+def make_rich_ply(path, mode, n=30):
+    """A PLY of every part a body can hold: vertex scalars of six types, faces of 0 to 4
+    indices, edges whose fixed-length lists sit between scalars, an element without rows, one
+    of empty lists only, comments and obj_info."""
+    rng = np.random.default_rng(1)
+    vertex = np.zeros(n, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("nx", "f8"),
+                                ("ny", "f8"), ("nz", "f8"), ("intensity", "u2"),
+                                ("flag", "i1"), ("label", "u4"), ("offset", "i2")])
+    for name in ("x", "y", "z", "nx", "ny", "nz"):
+        vertex[name] = rng.normal(size=n) * 10.0 ** rng.integers(-6, 6, n)
+    vertex["x"][:2] = 0.0761918, -0.0
+    vertex["intensity"] = rng.integers(0, 2**16, n)
+    vertex["flag"] = rng.integers(-128, 128, n)
+    vertex["label"] = rng.integers(0, 2**32, n)
+    vertex["offset"] = rng.integers(-2**15, 2**15, n)
+    face = np.empty(n, dtype=[("vertex_indices", "O"), ("quality", "f4")])
+    edge = np.empty(n // 2, dtype=[("id", "i4"), ("ends", "O"), ("weight", "f8"),
+                                   ("tags", "O"), ("mark", "u1")])
+    for i in range(n):
+        face["vertex_indices"][i] = rng.integers(0, n, i % 5).astype(np.int32)
+    face["quality"] = rng.normal(size=n)
+    for i in range(n // 2):
+        edge["ends"][i] = np.array([i, i + 1], np.int32)
+        edge["tags"][i] = rng.normal(size=3).astype(np.float32)
+    edge["id"], edge["weight"], edge["mark"] = np.arange(n // 2) - 3, rng.normal(size=n // 2), 7
+    nothing = np.empty(0, dtype=[("a", "f4"), ("b", "O")])
+    holes = np.empty(3, dtype=[("b", "O")])
+    holes["b"] = [np.empty(0, np.int16)] * 3
+    text, byte_order = PLY_MODES[mode]
+    describe = plyfile.PlyElement.describe
+    plyfile.PlyData([describe(vertex, "vertex", comments=["the points"]),
+                     describe(face, "face", val_types={"vertex_indices": "i4"}),
+                     describe(edge, "edge", len_types={"ends": "u2", "tags": "u4"},
+                              val_types={"ends": "i4", "tags": "f4"}),
+                     describe(nothing, "nothing", val_types={"b": "i2"}),
+                     describe(holes, "holes", val_types={"b": "i2"})],
+                    text=text, byte_order=byte_order, comments=["scanned by test"],
+                    obj_info=["unit m", "num_cols 5"]).write(str(path))
+
+
+def plyfile_read(path):
+    """The reference: plyfile's own reading (its loadtxt warns of every empty list, numpy of
+    values beyond float32)."""
+    with warnings.catch_warnings(), np.errstate(over="ignore"):
+        warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+        return plyfile.PlyData.read(str(path))
+
+
+def assert_same_elements(got, want):
+    """Two ``plyfile.PlyData`` hold the same elements: names, counts, dtypes, every value bit
+    for bit, every list row with its dtype."""
+    assert [(e.name, e.count) for e in got.elements] == [(e.name, e.count) for e in want.elements]
+    for mine, theirs in zip(got.elements, want.elements):
+        assert mine.data.dtype == theirs.data.dtype, mine.name
+        for prop in theirs.properties:
+            if isinstance(prop, plyfile.PlyListProperty):
+                for a, b in zip(mine.data[prop.name], theirs.data[prop.name], strict=True):
+                    assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), prop.name
+            else:
+                assert mine.data[prop.name].tobytes() == theirs.data[prop.name].tobytes(), prop.name
+
+
+@needs_plyfile
+@pytest.mark.parametrize("block", [None, 7], ids=["whole", "blocks of 7"])
+@pytest.mark.parametrize("mode", PLY_MODES)
+def test_ply_bodies_read_as_plyfile_reads_them_and_come_back_bit_for_bit(tmp_path, monkeypatch,
+                                                                        mode, block):
+    if block:  # rows written and tokens parsed a few at a time, as in large files
+        monkeypatch.setattr(pio.ply, "PLY_BLOCK", block)
+        monkeypatch.setattr(pio._ply_text, "PLY_TOKEN_BLOCK", block)
+    # The numpy reader takes each of these files whole, plyfile's own only the reference.
+    monkeypatch.setattr(pio.ply, "_read_rows", lambda *args: pytest.fail("plyfile read it"))
+    make_rich_ply(tmp_path / "a.ply", mode)
+    reference = plyfile_read(tmp_path / "a.ply")
+    cloud = pio.read(tmp_path / "a.ply")
+    assert_same_elements(cloud.source.ply, reference)
+    pio.write(tmp_path / "b.ply", cloud)
+    out = plyfile_read(tmp_path / "b.ply")
+    assert (out.text, out.byte_order) == PLY_MODES[mode]
+    assert out.comments == ["scanned by test"] and out.obj_info == ["unit m", "num_cols 5"]
+    assert [e.comments for e in out.elements] == [["the points"], [], [], [], []]
+    assert [str(p) for e in out.elements for p in e.properties] == [
+        str(p) for e in reference.elements for p in e.properties]
+    assert_same_elements(out, reference)
+    assert_same_elements(pio.read(tmp_path / "b.ply").source.ply, reference)
+
+
+@needs_plyfile
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_binary_rows_with_lists_keep_the_byte_order_of_the_file(tmp_path, order):
+    # plyfile's own writer puts the scalars of rows with lists in native order; they keep the
+    # file's, as their lists do.
+    fmt = {"<": "binary_little_endian", ">": "binary_big_endian"}[order]
+    header = (f"ply\nformat {fmt} 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+              f"property float z\nelement face 2\nproperty uint flags\n"
+              f"property list uchar int vertex_indices\nproperty short group\nend_header\n")
+    body = (struct.pack(order + "6f", *range(6)) + struct.pack(order + "IB3ih", 7, 3, 0, 1, 1, -2)
+            + struct.pack(order + "IB2ih", 2**31, 2, 1, 0, 300))
+    (tmp_path / "a.ply").write_bytes(header.encode() + body)
+    cloud = pio.read(tmp_path / "a.ply")
+    face = cloud.source.ply["face"].data
+    assert face["flags"].tolist() == [7, 2**31] and face["group"].tolist() == [-2, 300]
+    assert [row.tolist() for row in face["vertex_indices"]] == [[0, 1, 1], [1, 0]]
+    pio.write(tmp_path / "b.ply", cloud)
+    assert (tmp_path / "b.ply").read_bytes() == (tmp_path / "a.ply").read_bytes()
+
+
+def shortest(value):
+    """A float as the ASCII writer spells it: the shortest digits that read back (numpy's for
+    float32), as Python's repr lays them out, without a trailing ".0"."""
+    return repr(float(str(value))).removesuffix(".0")
+
+
+@needs_plyfile
+def test_ascii_ply_floats_take_the_fewest_digits_that_read_back(tmp_path):
+    rng = np.random.default_rng(2)
+    bits = rng.integers(0, 2**32, 20000).astype(np.uint32).view(np.float32)
+    x = np.concatenate([np.array([0.0761918, 0.1, 1.0, -2.5, 100.0, 1e-05, 123456.79, 1e16,
+                                  3.4028235e+38, 1e-45, 0.0, -0.0], np.float32),
+                        bits[np.isfinite(bits)], rng.normal(size=2000).astype(np.float32)])
+    w = np.resize(np.concatenate([[0.1, 1 / 3, 2.0, -0.0, 1e22, 5e-324, 1e-7, np.inf, -np.inf],
+                                  rng.normal(size=2000)]), len(x))
+    vertex = np.zeros(len(x), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("w", "f8")])
+    vertex["x"], vertex["w"] = x, w
+    plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex")], text=True).write(
+        str(tmp_path / "a.ply"))
+    pio.write(tmp_path / "b.ply", pio.read(tmp_path / "a.ply"))
+    rows = (tmp_path / "b.ply").read_text().split("end_header\n")[1].splitlines()
+    tokens = [row.split() for row in rows]
+    assert [t[0] for t in tokens[:7]] == ["0.0761918", "0.1", "1", "-2.5", "100", "1e-05",
+                                          "123456.79"]
+    assert [t[0] for t in tokens] == [shortest(v) for v in x]
+    assert [t[3] for t in tokens] == [shortest(v) for v in w]
+    assert tokens[3] == ["-2.5", "0", "0", "-0"] and tokens[6] == ["123456.79", "0", "0", "1e-07"]
+    back = pio.read(tmp_path / "b.ply")
+    assert back.points[:, 0].astype(np.float32).tobytes() == x.tobytes()
+    assert back.fields["w"].tobytes() == w.tobytes()
+
+
+@needs_plyfile
+def test_ascii_ply_of_short_floats_is_written_as_it_was(tmp_path):
+    # A scanner's %g floats (6 digits) are their float32 values' shortest spelling: a file of
+    # them comes back the same size, byte for byte.
+    rng = np.random.default_rng(3)
+    coords = (rng.normal(size=(50, 3)) * 0.1).astype(np.float32)
+    lines = [" ".join(f"{v:g}" for v in row) for row in coords]
+    lines += ["0"] * 7 + [f"1 {i}" for i in range(50)] + ["2 3 4"]
+    text = ("ply\nformat ascii 1.0\nobj_info num_cols 58\nelement vertex 50\nproperty float x\n"
+            "property float y\nproperty float z\nelement range_grid 58\n"
+            "property list uchar int vertex_indices\nend_header\n" + "\n".join(lines) + "\n")
+    (tmp_path / "a.ply").write_text(text)
+    cloud = pio.read(tmp_path / "a.ply")
+    pio.write(tmp_path / "b.ply", cloud)
+    assert (tmp_path / "b.ply").read_text() == text
+    pio.write(tmp_path / "b.ply.gz", cloud)
+    assert gzip.decompress((tmp_path / "b.ply.gz").read_bytes()).decode() == text
+
+
+@needs_plyfile
+@pytest.mark.parametrize("last", [True, False], ids=["line end last", "no line end last"])
+@pytest.mark.parametrize("newline", ["\n", "\r\n", "\r"], ids=["LF", "CRLF", "CR"])
+def test_ascii_ply_spellings_read_as_plyfile_reads_them(tmp_path, monkeypatch, newline, last):
+    monkeypatch.setattr(pio.ply, "_read_rows", lambda *args: pytest.fail("plyfile read it"))
+    header = ["ply", "format ascii 1.0", "comment spelt in every way", "element vertex 4",
+              "property float x", "property double y", "property float z", "property float q",
+              "property short s", "property uchar u", "element grid 4",
+              "property list uchar int indices", "element face 1",
+              "property list uint float weights", "property int tail", "end_header"]
+    rows = ["+1.5 -0 .5 1e40 007 255", "\t2.  1e-3\t-4E+2 Infinity  -0 0 ",
+            "  3.25e+2 1.000000000000000001 1 nan +12 1", "-1E-3 -0.0 1e-50 -inf -32768 010",
+            "0", "1 5", "2 +3 004", "0 ", "3 1.5 -2e2 .25 -9"]
+    text = newline.join(header + rows) + (newline if last else "")
+    (tmp_path / "a.ply").write_bytes(text.encode())
+    assert_same_elements(pio.read(tmp_path / "a.ply").source.ply, plyfile_read(tmp_path / "a.ply"))
+
+
+@needs_plyfile
+@pytest.mark.parametrize("row", ["1_0 2 3", "1\x0b2 3", "0." + "0" * 40 + "1 2 3", "1 2 3\x1c"],
+                         ids=["underscore", "vertical tab", "long token", "separator byte"])
+def test_ascii_ply_the_numpy_reader_leaves_to_plyfile_reads_the_same(tmp_path, row):
+    text = ("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+            "property float z\nend_header\n0 0 0\n" + row + "\n")
+    (tmp_path / "a.ply").write_text(text)
+    cloud = pio.read(tmp_path / "a.ply")
+    assert_same_elements(cloud.source.ply, plyfile_read(tmp_path / "a.ply"))
+    assert cloud.points[1, 1:].tolist() == [2, 3]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -433,6 +627,55 @@ def test_ascii_ply_bad_value_names_the_line(tmp_path):
         pio.read(tmp_path / "a.ply")
 
 
+ASCII_HEAD = ("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+              "property float z\nelement face 2\nproperty list uchar int vertex_indices\n"
+              "end_header\n")
+
+
+@needs_plyfile
+@pytest.mark.parametrize("body, match", [
+    ("0 0 0\n1 1\n3 0 1 1\n2 0 1\n",
+     r"early end-of-line on line 11 \('vertex' row 1\), property 'z'"),
+    ("0 0 0\n1 1 1 1\n3 0 1 1\n2 0 1\n", r"expected end-of-line on line 11 \('vertex' row 1\)"),
+    ("0 0 0\n1 1e 1\n3 0 1 1\n2 0 1\n",
+     r"malformed input on line 11 \('vertex' row 1\), property 'y'"),
+    ("0 0 0\n1 1 1\n3 0 1\n2 0 1\n",
+     r"early end-of-line on line 12 \('face' row 0\), property 'vertex_indices'"),
+    ("0 0 0\n1 1 1\n3 0 1 2.5\n2 0 1\n",
+     r"malformed input on line 12 \('face' row 0\), property 'vertex_indices'"),
+    ("0 0 0\n1 1 1\n-1 0\n2 0 1\n", "does not fit the type of its PLY property"),
+    ("0 0 0\n1 1 1\n300 0 1\n2 0 1\n", "does not fit the type of its PLY property"),
+    ("0 0 0\n1 1 1\n3 0 1 2\n", "truncated: element 'face' ends after 1 of 2 rows"),
+    ("0 0 0\n1 1 1\n3 0 1 2\n\xe9\n", "non-ASCII bytes"),
+], ids=["short row", "long row", "bad value", "short list", "float in an int list",
+        "negative length", "length beyond its type", "missing row", "non-ASCII"])
+def test_malformed_ascii_ply_bodies_say_where(tmp_path, body, match):
+    (tmp_path / "a.ply").write_bytes((ASCII_HEAD + body).encode("latin-1"))
+    with pytest.raises(PointCloudFileError, match=match) as info:
+        pio.read(tmp_path / "a.ply")
+    assert str(info.value).startswith(str(tmp_path / "a.ply")) and "\n" not in str(info.value)
+
+
+@needs_plyfile
+@pytest.mark.parametrize("length_type, cut, match", [
+    ("uchar", 7, "truncated: element 'face' ends after 1 of 2 rows"),
+    ("uchar", 10, "truncated: element 'face' ends after 0 of 2 rows"),
+    ("int", 2, "truncated: element 'face' ends after 1 of 2 rows"),
+    ("char", 0, "truncated: element 'face' ends after 1 of 2 rows"),  # a length of -1
+])
+def test_truncated_binary_ply_lists_say_which_row(tmp_path, length_type, cut, match):
+    code = {"uchar": "B", "char": "b", "int": "i"}[length_type]
+    header = ("ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty float x\n"
+              "property float y\nproperty float z\nelement face 2\n"
+              f"property list {length_type} int vertex_indices\nend_header\n").encode()
+    second = [-1, 5, 6] if length_type == "char" else [2, 5, 6]
+    body = (struct.pack("<6f", *range(6)) + struct.pack(f"<{code}3i", 3, 0, 1, 1)
+            + struct.pack(f"<{code}2i", *second))
+    (tmp_path / "a.ply").write_bytes(header + body[:len(body) - cut])
+    with pytest.raises(PointCloudFileError, match=match):
+        pio.read(tmp_path / "a.ply")
+
+
 @needs_plyfile
 @pytest.mark.parametrize("mode", ["binary_le", "ascii"])
 def test_truncated_ply_vertices(tmp_path, mode):
@@ -628,7 +871,7 @@ def method_writing_some_then_failing(self, fh, *args, **kwargs):
 
 
 @pytest.mark.parametrize("ext, target, replacement", [
-    pytest.param(".ply", "plyfile.PlyData.write", method_writing_some_then_failing,
+    pytest.param(".ply", "pssd_fast.io.ply._write", method_writing_some_then_failing,
                  marks=needs_plyfile),
     pytest.param(".las", "laspy.LasData.write", method_writing_some_then_failing,
                  marks=needs_laspy),

@@ -1,4 +1,12 @@
-"""PLY files, ASCII or binary, through ``plyfile``: every element, property and comment kept."""
+"""PLY files, ASCII or binary: every element, property and comment kept.
+
+``plyfile`` holds the parsed file (``PlyData``, one ``PlyElement`` per element) and parses the
+header; the bodies are read and written with numpy, a whole column at a time, with the values,
+dtypes and bytes ``plyfile`` gives (:mod:`._ply_text` for ASCII bodies, :mod:`._ply_binary` for
+binary ones). An ASCII body holding anything but plain numbers (or a row that does not parse) is
+read by ``plyfile``'s own row-by-row reader instead, whose values and errors are the reference;
+so is a binary list with a negative or non-integer length.
+"""
 import copy
 import io
 import re
@@ -8,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._common import COORDS, NORMALS, PointCloudFileError, Source, fit_dtype, need, stream_size
+from ._ply_binary import binary_element, binary_rows
+from ._ply_text import Tokens, ascii_element, text_rows
 
 # A PLY header is a few hundred bytes; a file without "end_header" in its first MiB is not PLY.
 PLY_HEADER_LIMIT = 2**20
@@ -18,6 +28,8 @@ _PLY_END = re.compile(rb"(?:^|[\r\n])end_header[ \t]*(?:\r\n|\r|\n)")
 # Types PLY can store, and where 64-bit or bool values go instead (if they fit exactly).
 _PLY_KINDS = {"i1", "u1", "i2", "u2", "i4", "u4", "f4", "f8"}
 _PLY_NARROW = {"b1": "u1", "i8": "i4", "u8": "u4"}
+# Rows formatted or packed at once (ASCII, or binary with lists): bounds the working memory.
+PLY_BLOCK = 2**16
 
 
 @dataclass(frozen=True)
@@ -44,12 +56,13 @@ class _PlyLayout:
     ascii: bool
     header_lines: int
     counts: dict  # element name -> row count, in file order
+    body: int  # offset of the first byte after the header
 
 
 def _ply_layout(path, fh, size):
     """Parse the header enough to check its element counts against the file size.
 
-    plyfile allocates every element from its header count before reading a row, so a header
+    Elements are allocated from their header counts before a row is read, so a header
     claiming a billion vertices must be refused here, from the bytes a row needs at least:
     its fixed size in binary files, two characters per value (digit and separator) in ASCII.
     """
@@ -89,7 +102,8 @@ def _ply_layout(path, fh, size):
                 f"{path}: header claims {count:,} '{name}' elements, which need at least "
                 f"{need:,} bytes, but only {have:,} bytes follow the header (truncated file or "
                 f"wrong header)")
-    return _PlyLayout(fmt == "ascii", len(lines), {name: count for name, count, _ in elements})
+    return _PlyLayout(fmt == "ascii", len(lines), {name: count for name, count, _ in elements},
+                      end.end())
 
 
 def _ply_parse_error(path, exc, layout, plyfile):
@@ -139,23 +153,18 @@ def read(path, fh, ext):
     ------
     PointCloudFileError
         On a malformed or truncated file, a header claiming more rows than the file can hold
-        (checked before plyfile allocates them), or no vertex ``x y z``.
+        (checked before anything is allocated), or no vertex ``x y z``.
     ImportError
         If ``plyfile`` is not installed.
     """
     plyfile = need("plyfile", "plyfile", "Reading .ply files")
     layout = _ply_layout(path, fh, stream_size(fh))
     fh.seek(0)
-    # ASCII data goes through a text wrapper of ours, detached after the read: the one plyfile
-    # would make closes ``fh`` when it is collected, with a ResourceWarning.
-    stream = io.TextIOWrapper(fh, "ascii") if layout.ascii else fh
     try:
-        with warnings.catch_warnings():
-            # An empty list (a range grid's pixel without a return: a row "0") makes numpy
-            # warn that it "contained no data"; it is read as the empty list it is.
-            warnings.filterwarnings("ignore", "loadtxt: input contained no data",
-                                    UserWarning)
-            ply = plyfile.PlyData.read(stream)
+        ply = _read_columns(fh, layout, plyfile)
+        if ply is None:
+            fh.seek(0)
+            ply = _read_rows(fh, layout, plyfile)
     except plyfile.PlyParseError as exc:
         raise _ply_parse_error(path, exc, layout, plyfile) from None
     except UnicodeDecodeError:
@@ -166,13 +175,6 @@ def read(path, fh, ext):
                                   f"property ({exc})") from None
     except ValueError as exc:  # plyfile's checks outside its parser: names given twice
         raise PointCloudFileError(f"{path}: bad PLY header: {exc}") from None
-    finally:
-        if stream is not fh:
-            stream.detach()
-    for element in ply.elements:
-        # plyfile memory-maps binary elements copy-on-write; untouched pages of such a map
-        # follow later changes of the file, so the cloud takes its own copy.
-        element.data = np.array(element.data)
     if "vertex" not in ply:
         raise PointCloudFileError(f"{path}: has no 'vertex' element")
     vertex = ply["vertex"]
@@ -188,6 +190,74 @@ def read(path, fh, ext):
     fields = {name: data[name].astype(data.dtype[name].newbyteorder("="))
               for name in scalar if name not in COORDS + NORMALS}
     return points, normals, fields, _PlySource(ply)
+
+
+def _read_rows(fh, layout, plyfile):
+    """The file read by plyfile's own reader, row by row."""
+    # ASCII data goes through a text wrapper of ours, detached after the read: the one plyfile
+    # would make closes ``fh`` when it is collected, with a ResourceWarning.
+    stream = io.TextIOWrapper(fh, "ascii") if layout.ascii else fh
+    try:
+        with warnings.catch_warnings():
+            # An empty list (a range grid's pixel without a return: a row "0") makes numpy
+            # warn that it "contained no data"; it is read as the empty list it is.
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data",
+                                    UserWarning)
+            ply = plyfile.PlyData.read(stream)
+    finally:
+        if stream is not fh:
+            stream.detach()
+    for element in ply.elements:
+        # plyfile memory-maps binary elements copy-on-write; untouched pages of such a map
+        # follow later changes of the file, so the cloud takes its own copy.
+        element.data = np.array(element.data)
+    return ply
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading the body a column at a time
+
+
+def _read_columns(fh, layout, plyfile):
+    """The file with every element read by numpy, or None where a row needs plyfile's reader.
+
+    The header is plyfile's (``PlyData._parse_header``, what ``PlyData.read`` runs), read as
+    :func:`_read_rows` has plyfile read it: through a text wrapper where the first header
+    check saw an ASCII format line, byte by byte otherwise.
+    """
+    if layout.ascii:
+        stream = io.TextIOWrapper(fh, "ascii")
+        try:
+            ply = plyfile.PlyData._parse_header(stream)
+        finally:
+            stream.detach()
+        if not ply.text:
+            return None  # plyfile refuses a binary body behind a text header
+        fh.seek(layout.body)  # the wrapper read ahead
+    else:
+        ply = plyfile.PlyData._parse_header(fh)
+    if not ply.text:
+        for element in ply.elements:
+            data = binary_element(element, fh, ply.byte_order, plyfile)
+            if data is None:
+                return None
+            element.data = data
+        return ply
+    tokens = Tokens.split(np.frombuffer(fh.read(), np.uint8),
+                           sum(e.count for e in ply.elements))
+    if tokens is None:
+        return None
+    line = 0
+    for element in ply.elements:
+        data = ascii_element(element, tokens, line, plyfile)
+        if data is None:
+            return None
+        element.data = data
+        line += element.count
+    return ply
+
+# ---------------------------------------------------------------------------------------------
+# The cloud's description and writing
 
 
 def describe(source):
@@ -229,7 +299,7 @@ def payload(path, ext, points, normals, fields, source):
     Returns
     -------
     callable
-        Writes the file to the binary file object it is given.
+        Writes the file to the binary file object it is given (:func:`_write`).
 
     Raises
     ------
@@ -274,8 +344,36 @@ def payload(path, ext, points, normals, fields, source):
         val_types={k: p.val_dtype for k, p in lists.items()},
         comments=comments)
     if source is None:
-        return plyfile.PlyData([element], text=False, byte_order="<").write
-    base = source.ply
-    return plyfile.PlyData([element if e.name == "vertex" else e for e in base.elements],
-                           text=base.text, byte_order=base.byte_order, comments=base.comments,
-                           obj_info=base.obj_info).write
+        ply = plyfile.PlyData([element], text=False, byte_order="<")
+    else:
+        base = source.ply
+        ply = plyfile.PlyData([element if e.name == "vertex" else e for e in base.elements],
+                              text=base.text, byte_order=base.byte_order,
+                              comments=base.comments, obj_info=base.obj_info)
+    return lambda fh: _write(ply, fh)
+
+
+def _write(ply, fh):
+    """Write ``ply`` (a ``plyfile.PlyData``) to the binary file ``fh``: the header and binary
+    rows as ``PlyData.write`` writes them; ASCII rows with each float in the fewest digits
+    that read back to its value (at most 9 for float32, 17 for float64)."""
+    plyfile = need("plyfile", "plyfile", "Writing .ply files")
+    fh.write(ply.header.encode("ascii") + b"\n")
+    # NaN are written as they are; a signalling one would set numpy's "invalid" flag.
+    with np.errstate(invalid="ignore"):
+        for element in ply.elements:
+            _write_element(element, ply, fh, plyfile)
+
+
+def _write_element(element, ply, fh, plyfile):
+    """Write the rows of ``element``, a block of rows at a time."""
+    if not ply.text and not any(isinstance(p, plyfile.PlyListProperty)
+                                for p in element.properties):
+        if element.dtype().itemsize:
+            fh.write(np.ascontiguousarray(
+                element.data.astype(element.dtype(ply.byte_order), copy=False)).tobytes())
+        return
+    for at in range(0, element.count, PLY_BLOCK):
+        rows = element.data[at:at + PLY_BLOCK]
+        fh.write(text_rows(element, rows, plyfile) if ply.text
+                 else binary_rows(element, rows, ply.byte_order, plyfile))
