@@ -3,14 +3,14 @@ largest move reaches, in units of the input's spacing, and what it costs.
 
 Usage::
 
-    python -m benchmarks.lidar                     # the files of ../shared/data/lidar
+    python -m benchmarks.lidar                     # the files of $PSSD_DATA/lidar
     python -m benchmarks.lidar --folder DIR --tile-points 40000
 
-For each ``.las``/``.laz`` file of the folder (``PSSD_LIDAR``, else ``shared/data/lidar``
-beside the repository) and each run of :data:`RUNS`: ``r16`` is each point's distance to its
-16th nearest other point of the input, the *largest move* the largest
-``displacement / r16``, *> 2 r16* the points past twice that, *held* the points whose move was
-refused (docs/DECISIONS.md, "No point flung"). The presets that tile are also run by
+For each ``.las``/``.laz`` file of the folder (``--folder``, else the ``lidar/`` folder of
+``PSSD_DATA``: :func:`benchmarks.models.data_folder`) and each run of :data:`RUNS`: ``r16`` is
+each point's distance to its 16th nearest other point of the input, the *largest move* the
+largest ``displacement / r16``, *> 2 r16* the points past twice that, *held* the points whose
+move was refused (docs/DECISIONS.md, "No point flung"). The presets that tile are also run by
 ``tiled.denoise`` (in memory) and ``tiled.denoise_file`` (the file itself, into a LAS file;
 their moves measured on the output's quantised coordinates), with ``--tile-points`` per tile
 (default: a third of the file's points).
@@ -19,7 +19,6 @@ Morton order, measured in the same run. Results go to ``benchmarks/results/lidar
 ``.json``.
 """
 import argparse
-import os
 import tempfile
 import time
 from pathlib import Path
@@ -30,10 +29,10 @@ from pykdtree.kdtree import KDTree
 import pssd_fast
 from pssd_fast import io
 
+from .models import data_folder
 from .stages import knn_query_seconds, write_results
 
 RESULTS = Path(__file__).resolve().parent / "results"
-DEFAULT_FOLDER = Path(__file__).resolve().parents[2] / "shared" / "data" / "lidar"
 #: Every preset and method, as a user would call them.
 RUNS = {"default": {}, "fast": {"preset": "fast"}, "paper": {"preset": "paper"},
         "bilateral": {"method": "bilateral"}, "mls": {"method": "mls"}}
@@ -121,14 +120,13 @@ def markdown(rows, files):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--folder", type=Path,
-                        default=Path(os.environ.get("PSSD_LIDAR") or DEFAULT_FOLDER))
+    parser.add_argument("--folder", type=Path, default=data_folder("lidar"))
     parser.add_argument("--tile-points", type=int, default=None)
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
     paths = sorted(p for p in args.folder.glob("*") if p.suffix.lower() in (".las", ".laz"))
     if not paths:
-        raise SystemExit(f"no .las/.laz file in {args.folder}: pass --folder or set PSSD_LIDAR")
+        raise SystemExit(f"no .las/.laz file in {args.folder}: pass --folder or set PSSD_DATA")
     rows, files = [], {}
     for path in paths:
         found, files[path.name] = measure(path, args.tile_points, print)

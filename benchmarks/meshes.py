@@ -1,8 +1,9 @@
 """Triangle meshes for tests and benchmarks: reading, sampling, sharp edges, edge distances.
 
 The reference models (Igea, Fandisk, the dragon) are not shipped with the package; they live in
-a directory the caller names, through the ``PSSD_DATA`` environment variable or the ``path`` of
-:func:`data_dir`. Everything here is plain numpy, so it can be used without compiling any kernel.
+the ``meshes/`` folder of a data folder the caller names, through the ``PSSD_DATA`` environment
+variable or the ``path`` of :func:`data_dir`. Everything here is plain numpy, so it can be used
+without compiling any kernel.
 """
 import gzip
 import itertools
@@ -16,7 +17,9 @@ import numpy as np
 from pssd_fast._validation import check_int, seeded_rng
 
 __all__ = [
+    "KINDS",
     "data_dir",
+    "data_path",
     "normalize_to_unit_diagonal",
     "read_feat",
     "read_obj",
@@ -35,33 +38,74 @@ _SLASH = re.compile(r"/\S*")
 _SCRATCH_BYTES = 2**20
 
 
-def data_dir(path=None):
-    """Directory holding the reference meshes, or None if none is given or it does not exist.
+#: The folders of a data folder, one per kind of data: the paper's meshes, LiDAR files, raw range
+#: scans and the PU-Net test meshes.
+KINDS = ("meshes", "lidar", "realscans", "punet")
+
+
+def data_path(root, kind="meshes"):
+    """Where the data of ``kind`` is under the data folder ``root``, whether or not it exists.
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        A data folder, holding one folder per kind (``meshes/``, ``lidar/``, ``realscans/``,
+        ``punet/``); or, as ``PSSD_DATA`` was once set, the meshes folder itself.
+    kind : str, default "meshes"
+        One of :data:`KINDS`.
+
+    Returns
+    -------
+    pathlib.Path
+        ``root/kind``. When ``root`` is a folder holding files but none of the kinds' folders,
+        it is read as the meshes folder itself: ``root`` for the meshes, ``root/../kind`` for
+        the others.
+
+    Raises
+    ------
+    ValueError
+        If ``kind`` is not one of :data:`KINDS`.
+    """
+    if kind not in KINDS:
+        raise ValueError(f"unknown kind of data {kind!r}; choose one of {', '.join(KINDS)}")
+    root = Path(root).expanduser()
+    if (root.is_dir() and not any((root / k).is_dir() for k in KINDS)
+            and any(p.is_file() for p in root.iterdir())):
+        return root if kind == "meshes" else root.parent / kind
+    return root / kind
+
+
+def data_dir(path=None, kind="meshes"):
+    """Folder holding the data of ``kind``, or None if none is given or it does not exist.
 
     Parameters
     ----------
     path : str or os.PathLike, optional
-        The directory. When omitted, the ``PSSD_DATA`` environment variable names it.
+        The data folder (see :func:`data_path`). When omitted, the ``PSSD_DATA`` environment
+        variable names it.
+    kind : str, default "meshes"
+        One of :data:`KINDS`.
 
     Returns
     -------
     pathlib.Path or None
-        ``path`` if given, else ``$PSSD_DATA`` if that variable is set and not empty; None when
-        neither is given or the chosen directory does not exist.
+        The folder of ``kind`` under ``path`` if given, else under ``$PSSD_DATA`` if that
+        variable is set and not empty; None when neither is given or that folder does not
+        exist.
 
     Notes
     -----
-    The meshes are not part of the package, and the package never guesses where they are: there
+    The data is not part of the package, and the package never guesses where it is: there
     is no default location. An explicit ``path`` or ``PSSD_DATA`` that points nowhere gives None
     rather than another copy of the data, so a typo is not silently masked. Tools that keep the
-    meshes in a known place (the project's tests and benchmarks) pass that place as ``path``.
+    data in a known place (the project's tests and benchmarks) pass that place as ``path``.
     """
     if path is None:
         path = os.environ.get("PSSD_DATA") or None
     if path is None:
         return None
-    path = Path(path).expanduser()
-    return path if path.is_dir() else None
+    folder = data_path(path, kind)
+    return folder if folder.is_dir() else None
 
 
 def _read_text(path):

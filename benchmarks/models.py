@@ -1,8 +1,8 @@
 """The paper's three models, prepared as in Table 1, with the truth needed to score a denoiser.
 
 Each model is scaled so that its bounding-box diagonal is 1, so distances in units of 1e-4 are
-the paper's units. The meshes come from ``$PSSD_DATA``, else from ``DEFAULT_MESH_DIR``
-(:func:`mesh_dir`).
+the paper's units. The meshes come from the ``meshes/`` folder of ``$PSSD_DATA``, else of
+``DEFAULT_DATA_DIR`` (:func:`mesh_dir`).
 """
 import os
 from dataclasses import dataclass
@@ -15,14 +15,13 @@ from benchmarks import meshes
 #: Model name -> (file, points) as in the paper's Table 1.
 MODELS = {"fandisk": ("fandisk.obj.gz", 97_580), "dragon": ("dragon.obj.gz", 100_056),
           "igea": ("igea.obj.gz", 134_345)}
-#: Where the benchmarks look for the meshes when ``PSSD_DATA`` is unset: the folder
-#: ``shared/data/meshes`` beside the repository (``<repo>/../shared/data/meshes``). This default
-#: belongs to the benchmarks only; the package itself reads ``PSSD_DATA`` or an explicit path.
-DEFAULT_MESH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
-#: What the benchmarks say when the meshes are missing.
-MISSING = ("the paper's meshes were not found: set PSSD_DATA to the folder holding "
-           f"{', '.join(f for f, _ in MODELS.values())} (when PSSD_DATA is unset, the "
-           f"benchmarks look in {DEFAULT_MESH_DIR})")
+#: The models' files, in the mesh folder.
+MESH_FILES = [f for f, _ in MODELS.values()]
+#: The data folder when ``PSSD_DATA`` is unset: ``shared/data`` beside the repository
+#: (``<repo>/../shared/data``), holding ``meshes/``, ``lidar/``, ``realscans/`` and ``punet/``.
+#: This default belongs to the tests and benchmarks only; :func:`benchmarks.meshes.data_dir`
+#: reads ``PSSD_DATA`` or an explicit path.
+DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2] / "shared" / "data"
 #: Noise levels (Gaussian sigma, fraction of the diagonal); the first is the default.
 NOISE_LEVELS = (0.005, 0.0025, 0.01)
 #: Dihedral angle above which a mesh edge is sharp, and the distance (fraction of the diagonal)
@@ -50,23 +49,31 @@ class Model:
         return self.clean + np.random.default_rng(seed).normal(0.0, sigma, self.clean.shape)
 
 
+def data_folder(kind):
+    """The folder of the data of ``kind`` (one of :data:`benchmarks.meshes.KINDS`) in
+    ``$PSSD_DATA`` when set, else in ``DEFAULT_DATA_DIR`` (:func:`benchmarks.meshes.data_path`),
+    whether or not it exists."""
+    return meshes.data_path(os.environ.get("PSSD_DATA") or DEFAULT_DATA_DIR, kind)
+
+
+def missing(kind, names):
+    """What the tests and benchmarks say when the files ``names`` of ``kind`` are not found."""
+    return (f"{', '.join(names)} not found in {data_folder(kind)}: set PSSD_DATA to the folder "
+            f"holding {', '.join(f'{k}/' for k in meshes.KINDS)} (when PSSD_DATA is unset, "
+            f"they are looked for in {DEFAULT_DATA_DIR})")
+
+
 def mesh_dir():
-    """The mesh folder: ``$PSSD_DATA`` when set, else ``DEFAULT_MESH_DIR``; None when that
-    folder does not exist."""
-    return meshes.data_dir(os.environ.get("PSSD_DATA") or DEFAULT_MESH_DIR)
-
-
-def sibling(name):
-    """The data folder ``name`` beside the mesh folder (``$PSSD_DATA`` when set, else
-    ``DEFAULT_MESH_DIR``): where the PU-Net meshes and the raw scans are."""
-    return Path(os.environ.get("PSSD_DATA") or DEFAULT_MESH_DIR).parent / name
+    """The mesh folder (:func:`data_folder`); None when it does not exist."""
+    folder = data_folder("meshes")
+    return folder if folder.is_dir() else None
 
 
 def available():
     """Whether the mesh folder holds every model (tests and benchmarks skip the models
     otherwise)."""
     folder = mesh_dir()
-    return folder is not None and all((folder / f).exists() for f, _ in MODELS.values())
+    return folder is not None and all((folder / f).exists() for f in MESH_FILES)
 
 
 def load(name, n_points=None, seed=0):
@@ -84,7 +91,7 @@ def load(name, n_points=None, seed=0):
         raise ValueError(f"unknown model {name!r}; choose one of {', '.join(MODELS)}")
     folder = mesh_dir()
     if folder is None:
-        raise FileNotFoundError(MISSING)
+        raise FileNotFoundError(missing("meshes", MESH_FILES))
     filename, paper_points = MODELS[name]
     n_points = paper_points if n_points is None else n_points
     vertices, faces = meshes.read_obj(folder / filename)

@@ -7,8 +7,8 @@ Usage::
     python -m benchmarks.punet --sizes 10000 --noise 0.01 --meshes casting
     python -m benchmarks.punet --refresh-peers         # re-run the peers (about an hour)
 
-The protocol of ``shared/data/punet/SOURCES.md``, on its 8 meshes (``PSSD_DATA``'s sibling
-``punet`` folder, or ``--data``):
+The protocol of ``shared/data/punet/SOURCES.md``, on its 8 meshes (the ``punet/`` folder of
+``PSSD_DATA``, or ``--data``):
 
 1. **Sample.** Poisson-disk samples of the clean mesh (point-cloud-utils'
    ``sample_mesh_poisson_disk``, the ``bench`` extra, as those papers' data), exactly ``N`` of
@@ -49,7 +49,7 @@ import pssd_fast
 
 from . import meshes, versus
 from .metrics import chamfer_squared, point_to_mesh_squared
-from .models import sibling
+from .models import data_folder
 from .stages import machine, write_results
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -309,7 +309,7 @@ def parse_args(argv=None):
     parser.add_argument("--meshes", nargs="+", default=list(MESHES), choices=MESHES)
     parser.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
     parser.add_argument("--noise", type=float, nargs="+", default=list(NOISE_LEVELS))
-    parser.add_argument("--data", type=Path, default=sibling("punet"),
+    parser.add_argument("--data", type=Path, default=data_folder("punet"),
                         help="the folder of the PU-Net meshes (*.off.gz)")
     parser.add_argument("--peers", nargs="*", default=list(versus.FAMILIES),
                         choices=versus.FAMILIES,
@@ -322,7 +322,7 @@ def parse_args(argv=None):
     missing = [m for m in args.meshes if not (args.data / f"{m}.off.gz").is_file()]
     if missing:
         parser.exit(1, f"the PU-Net meshes were not found in {args.data}: "
-                       f"{', '.join(missing)} (pass --data)\n")
+                       f"{', '.join(missing)} (pass --data or set PSSD_DATA)\n")
     absent = versus.missing_peers(args.peers)
     if absent:
         parser.exit(1, absent + "\n")

@@ -6,9 +6,9 @@ Usage::
     python -m benchmarks.rawscans                  # the three shared views
     python -m benchmarks.rawscans --views bun000   # one of them
 
-Each view (``shared/data/realscans/``, or ``--data``) is read as a user would read it
-(``pssd_fast.io.read``), denoised in its own frame with no normals and no reference, moved
-into the model frame with ``bun.conf`` (``p_model = p_scan @ R + t``, ``R`` the rotation
+Each view (the ``realscans/`` folder of ``PSSD_DATA``, or ``--data``) is read as a user would
+read it (``pssd_fast.io.read``), denoised in its own frame with no normals and no reference,
+moved into the model frame with ``bun.conf`` (``p_model = p_scan @ R + t``, ``R`` the rotation
 matrix of the quaternion ``(qx, qy, qz, qw)``), and scored as the folder's ``SOURCES.md``
 says: each point's unsigned distance to the reference triangles (``bun_zipper``, fused from
 all views), divided by the reference's bounding-box diagonal, leaving out the points whose
@@ -35,7 +35,7 @@ from pssd_fast import io
 
 from . import meshes, peers, versus
 from .metrics import surface_distance
-from .models import sibling
+from .models import data_folder
 from .stages import machine, write_results
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -176,7 +176,7 @@ def _standing(rows):
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--views", nargs="+", default=list(VIEWS), choices=VIEWS)
-    parser.add_argument("--data", type=Path, default=sibling("realscans"),
+    parser.add_argument("--data", type=Path, default=data_folder("realscans"),
                         help="the folder of the views, bun.conf and the reference")
     parser.add_argument("--peers", nargs="*", default=list(FAMILIES), choices=FAMILIES,
                         help="the peer families to run (default both; none: the library only)")
@@ -190,7 +190,7 @@ def parse_args(argv=None):
     missing = [name for name in need if not (args.data / name).is_file()]
     if missing:
         parser.exit(1, f"the raw scans were not found in {args.data}: {', '.join(missing)} "
-                       f"(pass --data)\n")
+                       f"(pass --data or set PSSD_DATA)\n")
     absent = versus.missing_peers(args.peers)
     if absent:
         parser.exit(1, absent + "\n")

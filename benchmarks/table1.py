@@ -155,7 +155,7 @@ def main(argv=None):
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
     if not models.available():
-        parser.exit(1, models.MISSING + "\n")
+        parser.exit(1, models.missing("meshes", models.MESH_FILES) + "\n")
 
     peers = None
     if not args.no_peers:

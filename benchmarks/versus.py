@@ -401,7 +401,7 @@ def parse_args(argv=None):
     elif not args.sizes and not set(args.shapes) <= set(SHAPES):
         parser.error(f"without --sizes the shapes are {', '.join(SHAPES)}")
     if not models.available() and set(args.shapes) & set(models.MODELS):
-        parser.exit(1, models.MISSING + "\n")
+        parser.exit(1, models.missing("meshes", models.MESH_FILES) + "\n")
     return args
 
 

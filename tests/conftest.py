@@ -1,5 +1,5 @@
 """Shared small clouds: random surfaces and the degenerate cases every kernel must survive; and
-where the tests find the reference meshes."""
+where the tests find the shared data files."""
 import contextlib
 import io
 import os
@@ -9,14 +9,9 @@ import numpy as np
 import pytest
 
 import pssd_fast
-from benchmarks import meshes
+from benchmarks import models
 from pssd_fast import cli
 from pssd_fast.kernels import feature
-
-#: Where the tests look for the reference meshes when ``PSSD_DATA`` is unset: the folder
-#: ``shared/data/meshes`` beside the repository (``<repo>/../shared/data/meshes``). This default
-#: belongs to the tests only; the package itself reads ``PSSD_DATA`` or an explicit path.
-DEFAULT_MESH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 
 #: The folder holding the ``pssd_fast`` this process imported: a child process run there imports
 #: the same files (and so loads their cached kernels) rather than an installed copy elsewhere.
@@ -41,19 +36,14 @@ def pssd(*args, cwd=None):
     return status, out.getvalue(), err.getvalue()
 
 
-def mesh_dir():
-    """The reference mesh folder for the tests: ``$PSSD_DATA`` when set, else
-    ``DEFAULT_MESH_DIR``; None when that folder does not exist."""
-    return meshes.data_dir(os.environ.get("PSSD_DATA") or DEFAULT_MESH_DIR)
-
-
-def mesh_file(name):
-    """Path of reference mesh file ``name``, skipping the test when it is not available."""
-    folder = mesh_dir()
-    if folder is None or not (folder / name).is_file():
-        pytest.skip(f"reference mesh {name} not found: set PSSD_DATA to the folder holding it "
-                    f"(when PSSD_DATA is unset, the tests look in {DEFAULT_MESH_DIR})")
-    return folder / name
+def data_file(kind, name):
+    """Path of the shared data file ``kind/name`` (``kind`` one of ``meshes``, ``lidar``,
+    ``realscans``, ``punet``), skipping the test with a message naming ``PSSD_DATA`` and the
+    folder looked in when it is not there (:func:`benchmarks.models.data_folder`)."""
+    path = models.data_folder(kind) / name
+    if not path.is_file():
+        pytest.skip(models.missing(kind, [name]))
+    return path
 
 
 def wavy(n=400, noise=0.005, seed=0):

@@ -132,3 +132,76 @@ def test_every_extra_the_texts_name_is_one_of_pyproject_s():
              + named.findall(text)}
     assert {"io", "viz", "dask"} <= extras and len(found) > 10
     assert sorted(f"{path}: {name}" for path, name in found if name not in extras) == []
+
+
+def _page(name):
+    """docs/NAME as one line: its line breaks and indents are single spaces."""
+    return re.sub(r"\s+", " ", (ROOT / "docs" / name).read_text())
+
+
+def test_the_surface_classes_the_pages_name_are_the_code_s():
+    from pssd_fast.classes import SURFACE_CLASSES
+
+    named = [f"{code} {name}" for code, name in SURFACE_CLASSES.items()]
+    readme = re.sub(r"\s+", " ", (ROOT / "README.md").read_text())
+    assert f"(ASPRS {', '.join(named)})" in readme
+    assert f"ASPRS {', '.join(named[:-1])} and {named[-1]};" in _page("cli.md")
+    codes = [f"{name} ({code})" for code, name in SURFACE_CLASSES.items()]
+    assert f"{', '.join(codes[:-1])} and {codes[-1]};" in _page("interop.md")
+
+
+def test_the_numbers_of_the_command_line_page_are_the_code_s():
+    """docs/cli.md's least class, outlier neighbours, colours and framing: each as the code has
+    it (its measured numbers are checked in tests/test_cli.py)."""
+    from pssd_fast.classes import least_points
+    from pssd_fast.core import OUTLIER_K
+    from pssd_fast.pictures import colours, draw, view
+    from pssd_fast.pictures.fields import CURVATURE_K
+
+    page = _page("cli.md")
+    styles = colours.STYLES
+    low, high = (f"{p:.0f}" for p in colours.ROBUST_PERCENTILES)
+    expected = [
+        f"({least_points({})}; `--k` plus 1)",
+        f"a query of {OUTLIER_K} neighbours", f"a class of {OUTLIER_K} points or fewer",
+        f"`{styles['height'].cmap}`, {low}nd to {high}th percentile",
+        f"grey ramp (black to light grey), {low}nd to {high}th percentile",
+        f"legend naming the classes present (at most {draw.LEGEND_ROWS}, the most numerous)",
+        f"`{styles['displacement'].cmap}`, 0 to its {high}th percentile",
+        f"`{styles['likelihood'].cmap}`, `{styles['feature'].cmap}`, "
+        f"{styles['feature'].vmin:g} to {styles['feature'].vmax:g}",
+        f"`{styles['curvature'].cmap}`, {styles['curvature'].vmin:g} to "
+        f"{styles['curvature'].vmax:g}",
+        f"(MLS cubics over {CURVATURE_K} neighbours)",
+        f"bounding box spans {view.FILL:.0%} of the drawing",
+        f"`--size WIDTH` (default {draw.DEFAULT_SIZE[0]})",
+        f"the picture at least {draw.FLATTEST:g} as high as wide, the drawing at most "
+        f"{draw.TALLEST:g}",
+        f"from {view.SCENE_ELEVATION:.0f} degrees above", f"within {view.TURN_SLACK:.0%} of "
+        f"the smallest", "from {:.0f} {:.0f}.".format(*view.DEFAULT_VIEW),
+    ]
+    assert view.FLAT_EXTENT == 1 / 3 and page.count("under a third") >= 2
+    assert [text for text in expected if text not in page] == []
+
+
+def test_the_demos_the_pages_describe_are_the_commands_defaults(monkeypatch):
+    """The README's quick start and docs/cli.md's ``pssd demo``: the parts they generate."""
+    from pssd_fast import __main__, cli, datasets
+
+    demo = cli._parser().parse_args(["demo"])
+    assert (f"the generated part ({demo.points:,} points, noise {demo.noise:.2%} of the "
+            f"diagonal)") in _page("cli.md")
+
+    class Generated(Exception):
+        """The part was asked for: nothing more of the run is needed."""
+
+    def cad_part(**asked):
+        raise Generated(asked)
+
+    monkeypatch.setattr(datasets, "cad_part", cad_part)
+    with pytest.raises(Generated) as generated:
+        __main__.main([])
+    asked = generated.value.args[0]
+    readme = re.sub(r"\s+", " ", (ROOT / "README.md").read_text())
+    assert (f"CAD-like part ({asked['n_points']:,} points, sharp edges and a curved patch, "
+            f"Gaussian noise {asked['noise']:.2%} of its diagonal)") in readme

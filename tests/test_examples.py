@@ -7,7 +7,7 @@ import pytest
 #: The functions whose docstrings must hold an Examples section that runs: (module, name).
 DOCUMENTED = [("pssd_fast", "denoise"), ("pssd_fast.tiled", "denoise"),
               ("pssd_fast.tiled", "denoise_file"), ("pssd_fast", "estimate_normals"),
-              ("pssd_fast", "outlier_score")]
+              ("pssd_fast", "outlier_score"), ("pssd_fast.io", "read"), ("pssd_fast.io", "write")]
 
 
 @pytest.mark.parametrize("module, name", DOCUMENTED, ids=[f"{m}.{n}" for m, n in DOCUMENTED])

@@ -1,5 +1,5 @@
 """Feature intensity on Fandisk against its known feature curves (reference meshes: see
-``mesh_dir`` in conftest.py).
+``data_file`` in conftest.py).
 
 Measured rates (30,000 area-uniform samples, unit diagonal, k = 25, defaults of eq. (3)):
 clean samples: mean s = 0.22 within 1% of the diagonal of a feature curve, 0.001 farther than
@@ -12,14 +12,15 @@ import pytest
 import pssd_fast
 from benchmarks import meshes
 
-from .conftest import mesh_file
+from .conftest import data_file
 
 
 @pytest.fixture(scope="module")
 def fandisk():
-    vertices, faces = meshes.read_obj(mesh_file("fandisk.obj.gz"))
+    vertices, faces = meshes.read_obj(data_file("meshes", "fandisk.obj.gz"))
     vertices, scale, offset = meshes.normalize_to_unit_diagonal(vertices)
-    curves = [(c - offset) * scale for c in meshes.read_feat(mesh_file("fandisk.feat.gz"))]
+    curves = [(c - offset) * scale
+              for c in meshes.read_feat(data_file("meshes", "fandisk.feat.gz"))]
     points, _, _ = meshes.sample_surface(vertices, faces, 30_000, seed=0)
     a = np.vstack([c[:-1] for c in curves])
     b = np.vstack([c[1:] for c in curves])

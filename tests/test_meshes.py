@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from pykdtree.kdtree import KDTree
 
-from benchmarks import meshes
+from benchmarks import meshes, models
 
-from .conftest import DEFAULT_MESH_DIR, mesh_file
+from .conftest import data_file
 
 
 def cube_mesh():
@@ -81,10 +81,10 @@ def test_read_obj_malformed_names_the_line(tmp_path, text, lineno):
 
 
 def test_read_obj_reference_meshes():
-    vertices, faces = meshes.read_obj(mesh_file("fandisk.obj.gz"))
+    vertices, faces = meshes.read_obj(data_file("meshes", "fandisk.obj.gz"))
     assert vertices.shape == (6475, 3) and faces.shape == (12946, 3)
     assert np.linalg.norm(np.ptp(vertices, axis=0)) == pytest.approx(7.615589, abs=1e-6)
-    vertices, faces = meshes.read_obj(mesh_file("igea.obj.gz"))
+    vertices, faces = meshes.read_obj(data_file("meshes", "igea.obj.gz"))
     assert vertices.shape == (134345, 3) and faces.shape == (268686, 3)
     assert faces.min() == 0 and faces.max() == 134344
 
@@ -122,8 +122,8 @@ def test_read_feat_malformed(tmp_path, text, match):
 
 
 def test_fandisk_feature_curves_are_its_sharp_edges():
-    vertices, faces = meshes.read_obj(mesh_file("fandisk.obj.gz"))
-    curves = meshes.read_feat(mesh_file("fandisk.feat.gz"))
+    vertices, faces = meshes.read_obj(data_file("meshes", "fandisk.obj.gz"))
+    curves = meshes.read_feat(data_file("meshes", "fandisk.feat.gz"))
     assert len(curves) == 35 and sum(len(c) for c in curves) == 757
     edges = meshes.sharp_edges(vertices, faces, 30.0)
     assert edges.shape == (722, 2)
@@ -326,8 +326,9 @@ def test_normalize_to_unit_diagonal():
 
 
 def test_data_dir_from_pssd_data(monkeypatch, tmp_path):
+    (tmp_path / "meshes").mkdir()
     monkeypatch.setenv("PSSD_DATA", str(tmp_path))
-    assert meshes.data_dir() == tmp_path
+    assert meshes.data_dir() == tmp_path / "meshes"
     # A setting that points nowhere is reported, not replaced by another folder.
     monkeypatch.setenv("PSSD_DATA", str(tmp_path / "missing"))
     assert meshes.data_dir() is None
@@ -338,13 +339,14 @@ def test_data_dir_from_pssd_data(monkeypatch, tmp_path):
 
 def test_data_dir_from_argument(monkeypatch, tmp_path):
     elsewhere = tmp_path / "elsewhere"
-    elsewhere.mkdir()
+    (elsewhere / "meshes").mkdir(parents=True)
+    (tmp_path / "meshes").mkdir()
     monkeypatch.setenv("PSSD_DATA", str(elsewhere))
-    assert meshes.data_dir(tmp_path) == tmp_path  # the argument wins over PSSD_DATA
-    assert meshes.data_dir(str(tmp_path)) == tmp_path
+    assert meshes.data_dir(tmp_path) == tmp_path / "meshes"  # the argument wins over PSSD_DATA
+    assert meshes.data_dir(str(tmp_path)) == tmp_path / "meshes"
     assert meshes.data_dir(tmp_path / "missing") is None
     monkeypatch.setenv("HOME", str(tmp_path))
-    assert meshes.data_dir("~/elsewhere") == elsewhere
+    assert meshes.data_dir("~/elsewhere") == elsewhere / "meshes"
 
 
 def test_data_dir_has_no_fallback(monkeypatch, tmp_path):
@@ -355,9 +357,47 @@ def test_data_dir_has_no_fallback(monkeypatch, tmp_path):
     assert meshes.data_dir() is None
     monkeypatch.setenv("PSSD_DATA", "")
     assert meshes.data_dir() is None
-    if DEFAULT_MESH_DIR.is_dir():
-        monkeypatch.chdir(DEFAULT_MESH_DIR.parents[2])
+    if models.DEFAULT_DATA_DIR.is_dir():
+        monkeypatch.chdir(models.DEFAULT_DATA_DIR.parents[1])
         assert meshes.data_dir() is None
+
+
+def test_data_dir_finds_each_kind_in_a_data_folder(monkeypatch, tmp_path):
+    for kind in meshes.KINDS:
+        (tmp_path / kind).mkdir()
+    monkeypatch.setenv("PSSD_DATA", str(tmp_path))
+    assert [meshes.data_dir(kind=kind) for kind in meshes.KINDS] == [
+        tmp_path / kind for kind in meshes.KINDS]
+    (tmp_path / "lidar").rmdir()
+    assert meshes.data_dir(kind="lidar") is None  # not the lidar/ beside the data folder
+    with pytest.raises(ValueError, match="unknown kind of data 'mesh'"):
+        meshes.data_dir(kind="mesh")
+
+
+def test_a_folder_of_meshes_still_works_as_pssd_data(monkeypatch, tmp_path):
+    """PSSD_DATA once named the meshes folder itself, the other kinds beside it: a folder
+    holding files but none of the kinds' folders is still read so."""
+    for kind in meshes.KINDS:
+        (tmp_path / kind).mkdir()
+    (tmp_path / "meshes" / "fandisk.obj.gz").write_text("")
+    monkeypatch.setenv("PSSD_DATA", str(tmp_path / "meshes"))
+    assert meshes.data_dir() == tmp_path / "meshes"
+    assert meshes.data_dir(kind="punet") == tmp_path / "punet"
+    assert models.data_folder("lidar") == tmp_path / "lidar"
+
+
+def test_the_tests_skip_naming_pssd_data_and_the_folder_they_looked_in(monkeypatch, tmp_path):
+    monkeypatch.setenv("PSSD_DATA", str(tmp_path))
+    with pytest.raises(pytest.skip.Exception) as skipped:
+        data_file("lidar", "absent.laz")
+    message = str(skipped.value)
+    assert f"absent.laz not found in {tmp_path / 'lidar'}: set PSSD_DATA to the folder " \
+           "holding meshes/, lidar/, realscans/, punet/" in message
+    assert f"when PSSD_DATA is unset, they are looked for in {models.DEFAULT_DATA_DIR}" in message
+    monkeypatch.delenv("PSSD_DATA")
+    with pytest.raises(pytest.skip.Exception, match="PSSD_DATA") as skipped:
+        data_file("punet", "absent.off.gz")
+    assert f"not found in {models.DEFAULT_DATA_DIR / 'punet'}:" in str(skipped.value)
 
 
 def test_package_names_no_path_outside_itself():

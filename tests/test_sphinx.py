@@ -20,9 +20,11 @@ def test_the_api_reference_builds_without_warnings_and_links_the_docs_it_cites(t
     page = (html / "api" / "denoise.html").read_text()
     assert "rebuild_graph" in page and "Returns" in page  # the docstrings made it in
     assert "figure_set" in (html / "api" / "pictures.html").read_text()
+    files = (html / "api" / "io.html").read_text()
+    assert "pssd_fast.io.PointCloud" in files and "Examples" in files
     # Every mention of a Markdown doc is a link to its copy in the site.
     linked = set()
-    for name in ("denoise", "stages", "tiled", "pictures"):
+    for name in ("denoise", "stages", "tiled", "pictures", "io"):
         text = (html / "api" / f"{name}.html").read_text()
         linked |= set(re.findall(r'href="\.\./([\w.-]+\.md)"', text))
         outside_links = re.sub(r"<a [^>]*>.*?</a>", "", text, flags=re.S)

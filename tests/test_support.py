@@ -1,9 +1,6 @@
 """No point flung: every move stays within the neighbourhood that supports it, on real LiDAR
 files, on small random and degenerate clouds, and where a fit is broken on purpose
 (docs/DECISIONS.md, "No point flung")."""
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -11,11 +8,11 @@ from hypothesis import strategies as st
 from pykdtree.kdtree import KDTree
 
 import pssd_fast
-# The files' folder when PSSD_LIDAR is unset, every preset and method, and the bound's r16, as
-# the benchmark of the real files has them.
-from benchmarks.lidar import DEFAULT_FOLDER as DEFAULT_LIDAR_DIR
+# Every preset and method, and the bound's r16, as the benchmark of the real files has them.
 from benchmarks.lidar import RUNS, r16
 from pssd_fast import core, datasets
+
+from .conftest import data_file
 
 #: The parts of the shared files where the library flung points before the guard (each box
 #: ``(x0, y0, x1, y1)`` relative to the file's lowest corner, in metres): trees and roofs of
@@ -30,11 +27,7 @@ def lidar_points(name):
     """The points of the shared LiDAR file ``name`` inside its :data:`CROPS` box; skips the
     test when the file is not there (or laspy is missing)."""
     pytest.importorskip("laspy")
-    folder = Path(os.environ.get("PSSD_LIDAR") or DEFAULT_LIDAR_DIR)
-    path = folder / name
-    if not path.is_file():
-        pytest.skip(f"LiDAR file {name} not found: set PSSD_LIDAR to the folder holding it "
-                    f"(when PSSD_LIDAR is unset, the tests look in {DEFAULT_LIDAR_DIR})")
+    path = data_file("lidar", name)
     from pssd_fast import io
 
     points = io.read(path).points

@@ -2,42 +2,28 @@
 and a raw range view, in memory (``tiled.denoise``) and from a file to a file
 (``tiled.denoise_file``). Each test skips with a message naming the folder when its file is
 absent."""
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 import pssd_fast
-from benchmarks.lidar import DEFAULT_FOLDER as DEFAULT_LIDAR_DIR
+
+from .conftest import data_file
 
 pytest.importorskip("dask")
 pytest.importorskip("laspy")
 
 from pssd_fast import io, tiled  # noqa: E402  (after the skips: the io extra)
 
-DEFAULT_REALSCANS_DIR = DEFAULT_LIDAR_DIR.parent / "realscans"
-#: The files, the variable naming their folder and the folder when it is unset; the airborne
-#: survey (110,000 points) runs under ``-m slow`` only, to keep the suite short.
-FILES = {"plane.laz": ("PSSD_LIDAR", DEFAULT_LIDAR_DIR),
-         "bun000.ply.gz": ("PSSD_REALSCANS", DEFAULT_REALSCANS_DIR),
-         "autzen_trim.laz": ("PSSD_LIDAR", DEFAULT_LIDAR_DIR)}
+#: The files, each under the kind of data it is; the airborne survey (110,000 points) runs
+#: under ``-m slow`` only, to keep the suite short.
+FILES = [("lidar", "plane.laz"), ("realscans", "bun000.ply.gz"),
+         pytest.param(("lidar", "autzen_trim.laz"), marks=pytest.mark.slow)]
 
 
-def _path(name):
-    variable, default = FILES[name]
-    path = Path(os.environ.get(variable) or default) / name
-    if not path.is_file():
-        pytest.skip(f"{name} not found: set {variable} to the folder holding it (when "
-                    f"{variable} is unset, the tests look in {default})")
-    return path
-
-
-@pytest.fixture(scope="module", params=[
-    "plane.laz", "bun000.ply.gz", pytest.param("autzen_trim.laz", marks=pytest.mark.slow)])
+@pytest.fixture(scope="module", params=FILES, ids=lambda kind_and_name: kind_and_name[1])
 def real(request):
     """A shared file, its cloud as read and the in-core result of the default."""
-    path = _path(request.param)
+    path = data_file(*request.param)
     cloud = io.read(path)
     return path, cloud, pssd_fast.denoise(cloud.points, cloud.normals)
 

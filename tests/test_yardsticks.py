@@ -7,7 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks import meshes, metrics, models, punet, rawscans, versus
+from benchmarks import meshes, metrics, punet, rawscans, versus
+
+from .conftest import data_file
 
 pcu = pytest.importorskip("point_cloud_utils")
 
@@ -137,11 +139,7 @@ def test_off_files_are_read_with_their_polygons_fanned(tmp_path):
 
 
 def _punet_data():
-    folder = models.sibling("punet")
-    if not (folder / "fandisk.off.gz").is_file():
-        pytest.skip(f"the PU-Net meshes were not found in {folder}: set PSSD_DATA to the "
-                    "folder of the paper's meshes, with punet/ beside it")
-    return folder
+    return data_file("punet", "fandisk.off.gz").parent
 
 
 def test_punet_runs_end_to_end_on_one_mesh(tmp_path):
@@ -182,10 +180,7 @@ def test_registration_puts_a_view_on_the_reference():
 
 
 def test_rawscans_runs_end_to_end_on_one_view(tmp_path):
-    data = models.sibling("realscans")
-    if not (data / "bun000.ply.gz").is_file():
-        pytest.skip(f"the raw scans were not found in {data}: set PSSD_DATA to the folder of "
-                    "the paper's meshes, with realscans/ beside it")
+    data = data_file("realscans", "bun000.ply.gz").parent
     absent = versus.missing_peers(["jet"])
     peers = [] if absent else ["jet"]
     rows = rawscans.main(["--views", "bun000", "--every", "25", "--peers", *peers, "--data",
