@@ -1,6 +1,7 @@
 """The threads of the library: its OpenMP pools, set up when it first starts them, and the
 ``n_jobs`` convention (how many threads the kernels use, restored afterwards)."""
 import contextlib
+import ctypes
 import importlib
 import os
 import sys
@@ -55,12 +56,47 @@ def configure_threads(spin_count=SPIN_COUNT):
                 os.environ["GOMP_SPINCOUNT"] = str(check_int(spin_count, "spin_count"))
             try:
                 importlib.import_module("pykdtree.kdtree")  # loads its pool
+                _avoid_old_tbb()
                 numba.get_num_threads()  # starts numba's threading layer
             finally:
                 if not caller:
                     del os.environ["GOMP_SPINCOUNT"]
             _pools.update(spin_count=None if caller else int(spin_count), loaded_before=before)
         return dict(_pools)
+
+
+#: The oldest TBB numba's TBB layer runs on (``TBB_INTERFACE_VERSION``, TBB 2021 update 6).
+TBB_INTERFACE = 12060
+
+
+def _avoid_old_tbb():
+    """Where numba would try TBB first (its default) and the TBB in the process is older than
+    it needs (Open3D ships one), numba's OpenMP layer instead (workqueue where there is none):
+    numba would warn and then fall back itself. A layer or a priority the caller set
+    (``NUMBA_THREADING_LAYER``, ``NUMBA_THREADING_LAYER_PRIORITY`` or ``numba.config``) is
+    left as it is, and so is a layer already started."""
+    config = numba.config
+    if (numba.np.ufunc.parallel._is_initialized or "NUMBA_THREADING_LAYER" in os.environ
+            or config.THREADING_LAYER != "default"
+            or "NUMBA_THREADING_LAYER_PRIORITY" in os.environ
+            or config.THREADING_LAYER_PRIORITY[0] != "tbb" or not _old_tbb()):
+        return
+    try:
+        importlib.import_module("numba.np.ufunc.omppool")
+        config.THREADING_LAYER = "omp"
+    except ImportError:
+        config.THREADING_LAYER = "workqueue"
+
+
+def _old_tbb():
+    """Whether the process loads a TBB older than :data:`TBB_INTERFACE` (False without one)."""
+    name = {"win32": "tbb12.dll", "darwin": "libtbb.12.dylib"}.get(sys.platform, "libtbb.so.12")
+    try:
+        version = ctypes.CDLL(name).TBB_runtime_interface_version
+    except (OSError, AttributeError):
+        return False
+    version.argtypes, version.restype = [], ctypes.c_int
+    return version() < TBB_INTERFACE
 
 
 cache.before_kernels(configure_threads)

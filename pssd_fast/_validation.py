@@ -1,5 +1,6 @@
 """Argument checks, run before any kernel: each error names the bad value and how to fix it."""
 import numbers
+import os
 import warnings
 
 import numpy as np
@@ -29,6 +30,9 @@ def as_points(points, name="points"):
     dtype : numpy.dtype
         The dtype results should be returned in (float32 stays float32, everything else float64).
     """
+    if isinstance(points, (str, os.PathLike)):
+        raise TypeError(f"{name} must be an (n, 3) array, not the file name {str(points)!r}; "
+                        f"read the file first: pssd_fast.io.read({str(points)!r}).points")
     if isinstance(points, np.ndarray):
         arr = points
     else:

@@ -34,6 +34,21 @@ _RENAME_EXCHANGE = 2
 _AT_FDCWD = -100
 
 
+def check_folder(path):
+    """Refuse (``PermissionError`` or ``OSError`` naming it) the folder of ``path`` where a
+    temporary cannot be created in it: before the work that ends in :func:`replacing`, not
+    after. A file of the same kind is created there and removed."""
+    folder = Path(path).parent
+    probe = temporary(path)
+    try:
+        fd = os.open(probe, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600)
+    except OSError as exc:
+        raise type(exc)(exc.errno, f"output folder {folder} is not writable "
+                                   f"({exc.strerror or exc})") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
 def temporary(path):
     """A name beside ``path`` that no other writer takes: hidden, with a random token, and
     ending in ``path``'s own suffix (writers that choose their format by the suffix keep

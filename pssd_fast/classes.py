@@ -9,7 +9,7 @@ import numpy as np
 
 from ._validation import MIN_K, DenoiseWarning, as_normals, check_int
 from .plan import PRESETS
-from .run import DenoiseResult
+from .run import Deferred, DenoiseResult, stored
 
 #: The ASPRS LAS 1.4 classes that are surfaces, denoised by default: each on its own.
 SURFACE_CLASSES = {2: "ground", 6: "building", 9: "water", 10: "rail", 11: "road surface",
@@ -149,17 +149,27 @@ def merge(pts, dtype, given, done, small, described, started):
     out_normals = (np.full((kept.shape[0], 3), np.nan, dtype) if given is None
                    else given[kept].astype(dtype))
     first = done[0][2]
-    arrays = {name: None if getattr(first, name) is None else np.full(
-        kept.shape[0], fill, dtype if name != "held" else np.bool_)
-        for name, fill in (("likelihood", np.nan), ("feature_intensity", np.nan),
-                           ("displacement", 0), ("held", False), ("outlier_score", np.nan))}
-    for _, rows, part in done:
-        at = place[rows[part.kept]]
+    places = [place[rows[part.kept]] for _, rows, part in done]
+
+    def merged(name, fill):
+        values = np.full(kept.shape[0], fill, dtype if name != "held" else np.bool_)
+        for at, (_, _, part) in zip(places, done, strict=True):
+            values[at] = getattr(part, name)
+        return values
+
+    arrays = {}
+    for name, fill in (("likelihood", np.nan), ("feature_intensity", np.nan),
+                       ("displacement", 0), ("held", False), ("outlier_score", np.nan)):
+        if stored(first, name) is None:
+            arrays[name] = None
+        elif any(type(stored(part, name)) is Deferred for _, _, part in done):
+            # Read from each run's result when the merged one's is first read.
+            arrays[name] = Deferred(lambda name=name, fill=fill: merged(name, fill))
+        else:
+            arrays[name] = merged(name, fill)
+    for at, (_, _, part) in zip(places, done, strict=True):
         out_points[at] = part.points
         out_normals[at] = part.normals
-        for name, values in arrays.items():
-            if values is not None:
-                values[at] = getattr(part, name)
     stats = summary([(code, rows.shape[0], part.stats) for code, rows, part in done],
                     int(n - chosen.sum()), small, described, started)
     return DenoiseResult(points=out_points, normals=out_normals, kept=kept, stats=stats,

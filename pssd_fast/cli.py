@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
+from . import __version__, atomic
 from .parameters import BY_NAME, PARAMETERS
 from .plan import PRESETS
 from .progress import TimeLeft, describe
@@ -216,6 +216,11 @@ def _parser():
                              "extent for a flat cloud (under a third of the largest), else y "
                              "(auto)")
     _add_common(render)
+    add_parameter(render, "classes", type=_classes, metavar="LIST",
+                  more=": the classes pssd denoise denoised (as its --classes); likelihood and "
+                       "feature are computed as it computes them, and the points of other "
+                       "classes, which it kept in place, are drawn grey in pictures of "
+                       "likelihood, feature and displacement")
     _add_size(render)
     render.add_argument("--force", action="store_true", help="overwrite the picture if it "
                                                              "exists")
@@ -430,6 +435,10 @@ def _check_output(path, force):
     if not path.parent.is_dir():
         state = "is not a folder" if path.parent.exists() else "does not exist"
         raise CommandError(f"output folder {path.parent} {state}")
+    try:
+        atomic.check_folder(path)
+    except OSError as exc:
+        raise CommandError(f"{exc.strerror}; choose another output") from None
 
 
 def _is_stdio(path):
@@ -716,12 +725,19 @@ def _denoise_file(args, params, inp, out, say):
     io.write(out, cloud, points=result.points.astype(np.float64), normals=normals,
              fields=fields, overwrite=args.force, format=fmt if _is_stdio(out) else None)
     if not args.quiet:
-        disp = result.displacement
+        # The moves the file holds: LAS rounds the coordinates to its scale.
+        points = result.points.astype(np.float64)
+        written = io.stored(out, cloud, points, format=fmt if _is_stdio(out) else None)
+        disp = np.linalg.norm(written - cloud.points, axis=1)
+        rounded = np.abs(written - points).max(initial=0.0)
         removed = (f" ({result.stats['outliers']['removed']:,} outliers removed)"
                    if args.remove_outliers else "")
+        stored = f" (as stored: the format rounds coordinates by up to {rounded:.4g})" \
+            if rounded > 0.0 else ""
         print(f"{inp} -> {out}: {len(disp):,} points{removed}, method {args.method}, "
               f"{result.stats['n_iterations']} iterations, {seconds:.2f} s; displacement max "
-              f"{disp.max():.4g}, mean {disp.mean():.4g}{_classes_done(result.stats)}", file=say)
+              f"{disp.max():.4g}, mean {disp.mean():.4g}{stored}{_classes_done(result.stats)}",
+              file=say)
 
 
 def _labels(args, cloud, name):
@@ -886,6 +902,10 @@ def _vec(v, decimals):
     return "(" + ", ".join(f"{x:.{decimals}f}" for x in v) + ")"
 
 
+#: The pictures of what ``pssd denoise`` moves or computes for the classes it denoises.
+MOVED = ("likelihood", "feature", "displacement")
+
+
 def _render(args):
     from .pictures import draw, view
     from .pictures.fields import FROM_CLOUD, field_values, units
@@ -898,6 +918,8 @@ def _render(args):
     points = cloud.points
     given = _given_normals(cloud, args.file)
     up = view.choose_up(points, cloud.format == "las") if args.up == "auto" else args.up
+    # The classes pssd denoise denoised (by default the surface classes present).
+    labels, runs = _labels(args, cloud, args.file) if args.color in MOVED else ({}, None)
     if args.color == "height":
         values = view.height(points, up)
     elif args.color in FROM_CLOUD:
@@ -909,14 +931,21 @@ def _render(args):
         progress = _Progress(STAGE_COUNT["robust"], not args.quiet)
         try:
             values = field_values(args.color, points, given, cloud.fields,
-                                  progress=progress, **_common_options(args))
+                                  progress=progress, **_common_options(args), **labels)
         finally:
             progress.close()
+    missing = None
+    if runs is not None:
+        kept = np.ones(len(cloud), np.bool_)
+        for rows in runs:
+            kept[rows] = False
+        values = np.where(kept, np.nan, values)
+        missing = "kept in place\n(other classes)"
     normals = estimate_normals(points, n_jobs=args.n_jobs) if given is None else given
     seen_from = view.choose_view(points, up) if args.view is None else tuple(args.view)
     draw.render(points, values, args.output, field=None if args.color == "rgb" else args.color,
                 view=seen_from, up=up, normals=normals, units=units(cloud),
-                title=args.file.name, size=size)
+                title=args.file.name, size=size, missing=missing)
     if not args.quiet:
         print(f"wrote {args.output} (up axis {up}, view {seen_from[0]:g} {seen_from[1]:.1f})")
     return 0

@@ -76,9 +76,11 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         Sign of the estimated normals, as in :func:`pssd_fast.estimate_normals`; ``None``:
         away from the centroid. Not with ``normals``. The positions do not depend on it.
     extras : bool, default False
-        Also return the likelihood and the feature intensity under presets "default" and
-        "fast", whose moves use neither (docs/ALGORITHM.md, "The default method"); else None.
-        The paper's pipeline always returns them, the baselines never.
+        Compute the likelihood and the feature intensity during the run under presets
+        "default" and "fast", whose moves use neither (docs/ALGORITHM.md, "The default
+        method"); else each is computed when the result's field is first read, to the same
+        values (:class:`DenoiseResult`). The paper's pipeline always returns them, the
+        baselines never.
     remove_outliers : bool, default False
         Drop the points whose :func:`pssd_fast.outlier_score` exceeds 1 first (the result's
         ``kept`` and ``outlier_score``).
@@ -176,7 +178,11 @@ def _default(current, given, plan, request, runner, tile_points, store):
     tiles = executor.group(current, given, plan, store, tile_points)
     _, records = executor.run(plan, request, tiles, store, runner)
     out = executor.collect(store, tiles, current.shape[0])
-    extra = (out["likelihood"], out["feature"]) if request.extras else None
+    if request.extras:
+        extra = (out["likelihood"], out["feature"])
+    else:  # computed when the result's fields are first read
+        extra = executor.deferred_extras(store, tiles, [("fits", i) for i in range(len(tiles))],
+                                         plan, current.shape[0])
     return (Iterated(out["xyz"], out["normals"], extra, records, out["held"]),
             (len(tiles), max(tile.points for tile in tiles)))
 

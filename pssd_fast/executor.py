@@ -331,24 +331,52 @@ def collect(store, tiles, n, names=("xyz", "normals", "held", "likelihood", "fea
 
 
 def extras(store, tiles, fits, plan):
-    """The likelihood and feature intensity of each tile's points, added to its
-    ``("out", i)``: those of their cell's mean (the likelihood from the last fits' RMS
-    residual, the ``"exp"`` form; the feature intensity by the paper's voting at the paper's
-    constants over the means where the last iteration started). Over the whole cloud's means
-    at once: the voting's mean spacing and the likelihood's mean residual are the whole
-    cloud's."""
+    """The likelihood and feature intensity of each tile's points (those of their cell's
+    mean: :func:`means_likelihood`, :func:`means_feature`), added to its ``("out", i)``."""
+    origins, rms, filtered, cells = extras_inputs(store, tiles, fits)
+    lik, feat = means_likelihood(rms), means_feature(origins, filtered, plan)
+    for i in range(len(tiles)):
+        entry = store.get(("out", i))
+        entry.update(likelihood=lik[cells[i]], feature=feat[cells[i]])
+        store.put(("out", i), entry)
+
+
+def extras_inputs(store, tiles, fits):
+    """What the likelihood and the feature intensity are computed from: the whole cloud's
+    means where the last iteration started, their last fits' RMS residuals and filtered
+    normals, and each tile's points' cells (one array per tile, in the tile's order). Over the
+    whole cloud's means at once: the voting's mean spacing and the likelihood's mean residual
+    are the whole cloud's."""
     entries = [store.get(key, ("xyz", "rms", "filtered")) for key in fits]
     origins, rms, filtered = (np.concatenate([e[name] for e in entries])
                               for name in ("xyz", "rms", "filtered"))
+    cells = [store.get(("points", i), ("cell",))["cell"] for i in range(len(tiles))]
+    return origins, rms, filtered, cells
+
+
+def means_likelihood(rms):
+    """The cell means' likelihood: from their last fits' RMS residual, the ``"exp"`` form."""
+    return core.sampling_likelihood(rms, "exp")[0]
+
+
+def means_feature(origins, filtered, plan):
+    """The cell means' feature intensity: the paper's voting at the paper's constants over the
+    means where the last iteration started, with their filtered normals."""
     lists = bounded_graph(origins, plan.k, plan.bound)
-    lik, _ = core.sampling_likelihood(rms, "exp")
-    feat = aware.voted_feature(origins, filtered, lists,
+    return aware.voted_feature(origins, filtered, lists,
                                aware.region_radius(core.mean_spacing(lists)))
-    for i in range(len(tiles)):
-        cell = store.get(("points", i), ("cell",))["cell"]
-        entry = store.get(("out", i))
-        entry.update(likelihood=lik[cell], feature=feat[cell])
-        store.put(("out", i), entry)
+
+
+def deferred_extras(store, tiles, fits, plan, n):
+    """Two functions that give, when called, the likelihood and the feature intensity of the
+    ``n`` points (in their order), the values :func:`extras` gives them; until then only what
+    they are computed from is held (:func:`extras_inputs`)."""
+    origins, rms, filtered, tile_cells = extras_inputs(store, tiles, fits)
+    cells = np.empty(n, np.int64)
+    for i, own in enumerate(tile_cells):
+        cells[store.get(("out", i), ("gid",))["gid"]] = own
+    return (lambda: means_likelihood(rms)[cells],
+            lambda: means_feature(origins, filtered, plan)[cells])
 
 
 def orient(store, tiles, how, centre, whole):

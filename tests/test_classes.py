@@ -6,8 +6,7 @@ import pytest
 import pssd_fast
 from pssd_fast import datasets
 
-from .conftest import pssd
-from .test_support import DEFAULT_LIDAR_DIR
+from .conftest import data_file, pssd
 
 
 @pytest.fixture(scope="module")
@@ -62,8 +61,9 @@ def test_ground_never_takes_a_tree_point_as_neighbour(survey):
     assert (result.displacement[kept] == 0).all() and np.isnan(result.likelihood[kept]).all()
     with pytest.warns(pssd_fast.DenoiseWarning, match="class 17"):
         plain = pssd_fast.denoise(points, classification=labels, iterations=1)
-    assert plain.likelihood is None and plain.feature_intensity is None  # none asked for
     np.testing.assert_array_equal(plain.points, result.points)
+    for name in ("likelihood", "feature_intensity"):  # not asked for: computed when read
+        np.testing.assert_array_equal(getattr(plain, name), getattr(result, name))
     classes = result.stats["classes"]
     assert (classes["classes"], classes["too_small"], sorted(classes["runs"])) == (
         [2, 6], [17], [2, 6])
@@ -395,18 +395,11 @@ def test_a_classified_file_tiled_out_of_core_is_the_in_memory_file(tmp_path, sur
     assert stats["classes"]["classes"] == [2, 5, 6]
 
 
-def _autzen():
-    source = DEFAULT_LIDAR_DIR / "autzen_trim.laz"
-    if not source.is_file():
-        pytest.skip(f"LiDAR file {source} not found")
-    return source
-
-
 @pytest.fixture(scope="module")
 def autzen_denoised(tmp_path_factory):
     """``pssd denoise autzen_trim.laz out.laz`` with no option: the input, the output."""
     laspy = pytest.importorskip("laspy")
-    source = _autzen()
+    source = data_file("lidar", "autzen_trim.laz")
     out = tmp_path_factory.mktemp("autzen") / "out.laz"
     status, text, err = pssd("denoise", source, out)
     assert status == 0, err

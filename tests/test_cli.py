@@ -3,9 +3,11 @@ script calls, and in a subprocess where the process itself is the subject (stdin
 signals)."""
 import gzip
 import inspect
+import os
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +16,7 @@ import pssd_fast
 from pssd_fast import cli, datasets, method
 from pssd_fast.denoise import METHOD_DEFAULTS
 
-from .conftest import pssd
+from .conftest import data_file, pssd
 
 plyfile = pytest.importorskip("plyfile")
 laspy = pytest.importorskip("laspy")
@@ -292,6 +294,59 @@ def test_render_names_a_las_file_s_units_on_the_colour_bar(tmp_path, monkeypatch
     assert seen[0]["units"] == "ft" and seen[0]["field"] == "height"
 
 
+def test_the_summary_reports_the_moves_the_file_holds(tmp_path):
+    """A LAS output rounds the coordinates to its scale: the summary's moves are those of the
+    file, and it says by how much the format rounds."""
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = (0.01, 0.01, 0.01)
+    las = laspy.LasData(header)
+    cloud = datasets.cad_part(n_points=3000, noise=0.01, seed=2)
+    las.x, las.y, las.z = (cloud.points * 10.0).T
+    las.write(tmp_path / "in.las")
+    status, out, err = pssd("denoise", tmp_path / "in.las", tmp_path / "out.las")
+    assert status == 0, err
+    before, after = laspy.read(tmp_path / "in.las"), laspy.read(tmp_path / "out.las")
+    moves = np.linalg.norm(np.column_stack([after.x - before.x, after.y - before.y,
+                                            after.z - before.z]), axis=1)
+    found = re.search(r"displacement max (\S+), mean (\S+) \(as stored: the format rounds "
+                      r"coordinates by up to (\S+)\)", out)
+    assert found, out
+    assert float(found[1]) == pytest.approx(moves.max(), rel=1e-3)
+    assert float(found[2]) == pytest.approx(moves.mean(), rel=1e-3)
+    assert 0.0 < float(found[3]) <= 0.005 + 1e-9
+    status, out, err = pssd("denoise", tmp_path / "in.las", tmp_path / "out.ply")
+    assert status == 0 and "as stored" not in out
+
+
+@pytest.mark.parametrize("classes", [None, "6"])
+def test_render_draws_the_points_of_other_classes_grey(tmp_path, monkeypatch, classes):
+    """The displacement of a classified file (as pssd denoise --fields displacement writes it)
+    is drawn grey, with a legend entry, for the points of the classes pssd denoise kept in
+    place: by default the surface classes' others, else those --classes names."""
+    from pssd_fast.pictures import draw
+
+    fields = {"classification": lambda p: np.where(p[:, 0] < 20, 2,
+                                                   np.where(p[:, 0] < 40, 6, 5)).astype(np.uint8)}
+    path = survey_file(tmp_path / "survey.npz", **fields)
+    more = () if classes is None else ("--classes", classes)
+    status, _, err = pssd("denoise", path, tmp_path / "out.npz", "--fields", "displacement",
+                          *more)
+    assert status == 0, err
+    seen = []
+    render = draw.render
+    monkeypatch.setattr(draw, "render", lambda *a, **kw: seen.append((a, kw)) or render(*a,
+                                                                                       **kw))
+    status, _, err = pssd("render", tmp_path / "out.npz", "-o", tmp_path / "d.png", "--color",
+                          "displacement", *more)
+    assert status == 0, err
+    (points, values, _), options = seen[0]
+    denoised = (points[:, 0] < 40) if classes is None else (points[:, 0] >= 20) & (
+        points[:, 0] < 40)
+    np.testing.assert_array_equal(np.isnan(values), ~denoised)
+    assert options["missing"] == "kept in place\n(other classes)"
+    assert (values[denoised] > 0).any()
+
+
 def test_render_size_takes_a_width_and_an_optional_height(tmp_path):
     import matplotlib.image
 
@@ -341,7 +396,9 @@ def test_demo_writes_files_and_pictures(tmp_path):
     (["denoise", "in.xyz", "in.xyz/out.ply"], "is not a folder"),
     (["denoise", "in.xyz", "./in.xyz"], "in.xyz is the input file; choose another output"),
     (["denoise", "in.xyz", "in.xyz", "--force"], "is the input file; choose another output"),
-    (["info", "."], "."),
+    (["info", "."], ".: is a directory, not a point-cloud file"),
+    (["denoise", ".", "o.ply"], ".: is a directory, not a point-cloud file"),
+    (["denoise", "in.xyz", "."], ".: is a directory, not a file name"),
 ])
 def test_errors_are_one_line(tmp_path, cloud, args, match):
     np.savetxt(tmp_path / "in.xyz", cloud.points)
@@ -485,6 +542,42 @@ def test_an_unwritable_folder_is_one_line(tmp_path, cloud, monkeypatch, capsys):
                        "--quiet"])
     assert_one_line_error(status, capsys.readouterr().err, "Permission denied")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.xyz"]
+
+
+def test_a_read_only_folder_is_refused_before_the_input_is_read(tmp_path, cloud, monkeypatch,
+                                                                capsys):
+    """The output folder is tried (a temporary of the writer's kind, removed) before any work;
+    root ignores permission bits, so the refusal is simulated where that file is created."""
+    source = tmp_path / "in.xyz"
+    np.savetxt(source, cloud.points)
+    folder = tmp_path / "rodir"
+    folder.mkdir()
+
+    from pssd_fast import atomic
+
+    class NoCreate:
+        """``os`` where no file can be created."""
+
+        def __getattr__(self, name):
+            return getattr(os, name)
+
+        @staticmethod
+        def open(path, *args, **kwargs):
+            raise PermissionError(13, "Permission denied", str(path))
+
+    def unread(*args, **kwargs):
+        raise AssertionError("the input was read")
+
+    monkeypatch.setattr(atomic, "os", NoCreate())
+    monkeypatch.setattr(cli, "_read", unread)
+    for args in ([str(source), str(folder / "out.laz")], [str(source), "-o", str(folder)]):
+        status = cli.main(["denoise", *args, "--quiet"])
+        assert_one_line_error(status, capsys.readouterr().err,
+                              f"output folder {folder} is not writable (Permission denied)")
+    monkeypatch.undo()
+    status = cli.main(["denoise", str(source), str(folder / "out.ply"), "--iterations", "1",
+                       "--quiet"])
+    assert status == 0 and sorted(p.name for p in folder.iterdir()) == ["out.ply"]
 
 
 @pytest.mark.parametrize("preset, iterations", [("default", method.ITERATIONS), ("paper", 2)])
@@ -907,3 +1000,35 @@ def test_scheduler_needs_tile_points(tmp_path, small):
     np.savetxt(path, small)
     status, _, err = pssd("denoise", path, tmp_path / "out.xyz", "--scheduler", "threads")
     assert status == 1 and "--scheduler runs the tiles of --tile-points" in err
+
+
+def test_the_survey_is_as_docs_cli_md_gives_it(tmp_path):
+    """docs/cli.md on the shared airborne survey: its extent, the input's bytes, the output's
+    (within 0.5%: the count follows the denoised coordinates) and the summary line it quotes."""
+    from pssd_fast import io
+
+    source = data_file("lidar", "autzen_trim.laz")
+    page = (Path(__file__).resolve().parent.parent / "docs" / "cli.md").read_text()
+    x, y, z = np.ptp(io.read(source).points, axis=0)
+    assert f"The Autzen survey ({x:,.0f} x {y:,.0f} ft, {z:,.0f} ft of relief)" in page
+    given = re.search(r"`autzen_trim\.laz`: ([\d,]+) bytes in, ([\d,]+)\s+out", page)
+    bytes_in, bytes_out = (int(count.replace(",", "")) for count in given.groups())
+    summary = re.search(r"\(`(class 2 denoised, [\d,]+ points of other classes kept)`\)", page)
+    status, out, err = pssd("denoise", source, tmp_path / "out.laz")
+    assert status == 0, err
+    assert source.stat().st_size == bytes_in
+    assert abs((tmp_path / "out.laz").stat().st_size / bytes_out - 1) < 0.005
+    assert summary[1] in out
+
+
+def test_ctrl_c_is_one_line_and_status_130(tmp_path, cloud, monkeypatch):
+    source = tmp_path / "in.npy"
+    np.save(source, cloud.points)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "_run_denoise", interrupted)
+    status, _, err = pssd("denoise", source, tmp_path / "out.ply", "--quiet")
+    assert status == 130 and err.strip().splitlines() == ["pssd: interrupted"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.npy"]

@@ -2,6 +2,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -130,6 +131,34 @@ def test_results_follow_the_callers_order():
     b = pssd_fast.denoise(points[perm], preset="paper")
     np.testing.assert_array_equal(a.points[perm], b.points)
     np.testing.assert_array_equal(a.feature_intensity[perm], b.feature_intensity)
+
+
+def test_fields_not_asked_for_are_computed_when_first_read(noisy, monkeypatch):
+    """Under "default" and "fast" the likelihood and the feature intensity are computed when
+    first read (not by ``repr``), to the bits ``extras=True`` computes during the run; a
+    classes run's too."""
+    from pssd_fast import executor
+
+    for preset in ("default", "fast"):
+        asked = pssd_fast.denoise(noisy, preset=preset, extras=True)
+        later = pssd_fast.denoise(noisy, preset=preset)
+        calls = []
+        feature = executor.means_feature
+        monkeypatch.setattr(executor, "means_feature",
+                            lambda *args: calls.append(1) or feature(*args))
+        repr(later)
+        assert not calls
+        np.testing.assert_array_equal(later.feature_intensity, asked.feature_intensity)
+        np.testing.assert_array_equal(later.feature_intensity, asked.feature_intensity)
+        assert len(calls) == 1  # once, then held
+        np.testing.assert_array_equal(later.likelihood, asked.likelihood)
+        monkeypatch.undo()
+    labels = np.where(noisy[:, 2] > np.median(noisy[:, 2]), 2, 6)
+    asked = pssd_fast.denoise(noisy, classification=labels, extras=True)
+    later = pssd_fast.denoise(noisy, classification=labels)
+    for name in ("likelihood", "feature_intensity"):
+        np.testing.assert_array_equal(getattr(later, name), getattr(asked, name))
+    assert pssd_fast.denoise(noisy, method="bilateral").likelihood is None
 
 
 def test_input_untouched_and_dtype_followed(noisy):
@@ -399,6 +428,9 @@ def test_too_small_a_cloud_is_named(n, kwargs, match):
     (np.empty((30, 3), object), TypeError, "object"),
     (np.zeros((50, 3), complex), TypeError, "complex"),
     (np.array([["a", "b", "c"]] * 30), TypeError, "real numbers"),
+    ("scan.ply", TypeError, r"not the file name 'scan.ply'; read the file first: "
+                            r"pssd_fast.io.read\('scan.ply'\).points"),
+    (Path("scan.ply"), TypeError, r"pssd_fast.io.read\('scan.ply'\)"),
     (np.where(np.arange(150).reshape(50, 3) == 70, np.nan, 1.0), ValueError,
      "NaN or Inf in 1 row.*row 23"),
     (np.where(np.arange(150).reshape(50, 3) % 50 == 4, -np.inf, 1.0), ValueError,

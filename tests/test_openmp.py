@@ -73,3 +73,42 @@ def test_a_pool_loaded_before_the_library_is_reported():
     out = _run("import pykdtree.kdtree\n" + DENOISE)
     assert out["pools"]["loaded_before"] == ["pykdtree"]
     assert out["seen"]["numba"] == "10000"
+
+
+# Runs a short denoise with an old TBB in the process (simulated where none is installed) and
+# reports numba's threading layer and the warnings it gave.
+TBB_SCRIPT = """
+import json, warnings
+import numpy as np
+import numba
+import pssd_fast
+from pssd_fast import _threads
+_threads._old_tbb = lambda: True
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    pssd_fast.denoise(np.random.default_rng(0).normal(size=(500, 3)) * [1, 1, 0.01],
+                      preset="fast")
+print(json.dumps({"layer": numba.threading_layer(),
+                  "warnings": [str(w.message) for w in caught]}))
+"""
+
+
+@pytest.mark.parametrize("env, layer", [({}, "omp"),
+                                        ({"NUMBA_THREADING_LAYER": "workqueue"}, "workqueue")])
+def test_an_old_tbb_is_passed_over_unless_the_caller_chose(env, layer):
+    """Where the process holds a TBB too old for numba (Open3D's), the library starts numba's
+    OpenMP layer rather than letting numba warn and fall back; a layer the caller chose is
+    kept."""
+    found = json.loads(subprocess.run([sys.executable, "-c", TBB_SCRIPT], env={**os.environ,
+                                      **env}, capture_output=True, text=True,
+                                      check=True).stdout)
+    assert found == {"layer": layer, "warnings": []}
+
+
+def test_open3d_first_gives_no_tbb_warning():
+    """Open3D, imported first, ships a TBB older than numba's TBB layer needs."""
+    pytest.importorskip("open3d")
+    run = subprocess.run([sys.executable, "-c", "import open3d\nimport numpy as np\n"
+                          "import pssd_fast\n" + DENOISE], capture_output=True, text=True,
+                         check=True)
+    assert "TBB" not in run.stderr

@@ -453,6 +453,27 @@ def test_classification_gets_asprs_colours_and_a_legend_naming_the_classes_prese
         assert near_colour(drawing, colour).sum() > share * 0.85 * drawn(drawing).sum()
 
 
+def test_points_drawn_grey_are_named_under_the_colour_bar():
+    """A scalar field's NaN points are grey; ``missing`` names them in a legend entry where
+    there are any, and the colour bar keeps its place above it."""
+    points = square_cloud()
+    values = points[:, 0].copy()
+    values[points[:, 0] < 0.5] = np.nan
+    fig = rn.figure(points, values, field="displacement", view=TOP, size=SIZE,
+                    missing="other classes, kept in place")
+    legend, = fig.legends
+    assert [t.get_text() for t in legend.get_texts()] == ["other classes, kept in place"]
+    assert np.allclose(legend.legend_handles[0].get_facecolor()[:3], rn.NAN_GREY)
+    bar, = fig.axes
+    assert bar.get_position().y0 > legend.get_window_extent().y0 / SIZE[1]
+    image = rn.render(points, values, field="displacement", view=TOP, size=SIZE)
+    drawing = image[:, : int(0.8 * SIZE[0])]
+    grey = np.rint(np.asarray(rn.NAN_GREY) * 255).astype(int)
+    assert near_colour(drawing, grey).sum() > 0.4 * drawn(drawing).sum()
+    assert rn.figure(points, points[:, 0], field="displacement", size=SIZE,
+                     missing="kept").legends == []
+
+
 def test_a_legend_of_many_classes_names_the_most_numerous():
     points = square_cloud()
     codes = np.arange(len(points)) % 25  # 25 classes, 0-15 one point more than 16-24
@@ -560,15 +581,13 @@ def test_the_units_of_a_las_file_come_from_its_coordinate_system(tmp_path, wkts,
 def test_the_airborne_survey_is_in_feet():
     """The shared Autzen file says feet twice: its GeoTIFF keys (ProjLinearUnits 9002) and its
     WKT (UNIT["foot",0.3048])."""
-    from benchmarks.lidar import DEFAULT_FOLDER
     from pssd_fast import io
     from pssd_fast.pictures.fields import units
 
+    from .conftest import data_file
+
     pytest.importorskip("laspy")
-    path = Path(os.environ.get("PSSD_LIDAR") or DEFAULT_FOLDER) / "autzen_trim.laz"
-    if not path.is_file():
-        pytest.skip(f"{path} not found")
-    assert units(io.read(path)) == "ft"
+    assert units(io.read(data_file("lidar", "autzen_trim.laz"))) == "ft"
 
 
 def test_a_missing_field_is_refused_with_what_the_cloud_has():

@@ -52,8 +52,10 @@ def test_threads_give_the_in_core_result(noisy, in_core, preset):
 
 
 def test_tiles_in_files_on_processes_give_the_in_core_result(noisy, in_core):
-    """The local process pool: the tasks share the tiles' arrays through files."""
-    got = tiled.denoise(noisy.points, tile_points=2_000, extras=True, client="processes")
+    """The local process pool: the tasks share the tiles' arrays through files. The
+    likelihood and feature intensity, not asked for, are computed when first read, to the
+    values the in-core run computed during the run."""
+    got = tiled.denoise(noisy.points, tile_points=2_000, client="processes")
     assert got.stats["tiles"]["scheduler"] == "processes" and got.stats["tiles"]["count"] >= 4
     _assert_same(got, in_core["default"])
 
@@ -369,6 +371,31 @@ def test_a_failing_tile_leaves_no_output_and_no_scratch(tmp_path, monkeypatch):
         tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy", tile_points=500,
                            client="sync")
     assert [p.name for p in tmp_path.iterdir()] == ["in.npy"]
+
+
+def test_a_read_only_output_folder_is_refused_before_the_work(tmp_path, monkeypatch):
+    """Scratch elsewhere, the output's folder is tried before the input is read (root ignores
+    permission bits: the refusal is simulated where the trial file is created)."""
+    from pssd_fast import atomic
+
+    np.save(tmp_path / "in.npy", np.zeros((50, 3)))
+    (tmp_path / "rodir").mkdir()
+    (tmp_path / "scratch").mkdir()
+
+    class NoCreate:
+        def __getattr__(self, name):
+            return getattr(os, name)
+
+        @staticmethod
+        def open(path, *args, **kwargs):
+            raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(atomic, "os", NoCreate())
+    monkeypatch.setattr(ondisk, "NpyFile", None)  # reading the input would fail otherwise
+    with pytest.raises(PermissionError, match=f"output folder {tmp_path / 'rodir'} is not "
+                                              "writable"):
+        tiled.denoise_file(tmp_path / "in.npy", tmp_path / "rodir" / "out.npy",
+                           scratch=tmp_path / "scratch")
 
 
 @pytest.mark.parametrize("name, write, error, match", [

@@ -314,14 +314,28 @@ def _quantise(path, coords, scales, offsets):
     return q.astype(np.int32)
 
 
-def _new_las(laspy, points):
-    """LAS 1.4, point format 6, with a per-axis scale that keeps the extent inside int32."""
-    header = laspy.LasHeader(version="1.4", point_format=6)
+def _scales_offsets(points, source):
+    """The scale and offset of a LAS output of ``points``: the ``source``'s, or a new file's
+    (the bounding-box centre, and per axis the smallest power of ten that keeps the extent
+    inside int32)."""
+    if source is not None:
+        return np.asarray(source.header.scales), np.asarray(source.header.offsets)
     lo, hi = points.min(axis=0), points.max(axis=0)
-    header.offsets = (lo + hi) / 2
     # 2**30 leaves a factor of two for rounding up to a power of ten; 1e-3 floors the
     # half-extent of flat or single-point clouds (scale 1e-12).
-    header.scales = 10.0 ** np.ceil(np.log10(np.maximum((hi - lo) / 2, 1e-3) / 2**30))
+    return 10.0 ** np.ceil(np.log10(np.maximum((hi - lo) / 2, 1e-3) / 2**30)), (lo + hi) / 2
+
+
+def stored(path, points, source):
+    """``points`` as a LAS output holds them (:func:`payload`): rounded to its scale."""
+    scales, offsets = _scales_offsets(points, source)
+    return _quantise(path, points, scales, offsets) * scales + offsets
+
+
+def _new_las(laspy, points):
+    """LAS 1.4, point format 6, with :func:`_scales_offsets`."""
+    header = laspy.LasHeader(version="1.4", point_format=6)
+    header.scales, header.offsets = _scales_offsets(points, None)
     return laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(len(points),
                                                                           header=header))
 

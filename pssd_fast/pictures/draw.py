@@ -147,7 +147,7 @@ def _layout(width, height_px, key, title, font):
 
 def figure(points, values=None, *, field=None, view=None, up="z", normals=None, cmap=None,
            vmin=None, vmax=None, label=None, units=None, title=None, size=DEFAULT_SIZE,
-           point_size=None, background="white", frame=None):
+           point_size=None, background="white", frame=None, missing=None):
     """A point cloud drawn and coloured by a per-point field, as a matplotlib figure.
 
     :func:`render` draws this figure into an array and a file; take the figure itself to look
@@ -207,6 +207,9 @@ def figure(points, values=None, *, field=None, view=None, up="z", normals=None, 
         Points whose projection the picture is fitted to; default ``points``. Give several
         clouds one frame (a noisy scan for it and its denoised copy) to make their pictures
         line up: the same scale and place, with a key or without.
+    missing : str, optional
+        What the points of a scalar field drawn grey (NaN values) are, named in a legend entry
+        under the colour bar where there are any ("kept in place (other classes)").
 
     Returns
     -------
@@ -317,6 +320,8 @@ def figure(points, values=None, *, field=None, view=None, up="z", normals=None, 
     # figimage places the buffer pixel for pixel (no resampling); yo counts from the bottom.
     fig.figimage(image, xo=x0, yo=y0, origin="upper")
     if scalar:
+        if missing is not None and np.isnan(vals).any():
+            key_box = _missing_entry(fig, mpl, missing, key_box, (width, height_px), font)
         _colour_bar(fig, mpl, vals, colormap, norm, key_box, (width, height_px), label, font)
     elif classes is not None:
         _legend(fig, mpl, classes, key_box, (width, height_px), font)
@@ -350,6 +355,17 @@ def _colour_bar(fig, mpl, vals, colormap, norm, box, size, label, font):
     bar.ax.tick_params(labelsize=0.85 * font)
     if label:
         bar.set_label(label, fontsize=font)
+
+
+def _missing_entry(fig, mpl, text, box, size, font):
+    """A legend entry naming the grey points (``text``) at the foot of the key's ``box``;
+    returns the box left above it for the colour bar."""
+    (bx, by, bw, bh), (width, height_px) = box, size
+    entry = min(0.25 * bh, 3.0 * font * DPI / 72.0)
+    fig.legend([mpl.Patch(facecolor=NAN_GREY, edgecolor="none")], [text], loc="lower left",
+               bbox_to_anchor=(bx / width - 0.01, by / height_px), frameon=False,
+               fontsize=0.85 * font, handlelength=1.0, borderaxespad=0.0)
+    return bx, by + entry, bw, bh - entry
 
 
 def _legend(fig, mpl, classes, box, size, font):

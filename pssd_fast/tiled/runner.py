@@ -229,6 +229,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
         raise FileExistsError(exists)
     if destination.resolve() == source.resolve():
         raise ValueError(f"the output {destination} would overwrite the input")
+    atomic.check_folder(destination)
     array = {"npy": ondisk.NpyFile, "las": ondisk.LasFile, "zarr": ondisk.ZarrFile}[
         kinds[source]](source)
     labels = _file_labels(array, options.get("classification"), options.get("classes"))
