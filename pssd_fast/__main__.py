@@ -8,6 +8,7 @@ from . import __version__, datasets
 from .cli import add_parameter
 from .denoise import denoise
 from .jit import cache
+from .warmup import compile_ahead
 
 
 def main(argv=None):
@@ -24,11 +25,21 @@ def main(argv=None):
     add_parameter(parser, "n_jobs", "--n-jobs")
     args = parser.parse_args(argv)
 
-    cloud = datasets.cad_part(n_points=args.points, noise=args.noise, seed=args.seed)
-    started = time.perf_counter()
-    result = denoise(cloud.points, iterations=args.iterations, k=args.k, lam=args.lam,
-                     preset=args.preset, extras=True, n_jobs=args.n_jobs)
-    seconds = time.perf_counter() - started
+    # A first run compiles the longest kernel beside it (pssd_fast.warmup.compile_ahead).
+    ahead = compile_ahead() if args.preset != "paper" else None
+    try:
+        cloud = datasets.cad_part(n_points=args.points, noise=args.noise, seed=args.seed)
+        started = time.perf_counter()
+        result = denoise(cloud.points, iterations=args.iterations, k=args.k, lam=args.lam,
+                         preset=args.preset, n_jobs=args.n_jobs)
+        seconds = time.perf_counter() - started
+    except BaseException:
+        if ahead is not None:
+            ahead.kill()
+        raise
+    finally:
+        if ahead is not None:
+            ahead.wait()
 
     before, after, moved, edge = cloud.errors(result)
     print(f"pssd_fast {__version__}: robust denoising of the built-in CAD part")
@@ -49,9 +60,6 @@ def main(argv=None):
             print(f"{label:44s}{before[mask].mean():9.1f}{after[mask].mean():10.1f}")
     print(f"displacement |p_noisy - p_denoised| (1e-4 diag): max {moved.max():.1f}, "
           f"mean {moved.mean():.1f}")
-    feat = result.feature_intensity
-    print(f"feature intensity: {feat[edge].mean():.2f} near sharp edges, "
-          f"{feat[cloud.edge_distance > 0.03 * cloud.diagonal].mean():.2f} on faces")
     times = {}
     for record in result.stats["iterations"]:
         for stage, t in record["times"].items():

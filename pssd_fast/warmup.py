@@ -1,10 +1,16 @@
-"""Compile (or load from numba's on-disk cache) every kernel before timed work."""
+"""Compile (or load from numba's on-disk cache) every kernel before timed work, or the longest
+to compile in a process of its own while the caller's run compiles the rest."""
+import subprocess
+import sys
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
+from . import core
 from .denoise import METHODS, denoise
 from .graph import GRID_K, knn_graph
+from .jit import cache
 from .stages import outlier_score
 
 
@@ -39,3 +45,35 @@ def warmup():
     sphere = rng.normal(size=(GRID_K + 1, 3))
     knn_graph(sphere / np.linalg.norm(sphere, axis=1)[:, None], GRID_K, False)
     return time.perf_counter() - started
+
+
+def compile_ahead():
+    """Start compiling the default method's feature-aware fit, the kernel that takes longest to
+    compile (about a third of a first run's compiling), in a process of its own: the caller's
+    run compiles the kernels it needs before that fit meanwhile, then loads the fit from the
+    kernel cache (a process that needs a kernel another is compiling waits for it,
+    :mod:`pssd_fast.jit.cache`). Only where the cache is kept on disk and holds no compiled
+    kernel yet (a first run); else nothing starts.
+
+    Returns
+    -------
+    subprocess.Popen or None
+        The process (wait for it before exiting), or None.
+    """
+    folder = cache.cache_folder()
+    if folder is None or not cache.stats()["persistent"] or any((folder / "built").glob("*")):
+        return None
+    return subprocess.Popen([sys.executable, "-c", "from pssd_fast.warmup import fits; fits()"],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+
+
+def fits():
+    """Compile (or load) the feature-aware fit's kernel for the argument types every run of the
+    default method calls it with, on a cloud of 16 points."""
+    points = np.random.default_rng(0).normal(size=(16, 3))
+    normals = points / np.linalg.norm(points, axis=1)[:, None]
+    order = np.argsort(np.linalg.norm(points[:, None] - points[None], axis=2), axis=1)
+    lists = SimpleNamespace(indptr=np.arange(0, 16 * 16 + 1, 16, dtype=np.int64),
+                            indices=order.astype(np.int32).ravel())
+    core.own_fits(points, normals, lists, 0.3)

@@ -1,6 +1,7 @@
 """Numba's cache: keyed by every kernel source and the CPU, never different from a fresh
 compile, shared by concurrent processes, loud when it misses, optional when nothing is
 writable."""
+import importlib
 import os
 import shutil
 import subprocess
@@ -422,3 +423,49 @@ def test_no_kernel_or_function_they_call_uses_fast_math():
                 assert not dispatcher.targetoptions.get("fastmath"), f"{info.name}.{name}"
                 checked.append(name)
     assert {"mls_fit", "aware_fit", "sym3_eigh", "_feature_chunk"} <= set(checked)
+
+
+def test_the_fit_compiled_ahead_is_the_signature_every_run_of_the_default_calls(monkeypatch):
+    """``warmup.fits`` (what ``compile_ahead`` runs beside a first ``python -m pssd_fast``)
+    calls the feature-aware fit with the argument types of every call the default's runs make:
+    the means' fits, the points' own fits and the refinement, float32 input and given normals
+    included. A type of its own would compile a signature no run loads."""
+    import numba
+
+    import pssd_fast
+    from pssd_fast import datasets, kernels
+
+    warmup = importlib.import_module("pssd_fast.warmup")  # the package exports its function
+    seen = []
+    fit = kernels.mls.aware_fit
+
+    def recording(*args):
+        seen.append(tuple(numba.typeof(a) for a in args))
+        return fit(*args)
+
+    monkeypatch.setattr(kernels.mls, "aware_fit", recording)
+    warmup.fits()
+    ahead = set(seen)
+    seen.clear()
+    cloud = datasets.cad_part(n_points=3000, noise=0.005, seed=3)
+    result = pssd_fast.denoise(cloud.points)
+    assert result.stats["iterations"][-1]["refined"] > 0
+    pssd_fast.denoise(cloud.points.astype("float32"), result.normals, preset="fast")
+    assert len(ahead) == 1 and set(seen) == ahead
+
+
+def test_compile_ahead_starts_only_on_an_empty_cache_kept_on_disk(tmp_path, monkeypatch):
+    warmup = importlib.import_module("pssd_fast.warmup")
+    started = []
+    monkeypatch.setattr(warmup.subprocess, "Popen", lambda *a, **kw: started.append(a) or "p")
+    monkeypatch.setattr(cache, "cache_folder", lambda: tmp_path)
+    monkeypatch.setattr(cache, "stats", lambda: {"persistent": True})
+    assert warmup.compile_ahead() == "p" and "fits()" in started[0][0][-1]
+    (tmp_path / "built").mkdir()
+    (tmp_path / "built" / "marker").touch()
+    assert warmup.compile_ahead() is None
+    monkeypatch.setattr(cache, "stats", lambda: {"persistent": False})
+    (tmp_path / "built" / "marker").unlink()
+    assert warmup.compile_ahead() is None
+    monkeypatch.setattr(cache, "cache_folder", lambda: None)
+    assert warmup.compile_ahead() is None
