@@ -34,12 +34,12 @@ class DenoiseResult:
         Sampling likelihood ``l_i`` of the last iteration (robust method only; presets
         "default" and "fast" compute it from the RMS residual of the last fit of each point's
         cell mean). Under "default" and "fast" computed when first read, unless the run was
-        asked for it (``extras=True``): about 10 ms at 1,000,000 points.
+        asked for it (``extras=True``): milliseconds (``python -m benchmarks.fields``).
     feature_intensity : (n,) ndarray or None
         Feature intensity ``s_i`` of the last iteration (robust method only; presets "default"
         and "fast": the paper's voting over the cell means). Under "default" and "fast"
         computed when first read, unless ``extras=True``: a voting over the cell means, about
-        a quarter of the run's time at 100,000 to 1,000,000 points.
+        a quarter of the default's run time (``python -m benchmarks.fields``).
     displacement : (n,) ndarray
         ``|p_noisy - p_denoised|``, the quantity of the paper's Table 1 and Fig. 8.
     held : (n,) bool ndarray
@@ -148,7 +148,8 @@ class Request:
     started : float
         ``time.perf_counter()`` when the run started.
     extras : bool
-        Whether the default method returns the likelihood and the feature intensity.
+        Whether the default method computes the likelihood and the feature intensity during
+        the run (else when the result's fields are first read).
     """
 
     method: str
