@@ -49,7 +49,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .scaling import _resident_bytes
+from pssd_fast.run import stored
+
+from .scaling import OUTPUTS, _resident_bytes
 from .stages import RESULTS, knn_query_seconds, machine, write_cad_part, write_results
 
 UNIT = 1e-4
@@ -139,9 +141,8 @@ def _denoise(points, preset, iterations, repeats):
         started = time.perf_counter()
         result = pssd_fast.denoise(points, **run)
         total = min(total, time.perf_counter() - started)
-    output = sum(a.nbytes for a in (result.points, result.normals, result.likelihood,
-                                     result.feature_intensity, result.displacement, result.kept)
-                 if a is not None)
+    output = sum(a.nbytes for a in (stored(result, name) for name in OUTPUTS)
+                 if isinstance(a, np.ndarray))
     return total, result.points, result.stats, output, rss_before
 
 

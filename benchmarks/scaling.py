@@ -27,9 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .stages import STAGES, RESULTS, knn_query_seconds, machine, write_cad_part, write_results
+from pssd_fast.run import stored
+
+from .stages import RESULTS, STAGES, knn_query_seconds, machine, write_cad_part, write_results
 
 THREADS = (1, 2, 4, 8, 16)
+#: The result's arrays a run returns (the bytes of its output); fields a run of "default" or
+#: "fast" computes when first read count only where the run computed them.
+OUTPUTS = ("points", "normals", "likelihood", "feature_intensity", "displacement", "kept")
 
 
 def child(path, k, method, preset, repeats):
@@ -49,9 +54,9 @@ def child(path, k, method, preset, repeats):
         for stage, seconds in result.stats["iterations"][0]["times"].items():
             times[stage] = min(times.get(stage, np.inf), seconds)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    output = sum(a.nbytes for a in (result.points, result.normals, result.likelihood,
-                                     result.feature_intensity, result.displacement)
-                 if a is not None)
+    # Fields computed when first read are not output the run held.
+    output = sum(a.nbytes for a in (stored(result, name) for name in OUTPUTS[:-1])
+                 if isinstance(a, np.ndarray))
     result_k = result.stats["k"]
     del result
     ordered = points[morton_order(points)]
