@@ -114,6 +114,8 @@ def run(plan, request, tiles, store, runner=None):
              own_given, first, plan, sigma_n, t == plan.iterations - 1, shift)
             for i in range(len(tiles))])
         _tally(clock, [o[4] for o in out])
+        if t > 0:  # read by this iteration only; the first means are the test's
+            _drop(store, keys)
         origins, boxes = boxes, [o[0] for o in out]
         records.append(aware.step_record(clock.times, sum(o[1] for o in out),
                                          sum(o[2] for o in out),
@@ -134,12 +136,14 @@ def run(plan, request, tiles, store, runner=None):
                  [t.point_boxes for t in tiles], i, None if whole else regions.widened(
                      tiles[i].point_boxes, 3 * plan.refine[1]), plan, sigma_n)
                 for i in range(len(tiles))]))
+            _drop(store, [("own", i) for i in range(len(tiles))])
         keys = [("test", i) for i in range(len(tiles))]
         flagged = clock.run("test", runner.map, "tile_test", plan.iterations - 1,
                             plan.iterations, _test, [
                                 (store, keys, [t.cell_boxes for t in tiles], i, None if whole
                                  else regions.widened(tiles[i].cell_boxes, plan.bound), plan)
                                 for i in range(len(tiles))])
+        _drop(store, keys)
         records[-1]["refined"] = int(sum(flagged))
         if sum(flagged):
             _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, clock)
@@ -147,12 +151,20 @@ def run(plan, request, tiles, store, runner=None):
     if not refined:
         for i in range(len(tiles)):
             store.put(("out", i), store.get(("placed", i)))
+    _drop(store, [("placed", i) for i in range(len(tiles))])
     if request.extras:
         clock.run("extras", extras, store, tiles, fits, plan)
     if request.orient is not None:
         clock.run("orient", orient, store, tiles, request.orient, request.centre, whole)
     records[-1]["times"] = clock.times
     return [("out", i) for i in range(len(tiles))], records
+
+
+def _drop(store, keys):
+    """The entries ``keys``, read by no later round, removed from ``store``: a run holds only
+    what its next rounds read."""
+    for key in keys:
+        store.drop(key)
 
 
 def _tally(clock, times):
@@ -193,8 +205,9 @@ def _iteration(store, keys, boxes, i, region, own_given, first, plan, sigma_n, l
     own.update({"xyz": fits.moved[:n_own], "hints": fits.filtered[:n_own]})
     if "normals" in entry:
         own["normals"] = entry["normals"]
-    store.put(keys[i][:2] + (keys[i][2] + 1,), own)
-    if last:
+    if not last:
+        store.put(keys[i][:2] + (keys[i][2] + 1,), own)
+    else:
         store.put(("fits", i), {"xyz": items["xyz"][:n_own], "gid": own["gid"],
                                 "coef": fits.coef[:n_own], "filtered": fits.filtered[:n_own],
                                 "rms": fits.rms[:n_own]})
@@ -277,6 +290,7 @@ def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, cloc
         if given:
             entry["given"] = points["given"]
         store.put(("refine", i, 0), entry)
+    _drop(store, [("flags", i) for i in range(len(tiles))])
     boxes = [regions.boxes(store.get(("refine", i, 0), ("xyz",))["xyz"])
              for i in range(len(tiles))]
     iterations = method.REFINE["iterations"]
@@ -289,11 +303,13 @@ def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, cloc
             (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
              use_given, t == 0, plan, sigma_n, shift) for i in range(len(tiles))])
         _tally(clock, [o[1] for o in out])
+        _drop(store, keys)
         boxes = [o[0] for o in out]
     for i in range(len(tiles)):
         entry = store.get(("refine", i, iterations))
         store.put(("out", i), {"xyz": entry["xyz"], "normals": entry["normals"],
                                "held": entry["held"], "gid": entry["gid"]})
+        store.drop(("refine", i, iterations))
 
 
 def _refine_task(store, keys, boxes, i, region, use_given, first, plan, sigma_n, shift,

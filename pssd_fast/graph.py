@@ -258,25 +258,29 @@ def bounded_graph(points, k, bound, rows=None, ids=None):
     counts = np.empty(rows.shape[0], np.int64)
     radius = np.zeros(n)
     nearest = np.zeros(n)
-    pieces = []
-    # Each chunk's lists are kept as soon as they are found: the (q, k) arrays of the whole
-    # query would take four times the lists' own memory.
+    # Each chunk's lists go to their place as soon as they are found, in an array of k
+    # entries a query: the (q, k) arrays of the whole query would take four times the lists'
+    # own memory, and lists gathered in pieces and joined twice.
+    found_lists = np.empty(rows.shape[0] * k, dtype)
+    end = 0
     for start, stop, found, dists, kept in _nearest_blocks(points, queries, k, bound, ids):
         counts[start:stop] = kept
-        pieces.append(found[np.arange(k) < kept[:, None]].astype(dtype))
+        chunk = found[np.arange(k) < kept[:, None]]
+        found_lists[end:end + chunk.shape[0]] = chunk
+        end += chunk.shape[0]
         at = rows[start:stop]
         radius[at] = dists[np.arange(stop - start), kept - 1]
         nearest[at] = np.where(kept > 1, dists[:, min(1, k - 1)], 0.0)
+    found_lists = found_lists[:end]
     lengths = np.ones(n, np.int64)
     lengths[rows] = counts
     indptr = np.concatenate(([0], np.cumsum(lengths)))
     if rows.shape[0] == n:  # every point's list, in the points' order
-        indices = np.concatenate(pieces) if pieces else np.empty(0, dtype)
+        indices = found_lists
     else:
         indices = np.arange(n, dtype=dtype).repeat(lengths)
         keep = np.arange(counts.max(initial=0)) < counts[:, None]
-        indices[np.repeat(indptr[rows], counts) + np.nonzero(keep)[1]] = np.concatenate(
-            pieces or [np.empty(0, dtype)])
+        indices[np.repeat(indptr[rows], counts) + np.nonzero(keep)[1]] = found_lists
     return ListScales(indptr, indices, radius, nearest)
 
 

@@ -49,6 +49,8 @@ TEST = {"z": 1.0, "cells": 32, "span": 3.0, "reads": 0.91, "z_own": 4.0}
 #: The failing points' own fits: their lists reach ``radius`` noise widths (at least ``k``
 #: points), and they iterate ``iterations`` times.
 REFINE = {"radius": 4.0, "k": 40, "iterations": 2}
+#: Lists the test sums at a time.
+SUM_BLOCK = 1 << 16
 #: Nearest means whose fits a point moves onto (docs/DECISIONS.md, "Scan sizes: one fit per
 #: surface point").
 BLEND = 3
@@ -235,9 +237,17 @@ def failing(means, sums, counts, sigma, bound, ids=None, own=None):
     plus the sum of the second: the fits' bias against what each point's own fit would
     cost."""
     lists = bounded_graph(means, TEST["cells"], bound, None, ids)
+    n = means.shape[0]
 
     def summed(values):
-        return np.add.reduceat(values[lists.indices], lists.indptr[:-1])
+        # Block by block: the values of every list at once take 8 bytes an entry.
+        out = np.empty(n)
+        for start in range(0, n, SUM_BLOCK):
+            stop = min(n, start + SUM_BLOCK)
+            first, last = lists.indptr[start], lists.indptr[stop]
+            out[start:stop] = np.add.reduceat(values[lists.indices[first:last]],
+                                              lists.indptr[start:stop] - first)
+        return out
 
     total, points = summed(sums), np.maximum(summed(counts.astype(np.float64)), 1.0)
     sigma2 = max(sigma * sigma, np.finfo(np.float64).tiny)

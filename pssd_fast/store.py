@@ -61,8 +61,9 @@ def gather(store, keys, own, boxes, region, names, position):
     """A task's items: those of its own entry ``keys[own]``, then, of every other entry whose
     ``boxes`` (``(p, 2, 3)`` each) meet the boxes ``region`` (None: the task covers every
     tile), the rows whose ``position`` lies inside ``region``; the arrays ``names``
-    concatenated in that order. Each entry's rows are in the order of the whole cloud (the
-    tiles follow it), so the halo's rows are too."""
+    concatenated in that order (the own entry's arrays themselves where no other entry is
+    read: tasks never change an array they read). Each entry's rows are in the order of the
+    whole cloud (the tiles follow it), so the halo's rows are too."""
     parts = [store.get(keys[own], names)]
     for i, key in enumerate(keys):
         if i == own:
@@ -74,6 +75,8 @@ def gather(store, keys, own, boxes, region, names, position):
             inside = regions.within(entry[position], region)
             entry = {name: value[inside] for name, value in entry.items()}
         parts.append(entry)
+    if len(parts) == 1:
+        return parts[0]
     return {name: np.concatenate([part[name] for part in parts]) for name in names}
 
 
