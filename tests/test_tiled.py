@@ -464,3 +464,20 @@ def test_bad_file_arguments_are_named(tmp_path, kwargs, error, match):
     with pytest.raises(error, match=match):
         tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy", **kwargs)
     assert [p.name for p in tmp_path.iterdir()] == ["in.npy"]
+
+
+@pytest.mark.parametrize("tile_points", [None, 2_000])
+def test_a_run_holds_only_what_its_later_rounds_read(noisy, in_core, tile_points):
+    """Each round's entries go once no later round reads them: after the run the store holds
+    the tiles' points and first means, the last fits (the fields computed when read) and the
+    output, and the output is the in-core run's."""
+    from pssd_fast.denoise import run
+    from pssd_fast.store import Memory
+
+    store = Memory()
+    got = run(noisy.points, None, {}, tile_points=tile_points, store=store)
+    assert got.stats["iterations"][-1]["refined"] > 0
+    kinds = sorted({key[0] for key in store.entries})
+    assert kinds == ["cells", "fits", "out", "points"]
+    assert {key[2] for key in store.entries if key[0] == "cells"} == {0}
+    _assert_same(got, in_core["default"])
