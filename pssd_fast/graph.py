@@ -258,9 +258,9 @@ def bounded_graph(points, k, bound, rows=None, ids=None):
     counts = np.empty(rows.shape[0], np.int64)
     radius = np.zeros(n)
     nearest = np.zeros(n)
-    # Each chunk's lists go to their place as soon as they are found, in an array of k
-    # entries a query: the (q, k) arrays of the whole query would take four times the lists'
-    # own memory, and lists gathered in pieces and joined twice.
+    # Each chunk's lists go straight to their place, in an array of k entries a query: the
+    # (q, k) arrays of the whole query would take four times the lists' own memory, and
+    # pieces joined at the end twice it.
     found_lists = np.empty(rows.shape[0] * k, dtype)
     end = 0
     for start, stop, found, dists, kept in _nearest_blocks(points, queries, k, bound, ids):
