@@ -46,6 +46,24 @@ def data_file(kind, name):
     return path
 
 
+def refuse_new_files(monkeypatch):
+    """Make :mod:`pssd_fast.atomic` unable to create a file, as in a read-only folder (root,
+    which runs the tests, ignores permission bits)."""
+    from pssd_fast import atomic
+
+    class NoCreate:
+        """``os`` where no file can be created."""
+
+        def __getattr__(self, name):
+            return getattr(os, name)
+
+        @staticmethod
+        def open(path, *args, **kwargs):
+            raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(atomic, "os", NoCreate())
+
+
 def wavy(n=400, noise=0.005, seed=0):
     """A noisy height field z = 0.1 sin(3x) cos(2y) over the unit square."""
     rng = np.random.default_rng(seed)

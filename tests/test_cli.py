@@ -3,7 +3,6 @@ script calls, and in a subprocess where the process itself is the subject (stdin
 signals)."""
 import gzip
 import inspect
-import os
 import re
 import subprocess
 import sys
@@ -16,7 +15,7 @@ import pssd_fast
 from pssd_fast import cli, datasets, method
 from pssd_fast.denoise import METHOD_DEFAULTS
 
-from .conftest import data_file, pssd
+from .conftest import data_file, pssd, refuse_new_files
 
 plyfile = pytest.importorskip("plyfile")
 laspy = pytest.importorskip("laspy")
@@ -553,22 +552,10 @@ def test_a_read_only_folder_is_refused_before_the_input_is_read(tmp_path, cloud,
     folder = tmp_path / "rodir"
     folder.mkdir()
 
-    from pssd_fast import atomic
-
-    class NoCreate:
-        """``os`` where no file can be created."""
-
-        def __getattr__(self, name):
-            return getattr(os, name)
-
-        @staticmethod
-        def open(path, *args, **kwargs):
-            raise PermissionError(13, "Permission denied", str(path))
-
     def unread(*args, **kwargs):
         raise AssertionError("the input was read")
 
-    monkeypatch.setattr(atomic, "os", NoCreate())
+    refuse_new_files(monkeypatch)
     monkeypatch.setattr(cli, "_read", unread)
     for args in ([str(source), str(folder / "out.laz")], [str(source), "-o", str(folder)]):
         status = cli.main(["denoise", *args, "--quiet"])

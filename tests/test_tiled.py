@@ -9,6 +9,8 @@ import pssd_fast
 from pssd_fast import datasets, executor, method, tiled
 from pssd_fast.tiled import ondisk
 
+from .conftest import refuse_new_files
+
 pytest.importorskip("dask")
 
 FIELDS = ("points", "normals", "likelihood", "feature_intensity", "displacement", "held")
@@ -376,21 +378,11 @@ def test_a_failing_tile_leaves_no_output_and_no_scratch(tmp_path, monkeypatch):
 def test_a_read_only_output_folder_is_refused_before_the_work(tmp_path, monkeypatch):
     """Scratch elsewhere, the output's folder is tried before the input is read (root ignores
     permission bits: the refusal is simulated where the trial file is created)."""
-    from pssd_fast import atomic
-
     np.save(tmp_path / "in.npy", np.zeros((50, 3)))
     (tmp_path / "rodir").mkdir()
     (tmp_path / "scratch").mkdir()
 
-    class NoCreate:
-        def __getattr__(self, name):
-            return getattr(os, name)
-
-        @staticmethod
-        def open(path, *args, **kwargs):
-            raise PermissionError(13, "Permission denied", str(path))
-
-    monkeypatch.setattr(atomic, "os", NoCreate())
+    refuse_new_files(monkeypatch)
     monkeypatch.setattr(ondisk, "NpyFile", None)  # reading the input would fail otherwise
     with pytest.raises(PermissionError, match=f"output folder {tmp_path / 'rodir'} is not "
                                               "writable"):
