@@ -488,11 +488,11 @@ def _added_fields(args, result, cloud, runs, out, say):
     normals. Any method's points have an outlier score, computed only when asked for
     (docs/DECISIONS.md, "The outlier score on request")."""
     from . import io
+    from .run import stored
 
-    have = {"likelihood": result.likelihood, "feature_intensity": result.feature_intensity,
-            "displacement": result.displacement, "outlier_score": result.outlier_score,
-            "normals": result.normals, "held": result.held}
-    computes = {name for name, values in have.items() if values is not None}
+    # What the run has or computes when read (the likelihood and feature intensity of the
+    # default method), read only for the fields asked for.
+    computes = {name for name in RESULT_FIELDS if stored(result, name) is not None}
     computes.add("outlier_score")
     fmt = args.format if _is_stdio(out) else None
     names = _field_names(args)
@@ -513,6 +513,7 @@ def _added_fields(args, result, cloud, runs, out, say):
         if refused:
             raise CommandError(f"--fields: {out} cannot hold {', '.join(refused)} (use .npz, "
                                f".ply, .las or text)")
+    have = {name: getattr(result, name) for name in names if name != "normals"}
     if "outlier_score" in names and have["outlier_score"] is None:
         have["outlier_score"] = _outlier_score(args, cloud, runs, say)
     # ``held`` is a flag (0 or 1), the others are float32.
@@ -722,11 +723,11 @@ def _denoise_file(args, params, inp, out, say):
     if given is None and chosen is not None and cloud.normals is not None:
         # The points outside the classes keep the file's normals, as they keep their records.
         normals[~chosen] = cloud.normals[~chosen]
-    io.write(out, cloud, points=result.points.astype(np.float64), normals=normals,
-             fields=fields, overwrite=args.force, format=fmt if _is_stdio(out) else None)
+    points = result.points.astype(np.float64)
+    io.write(out, cloud, points=points, normals=normals, fields=fields, overwrite=args.force,
+             format=fmt if _is_stdio(out) else None)
     if not args.quiet:
         # The moves the file holds: LAS rounds the coordinates to its scale.
-        points = result.points.astype(np.float64)
         written = io.stored(out, cloud, points, format=fmt if _is_stdio(out) else None)
         disp = np.linalg.norm(written - cloud.points, axis=1)
         rounded = np.abs(written - points).max(initial=0.0)

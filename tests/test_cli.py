@@ -346,6 +346,21 @@ def test_render_draws_the_points_of_other_classes_grey(tmp_path, monkeypatch, cl
     assert (values[denoised] > 0).any()
 
 
+def test_fields_not_asked_for_are_not_computed(tmp_path, cloud, monkeypatch):
+    """The default method computes its likelihood and feature intensity when they are read:
+    pssd denoise reads them only where --fields asks for them."""
+    from pssd_fast import executor
+
+    np.savetxt(tmp_path / "in.xyz", cloud.points)
+
+    def unasked(*args):
+        raise AssertionError("the feature intensity was computed")
+
+    monkeypatch.setattr(executor, "means_feature", unasked)
+    assert cli.main(["denoise", str(tmp_path / "in.xyz"), str(tmp_path / "out.ply"),
+                     "--fields", "displacement,held", "--quiet"]) == 0
+
+
 def test_render_size_takes_a_width_and_an_optional_height(tmp_path):
     import matplotlib.image
 
