@@ -7,6 +7,8 @@ Usage::
     python -m benchmarks.tiled --format laz --out tiled_laz
     python -m benchmarks.tiled --noise 0.001 --points 500000 2000000 --tile-points 500000 \
         --out tiled_halo       # low noise: cells of one point each
+    python -m benchmarks.tiled --points 100000000 --noise 0.0025 --tile-points 4000000 \
+        8000000 --workers 1 --without-in-core --out tiled_100m   # beyond this machine's memory
 
 The input is the generated CAD part (seed 0, noise 0.5% of the diagonal or ``--noise``) saved
 as ``.npy``, or
@@ -15,9 +17,11 @@ in-core cell reads the file, calls ``pssd_fast.denoise`` and writes the result a
 denoise --fields none`` would; a tiled cell starts a ``LocalCluster`` of that many worker processes
 (one thread each for two workers, both cores for one, ``OMP_NUM_THREADS`` alike) and calls
 ``pssd_fast.tiled.denoise_file``, then reads the driver's and each worker's peak resident size
-(``ru_maxrss``) and the time of its passes over the file in the calling process (binning into
-buckets and tiles, writing the output). The tiled output is compared with the in-core one of the
-same size, bit for bit.
+(``ru_maxrss``), the CPU time of the calling process (its scheduler's threads included) against
+that of the workers, and the time of the passes over the file (binning into buckets and tiles,
+writing the output; tasks on the workers, planned by the calling process). The tiled output
+is compared with the in-core one of the same size, bit for bit (with ``--without-in-core``,
+for clouds beyond memory, with the first tiled one: a second tiling of the same file).
 Writes ``benchmarks/results/tiled.md`` and ``.json``.
 """
 import argparse
@@ -42,6 +46,7 @@ def child(kind, source, out, tile_points, workers):
     import pssd_fast
 
     pssd_fast.warmup()
+    cpu = _cpu_seconds()
     if kind == "in-core":
         from pssd_fast import io
 
@@ -53,7 +58,7 @@ def child(kind, source, out, tile_points, workers):
         else:
             io.write(out, cloud, points=result.points)
         seconds = time.perf_counter() - started
-        peaks = []
+        peaks, workers_cpu = [], 0.0
         stats = result.stats
     else:
         import distributed
@@ -70,18 +75,30 @@ def child(kind, source, out, tile_points, workers):
                                       dashboard_address=None) as cluster, \
                 distributed.Client(cluster) as client:
             client.run(pssd_fast.warmup)
+            before = client.run(_cpu_seconds)
+            cpu = _cpu_seconds()
             started = time.perf_counter()
             stats = tiled.denoise_file(source, out, tile_points=tile_points, client=client,
                                        n_jobs=threads)
             seconds = time.perf_counter() - started
+            workers_cpu = sum(after - before.get(worker, 0.0)
+                              for worker, after in client.run(_cpu_seconds).items())
             peaks = list(client.run(
                 lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024).values())
     passes = sum(record["times"].get(stage, 0.0) for record in stats["iterations"]
                  for stage in ("buckets", "tiles", "write"))
-    print(json.dumps({"seconds": seconds, "driver_peak": resource.getrusage(
+    driver_cpu = _cpu_seconds() - cpu
+    print(json.dumps({"seconds": seconds, "driver_cpu": driver_cpu, "workers_cpu": workers_cpu,
+                      "driver_peak": resource.getrusage(
         resource.RUSAGE_SELF).ru_maxrss * 1024, "worker_peaks": peaks, "k": stats["k"],
         "tiles": stats.get("tiles"),
         "file_passes": passes}))
+
+
+def _cpu_seconds():
+    """CPU time of this process so far, user and system."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
 
 
 def same(a, b):
@@ -118,8 +135,8 @@ def measure(kind, source, out, tile_points, workers):
 
 def table(cells):
     lines = ["| points | run | tile points | workers | tiles | time (s) | passes over the file "
-             "(s) | driver peak (MB) | worker peaks (MB) | same as in-core |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "(s) | driver CPU share | driver peak (MB) | worker peaks (MB) | same as in-core |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for c in cells:
         tiles = "-" if c["tiles"] is None else f"{c['tiles']['count']:,}"
         workers = ", ".join(f"{p / 1e6:.0f}" for p in c["worker_peaks"]) or "-"
@@ -127,8 +144,16 @@ def table(cells):
                      f"{'-' if c['kind'] == 'in-core' else format(c['tile_points'], ',')} | "
                      f"{c['workers'] or '-'} | {tiles} | {c['seconds']:.1f} | "
                      f"{'-' if c['kind'] == 'in-core' else format(c['file_passes'], '.1f')} | "
+                     f"{_share(c)} | "
                      f"{c['driver_peak'] / 1e6:.0f} | {workers} | {c['same']} |")
     return "\n".join(lines) + "\n"
+
+
+def _share(cell):
+    """The calling process's part of a tiled run's CPU time (its own and its workers')."""
+    if cell["kind"] == "in-core":
+        return "-"
+    return f"{cell['driver_cpu'] / (cell['driver_cpu'] + cell['workers_cpu']):.0%}"
 
 
 def main(argv=None):
@@ -141,6 +166,9 @@ def main(argv=None):
     parser.add_argument("--noise", type=float, default=NOISE,
                         help="noise of the part, a fraction of its diagonal")
     parser.add_argument("--out", default="tiled", help="file stem in benchmarks/results/")
+    parser.add_argument("--without-in-core", action="store_true",
+                        help="leave the in-core run out (a cloud beyond memory): each tiled "
+                             "output is compared with the first tiled one")
     parser.add_argument("--child", nargs=3, metavar=("KIND", "IN", "OUT"),
                         help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -156,27 +184,29 @@ def main(argv=None):
             write_cad_part(n, args.noise, source)
             if args.format == "laz":
                 source = as_laz(source)
-            reference = Path(scratch) / f"in_core{source.suffix}"
-            runs = [("in-core", 0, 0)] + [("tiled", t, w) for t in args.tile_points
-                                          for w in args.workers]
+            reference = Path(scratch) / f"reference{source.suffix}"
+            runs = [] if args.without_in_core else [("in-core", 0, 0)]
+            runs += [("tiled", t, w) for t in args.tile_points for w in args.workers]
             for kind, tile_points, workers in runs:
-                out = reference if kind == "in-core" else Path(scratch) / f"tiled{source.suffix}"
+                first = not reference.exists()
+                out = reference if first else Path(scratch) / f"tiled{source.suffix}"
                 cell = {"points": n, "kind": kind, "tile_points": tile_points,
                         "workers": workers,
                         **measure(kind, source, out, tile_points or 1, workers or 1)}
-                cell["same"] = "-" if kind == "in-core" else same(out, reference)
+                cell["same"] = "-" if first else same(out, reference)
                 cells.append(cell)
                 print(f"{n:>12,} {kind:>8} tiles of {tile_points:,}, {workers} workers: "
                       f"{cell['seconds']:.1f} s, driver {cell['driver_peak'] / 1e6:.0f} MB, "
                       f"workers {[round(p / 1e6) for p in cell['worker_peaks']]} MB, same "
                       f"{cell['same']}", flush=True)
-                if kind != "in-core":
+                if not first:
                     out.unlink()
             source.unlink()
             reference.unlink()
+    compared = ("the first tiled run" if args.without_in_core else "the in-core run")
     text = (f"Machine: {machine()}\n\nInput: the generated CAD part, seed 0, noise "
-            f"{args.noise:.1%} of the diagonal, as .{args.format}; one process per cell.\n\n"
-            + table(cells))
+            f"{args.noise:.2%} of the diagonal, as .{args.format}; one process per cell; "
+            f"each tiled output compared with {compared}.\n\n" + table(cells))
     print(text)
     write_results(RESULTS, args.out, text, {"cells": cells})
 

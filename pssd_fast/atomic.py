@@ -112,6 +112,22 @@ def replacing(path, *, overwrite=True, exists_message=None):
         tmp.unlink(missing_ok=True)
 
 
+@contextlib.contextmanager
+def scratch(path):
+    """Write a scratch file whole: ``with scratch(path) as fh: fh.write(...)``. As
+    :func:`replacing`, a temporary renamed onto ``path`` when complete, so that a reader (or a
+    task run again meanwhile) finds the whole file or none; not synced to the disk, since a
+    crash loses the scratch folder with it."""
+    path = Path(path)
+    tmp = temporary(path)
+    try:
+        with open(tmp, "xb") as fh:
+            yield fh
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def _keep_mode(path, tmp):
     """``path``'s permission bits given to ``tmp`` where both are files, or both folders."""
     try:

@@ -44,7 +44,7 @@ class Files:
         return self.folder / ("_".join(map(str, key)) + ".pkl")
 
     def put(self, key, arrays):
-        with atomic.replacing(self._path(key)) as fh:
+        with atomic.scratch(self._path(key)) as fh:
             pickle.dump({name: np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a
                          for name, a in arrays.items()}, fh, protocol=pickle.HIGHEST_PROTOCOL)
 

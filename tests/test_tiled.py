@@ -336,12 +336,14 @@ def test_a_zarr_group_tiled_out_of_core_gives_the_in_core_points(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("stage", ["tile_iteration", "tile_refine"])
-def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path, stage):
-    """A worker killed while the tiles run: Dask runs its tasks again, the result stands."""
+@pytest.mark.parametrize("stage", ["bin", "tile_iteration", "tile_refine", "write"])
+def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path, stage, monkeypatch):
+    """A worker killed while the file is binned, the tiles run or the output is written (in
+    blocks of 5,000 rows): Dask runs its tasks again, the result stands."""
     import signal
 
     distributed = pytest.importorskip("distributed")
+    monkeypatch.setattr(ondisk, "CHUNK_POINTS", 5_000)
     points = datasets.cad_part(n_points=40_000, noise=0.02, seed=9).points
     source, out = tmp_path / "in.npy", tmp_path / "out.npy"
     np.save(source, points)
@@ -360,6 +362,35 @@ def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path, stage):
         tiled.denoise_file(source, out, tile_points=5_000, client=client, progress=kill_once)
     assert killed
     np.testing.assert_array_equal(np.load(out), expected.points)
+
+
+@pytest.mark.slow  # Dask's local process pool
+def test_tasks_read_bin_and_write_a_file_the_caller_never_reads(tmp_path, monkeypatch):
+    """Every pass over the points runs in the tasks' processes: the calling process fails
+    wherever it would read the input's rows or a task's records, and the result is still the
+    in-core one, bit for bit; with chunks and blocks of a few thousand rows, rows at the
+    position of earlier rows (copied across blocks) and classes kept in place by tasks."""
+    cloud = datasets.cad_part(n_points=5_000, noise=0.02, seed=8).points
+    points = np.vstack([cloud, cloud[::97], cloud[4_000:4_010]])
+    labels = np.where(np.arange(points.shape[0]) % 50 == 0, 7, 2).astype(np.uint8)
+    np.save(tmp_path / "in.npy", points)
+    expected = pssd_fast.denoise(points, classification=labels, classes=[2], iterations=1)
+    monkeypatch.setattr(ondisk, "CHUNK_POINTS", 1_500)  # here: the tasks get their rows
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the calling process read rows")
+
+    monkeypatch.setattr(ondisk.NpyFile, "__getitem__", refused)
+    monkeypatch.setattr(ondisk, "read_pieces", refused)
+    seen = set()
+    stats = tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy", tile_points=1_000,
+                               client="processes", n_jobs=2, classification=labels,
+                               classes=[2], iterations=1,
+                               progress=lambda i, n, stage, s: seen.add(stage.split(" ")[0]))
+    np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), expected.points)
+    assert stats["duplicates"] == expected.stats["duplicates"] > 0
+    assert {"read", "bin", "merge", "cells", "parts", "copied", "kept", "write"} <= seen
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.npy", "out.npy"]
 
 
 def test_a_failing_tile_leaves_no_output_and_no_scratch(tmp_path, monkeypatch):

@@ -26,7 +26,7 @@ from ..parameters import BY_NAME
 from ..progress import Clock, reporter
 from ..run import Request, check_distinct, stats
 from ..store import Files, Memory
-from . import ondisk
+from . import binning, ondisk, rows
 from .scheduler import LOCAL_SCHEDULERS, Runner, check_client
 
 #: What :func:`denoise_file` reads and writes, by extension.
@@ -232,44 +232,50 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
     atomic.check_folder(destination)
     array = {"npy": ondisk.NpyFile, "las": ondisk.LasFile, "zarr": ondisk.ZarrFile}[
         kinds[source]](source)
-    labels = _file_labels(array, options.get("classification"), options.get("classes"))
-    runs, small, least = [None], [], None
-    if labels is not None:
-        codes, counts = np.unique(labels, return_counts=True)
-        least = lidar.least_points(options)
-        found, small = lidar.choose(codes, counts, options.get("classes"), least)
-        if found is None:
-            labels = None  # classes 0 and 1 only: no classification
-        else:
-            runs = found
-    lidar.warn_small(small, least, stacklevel=2)
     dtype = np.dtype(np.float32) if array.dtype == np.float32 else np.dtype(np.float64)
     report = reporter(options.get("progress"))
     started = time.perf_counter()
     folder = Path(tempfile.mkdtemp(prefix="pssd_tiles_", dir=scratch or destination.parent))
     # Beside the destination, so that the last rename stays on one file system.
     output = atomic.temporary(destination)
-    setting = _FileRun(array, dtype, tile_points, settings, report)
     try:
         with threads(options.get("n_jobs")) as n_threads, \
                 Runner(client, n_threads, report) as runner:
+            labels = _file_labels(array, options.get("classification"), options.get("classes"),
+                                  runner)
+            runs, small, least = [None], [], None
+            if labels is not None:
+                codes, counts = np.unique(labels, return_counts=True)
+                least = lidar.least_points(options)
+                found, small = lidar.choose(codes, counts, options.get("classes"), least)
+                if found is None:
+                    labels = None  # classes 0 and 1 only: no classification
+                else:
+                    runs = found
+            lidar.warn_small(small, least, stacklevel=2)
+            setting = _FileRun(array, dtype, tile_points, settings, report, runner, n_threads,
+                               ondisk.Blocks.of(array.shape[0]))
             done = []
             for code in runs:
                 with lidar.naming(code):
-                    done.append((code, *(_file_run(
-                        setting, None, folder, runner, n_threads, started) if code is None
-                        else _file_run(setting, lambda a, b, code=code: labels[a:b] == code,
-                                       folder / f"class_{code}", runner, n_threads,
-                                       time.perf_counter()))))
-            parts = [path for _, paths, _, _ in done for path in paths]
-            if labels is not None:
-                kept = folder / "kept.bin"
-                ondisk.unmoved(array, lambda a, b: ~np.isin(labels[a:b], runs), kept)
-                parts.append(kept)
+                    done.append((code, *(_file_run(setting, None, folder, started)
+                                         if code is None else
+                                         _file_run(setting, lambda a, b, code=code:
+                                                   labels[a:b] == code, folder / f"class_{code}",
+                                                   time.perf_counter()))))
             last = done[-1][3]
-            clock = Clock(report, last["n_iterations"] - 1, last["n_iterations"])
-            clock.run("write", _write, array, output, parts, array.shape[0], dtype, folder,
-                      fields, [copies for _, _, copies, _ in done if copies is not None])
+            stage = (last["n_iterations"] - 1, last["n_iterations"])
+            sources = [source for _, found, _, _ in done for source in found]
+            if labels is not None:
+                ranges = setting.blocks.ranges()
+                kept = [folder / f"kept_{start}.bin" for start, _ in ranges]
+                sources += zip(kept, runner.map("kept", *stage, ondisk.unmoved, [
+                    (array, start, stop, ~np.isin(labels[start:stop], runs), path,
+                     setting.blocks) for (start, stop), path in zip(ranges, kept)]))
+            clock = Clock(report, *stage)
+            clock.run("write", _write, runner, array, output, sources, setting.blocks, dtype,
+                      folder, fields, [path for _, _, copies, _ in done for path in copies],
+                      stage)
             atomic.sync(output)
             atomic.replace(output, destination, overwrite=overwrite, exists_message=exists)
     finally:
@@ -291,36 +297,49 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
 
 class _FileRun(NamedTuple):
     """What each run of :func:`denoise_file` takes: the input ``array``, the output's
-    ``dtype`` and the call's settings, checked."""
+    ``dtype``, the call's settings, checked, where its tasks run and the output's blocks of
+    rows."""
     array: object
     dtype: object
     tile_points: int
     settings: dict
     report: object
+    runner: object
+    n_threads: int
+    blocks: ondisk.Blocks
 
 
-def _file_labels(array, classification, classes):
+def _file_labels(array, classification, classes, runner):
     """The class of each row of ``array``: a LAS/LAZ file's classification field (unless
-    ``classes`` is ``"all"``), or ``classification`` checked; None for one cloud."""
+    ``classes`` is ``"all"``, read by tasks a chunk each), or ``classification`` checked;
+    None for one cloud."""
     if isinstance(classes, str) and classes == "all":
         return None
     if isinstance(array, ondisk.LasFile):
-        return array.classification()
+        return np.concatenate(runner.map("classes", 0, 1, _classes, [
+            (array, *rows) for rows in ondisk.Blocks.of(array.shape[0]).ranges()]) or
+            [np.empty(0, np.uint8)])
     if classification is None:
         return None
     return lidar.check_labels(classification, array.shape[0])
 
 
-def _file_run(setting, keep, folder, runner, n_threads, started):
+def _classes(array, start, stop, n_jobs):
+    """The classes of rows ``start..stop-1`` of a LAS/LAZ file (a task)."""
+    return array.classification(start, stop)
+
+
+def _file_run(setting, keep, folder, started):
     """One run of :func:`denoise_file` on the rows of ``setting.array`` that ``keep`` selects
     (``keep(start, stop)``: a mask of rows ``start..stop-1``; None: every row), its scratch
-    files in ``folder``: the part files, the file of rows set aside as copies (or None) and
-    the run's ``stats``."""
+    files in ``folder``: its results (``(path, counts)`` of each tile's
+    :data:`~pssd_fast.tiled.ondisk.PART` file, :func:`pssd_fast.tiled.rows.write`), the files
+    of rows set aside as copies and the run's ``stats``."""
     folder.mkdir(exist_ok=True)
-    settings, report = setting.settings, setting.report
+    settings, report, runner = setting.settings, setting.report, setting.runner
     first = Clock(report, 0, 1)
-    cloud = first.run("buckets", ondisk.Buckets, setting.array, folder, setting.tile_points,
-                      settings["duplicate_tolerance"], keep)
+    cloud = first.run("buckets", binning.Buckets, setting.array, folder, setting.tile_points,
+                      settings["duplicate_tolerance"], keep, runner)
     n = check_distinct(cloud.shape[0], cloud.rows, None)
     if cloud.normals is not None and settings["orient"] is not None:
         raise ValueError(f"orient applies to estimated normals; {setting.array.path} has "
@@ -334,12 +353,15 @@ def _file_run(setting, keep, folder, runner, n_threads, started):
     tiles = first.run("tiles", cloud.cells, plan, store, setting.tile_points)
     _, records = executor.run(plan, request, tiles, store, runner)
     clock = Clock(report, plan.iterations - 1, plan.iterations)
-    parts = clock.run("parts", _parts, store, tiles, cloud.centre, setting.dtype, folder)
-    held = sum(int(store.get(("out", i), ("held",))["held"].sum()) for i in range(len(tiles)))
+    paths = [Path(folder) / f"part_{i}.bin" for i in range(len(tiles))]
+    parts = clock.run("parts", runner.map, "parts", plan.iterations - 1, plan.iterations,
+                      _part, [(store, i, cloud.centre, setting.dtype, path, setting.blocks)
+                              for i, path in enumerate(paths)])
+    held = sum(found for _, found in parts)
     records[0]["times"].update(first.times)
     records[-1]["times"].update(clock.times)
-    return parts, cloud.copies if cloud.duplicates else None, stats(
-        request, plan, cloud.rows, n, n_threads, records, held,
+    return list(zip(paths, [counts for counts, _ in parts])), cloud.copies, stats(
+        request, plan, cloud.rows, n, setting.n_threads, records, held,
         tiles={"count": len(tiles), "most_points": max(t.points for t in tiles),
                "scheduler": runner.name, "threads": runner.threads})
 
@@ -364,41 +386,44 @@ def _file_settings(options):
                             if name not in ("classification", "classes")})
 
 
-def _parts(store, tiles, centre, dtype, folder):
-    """Each tile's results as a :data:`pssd_fast.tiled.ondisk.PART` file, the coordinates as
-    :func:`pssd_fast.denoise` returns them; their paths."""
-    paths = []
-    for i in range(len(tiles)):
-        out = store.get(("out", i))
-        points = store.get(("points", i), ("xyz", "row"))
-        xyz = (out["xyz"] + centre).astype(dtype).astype(np.float64)
-        displacement = np.linalg.norm(out["xyz"] - points["xyz"], axis=1).astype(dtype)
-        nan = np.full(xyz.shape[0], np.nan)
-        records = ondisk.part_records(points["row"], xyz,
-                                      out["normals"].astype(dtype).astype(np.float64),
-                                      out.get("likelihood", nan), out.get("feature", nan),
-                                      displacement)
-        path = Path(folder) / f"part_{i}.bin"
-        ondisk.save(records, path)
-        paths.append(path)
-    return paths
+def _part(store, i, centre, dtype, path, blocks, n_jobs):
+    """Tile ``i``'s results as a :data:`pssd_fast.tiled.ondisk.PART` file at ``path`` sorted
+    by the output's ``blocks``, the coordinates as :func:`pssd_fast.denoise` returns them (a
+    task); the count of each block and the points the tile held in place."""
+    out = store.get(("out", i))
+    points = store.get(("points", i), ("xyz", "row"))
+    xyz = (out["xyz"] + centre).astype(dtype).astype(np.float64)
+    displacement = np.linalg.norm(out["xyz"] - points["xyz"], axis=1).astype(dtype)
+    nan = np.full(xyz.shape[0], np.nan)
+    records = ondisk.part_records(points["row"], xyz,
+                                  out["normals"].astype(dtype).astype(np.float64),
+                                  out.get("likelihood", nan), out.get("feature", nan),
+                                  displacement)
+    counts = ondisk.sorted_save(records, records["row"] // blocks.size, blocks.count, path)
+    return counts, int(out["held"].sum())
 
 
-def _write(array, output, parts, n, dtype, folder, fields, copies):
-    """The parts' points in the input's rows (``copies``: the rows that take their first
-    row's, :func:`pssd_fast.tiled.ondisk.write_rows`): an ``.npy`` or Zarr array, or a copy of
-    the LAS/LAZ input with those coordinates and the ``fields`` asked for."""
+def _write(runner, array, output, sources, blocks, dtype, folder, fields, copies, stage):
+    """The sources' points in the input's rows (``copies``: the rows that take their first
+    row's, :func:`pssd_fast.tiled.rows.write`): an ``.npy`` or Zarr array, or a copy of the
+    LAS/LAZ input with those coordinates and the ``fields`` asked for. A Zarr or LAS/LAZ
+    output is written from a table of the rows by one task."""
+    n = array.shape[0]
     if isinstance(array, ondisk.NpyFile):
-        ondisk.write_rows(output, parts, n, dtype, copies=copies)
+        rows.write(runner, output, sources, blocks, n, dtype, copies=copies, stage=stage)
         return
     table = folder / "rows.npy"
+    columns = ("xyz",) if isinstance(array, ondisk.ZarrFile) else ondisk.TABLE
+    rows.write(runner, table, sources, blocks, n, dtype, columns, copies, stage)
+    runner.map("write file", *stage, _write_file, [(array, output, table, columns, fields)])
+
+
+def _write_file(array, output, table, columns, fields, n_jobs):
+    table = ondisk.NpyFile(table, columns=ondisk.columns_width(columns))
     if isinstance(array, ondisk.ZarrFile):
-        ondisk.write_rows(table, parts, n, dtype, copies=copies)
-        array.write(output, ondisk.NpyFile(table))
-        return
-    ondisk.write_rows(table, parts, n, dtype, ondisk.TABLE, copies)
-    array.write(output, ondisk.NpyFile(table, columns=ondisk.columns_width(ondisk.TABLE)),
-                fields)
+        array.write(output, table)
+    else:
+        array.write(output, table, fields)
 
 
 __all__ = ["FILE_KINDS", "LOCAL_SCHEDULERS", "denoise", "denoise_file"]

@@ -1,0 +1,322 @@
+"""A cloud on disk binned into buckets and tiles by rounds of tasks (docs/tiled.md, "Out of
+core"): the plan of :func:`pssd_fast.denoise` computed from chunks, and the points grouped
+into the tiles' entries of the run's store.
+
+Every pass is a round of tasks on the run's scheduler, one task a chunk of the input, a bucket
+or a tile; the calling process plans the rounds and sums what the tasks return (counts,
+bounds, sparse histograms), so its time and memory follow the number of chunks and tiles, not
+of points. A task that runs again (a worker lost) writes the same files whole again. The
+passes:
+
+1. per chunk, its rows checked and their bounds (the centre and the Morton scale of
+   ``denoise``);
+2. per chunk, a sparse histogram of the top bits of the Morton code of each point's position
+   (:func:`pssd_fast.duplicates.codes`); the driver groups consecutive bins into *buckets* of
+   at most ``tile_points`` points;
+3. per chunk, its records sorted by bucket into a file of its own;
+4. per bucket, its pieces of every chunk in input order, sorted by code: their concatenation
+   is ``denoise``'s Morton order, so the noise probe reads its evenly spread sample (every
+   ``s``-th point of that order) by rank; the rows at the position of an earlier row are set
+   aside, to take its result when the output is written (:mod:`pssd_fast.duplicates`);
+5. per bucket, the largest cell code of the plan's grid, then a sparse histogram of the codes'
+   first bits; the driver groups them into *tiles* of whole cells;
+6. per bucket, its records sorted by tile; per tile, its pieces grouped by cell (which numbers
+   its cells), then its store entries written with the cells numbered from the tiles before.
+"""
+from pathlib import Path
+
+import numpy as np
+
+from .. import core, duplicates, regions
+from .._validation import check_size
+from ..graph import MORTON_BITS, bounds, cell_keys, cell_order
+from . import ondisk
+
+#: Histogram bins of the Morton codes' top bits (7 per axis).
+PREFIX_BITS = 21
+#: A point in a bucket file: its row in the input, its Morton code, its coordinates.
+RECORD = np.dtype([("row", np.int64), ("code", np.uint64), ("xyz", np.float64, 3)])
+#: The same with the point's unit normal, for a file that has normals.
+RECORD_NORMALS = np.dtype([*RECORD.descr, ("nrm", np.float64, 3)])
+
+
+class Buckets:
+    """The cloud's distinct positions in ``denoise``'s Morton order, relative to its centre, as
+    files of consecutive ranks: ``shape`` and ``[::step]`` as a ``(n, 3)`` array offers them
+    (what the noise probe reads), and :meth:`cells` for the tiles. The rows at the position of
+    an earlier row (:mod:`pssd_fast.duplicates`; ``tolerance``: ``denoise``'s
+    ``duplicate_tolerance``) are set aside in the :data:`~pssd_fast.tiled.ondisk.COPY` files
+    ``copies``, ``duplicates`` of them, out of ``rows`` rows in all: the rows of ``array`` that
+    ``keep`` selects (``keep(start, stop)``: a mask of rows ``start..stop-1``; every row where
+    None), each keeping its row. ``runner``: where the tasks run
+    (:class:`pssd_fast.tiled.scheduler.Runner`)."""
+
+    def __init__(self, array, folder, tile_points, tolerance, keep, runner):
+        self.folder = folder = Path(folder)
+        self.runner = runner
+        self.dtype = RECORD_NORMALS if getattr(array, "has_normals", False) else RECORD
+        chunks = [(array, start, stop, None if keep is None else keep(start, stop))
+                  for start, stop in ondisk.Blocks.of(array.shape[0]).ranges()]
+        found = [scan for scan in ondisk.first_error(runner.map("read", 0, 1, _scan, chunks))
+                 if scan[0]]
+        n = sum(scan[0] for scan in found)
+        check_size(n)
+        self.rows = n
+        low = np.min([scan[1] for scan in found], axis=0)
+        high = np.max([scan[2] for scan in found], axis=0)
+        self.centre = 0.5 * (low + high)
+        # The grid of the default method's cells starts at the low corner of every row, as in
+        # core.
+        self.corner = low - self.centre
+        codes = (low, high, tolerance)  # of the cubes of the tolerance
+        histogram = _histogram(runner.map("histogram", 0, 1, _code_prefixes,
+                                          [(*chunk, codes) for chunk in chunks]))
+        firsts = _bins(histogram, tile_points)
+        del histogram
+        pieces = [folder / f"chunk_{i}.bin" for i in range(len(chunks))]
+        counts = ondisk.offsets(runner.map("bin", 0, 1, _bin_chunk, [
+            (*chunk, codes, firsts, self.dtype, path) for chunk, path in zip(chunks, pieces)]))
+        self.paths = [folder / f"bucket_{b}.bin" for b in range(firsts.shape[0])]
+        merged = runner.map("merge", 0, 1, _merge_bucket, [
+            (ondisk.pieces(pieces, counts, b), self.dtype, codes, path) for b, path in
+            enumerate(self.paths)])
+        for path in pieces:
+            path.unlink()
+        # The rows at one position share its code (pssd_fast.duplicates), so a bucket holds
+        # whole positions and merges its own; the bounds are then those of the distinct
+        # positions, as in core.
+        self.copies = [path.with_name(path.stem + "_copies.bin") for path, m in
+                       zip(self.paths, merged) if m[3]]
+        self.starts = np.concatenate(([0], np.cumsum([m[0] for m in merged])))
+        self.shape = (int(self.starts[-1]), 3)
+        self.duplicates = n - self.shape[0]
+        # Bounds of the points relative to the centre: the same rounding, so the same bits.
+        self.low = np.min([m[1] for m in merged], axis=0) - self.centre
+        self.high = np.max([m[2] for m in merged], axis=0) - self.centre
+
+    def __getitem__(self, key):
+        return self.ranked("xyz", key) - self.centre
+
+    def ranked(self, field, key):
+        """The ``field`` of every ``key.step``-th point of the Morton order (``key``: a slice
+        ``[::step]``), read from the pages that hold them."""
+        if not isinstance(key, slice) or key.start is not None or key.stop is not None:
+            raise TypeError("only [::step] is read from the buckets")
+        ranks = np.arange(0, self.shape[0], key.step or 1)
+        out = np.empty((ranks.shape[0], 3))
+        for i, path in enumerate(self.paths):
+            lo, hi = np.searchsorted(ranks, self.starts[i:i + 2])
+            if hi > lo:
+                records = np.memmap(path, self.dtype, mode="r")
+                out[lo:hi] = records[field][ranks[lo:hi] - self.starts[i]]
+                del records
+        return out
+
+    @property
+    def normals(self):
+        """The file's unit normals, ``[::step]`` as :meth:`__getitem__` reads points; or None."""
+        if "nrm" not in self.dtype.names:
+            return None
+        buckets = self
+
+        class Normals:
+            shape = buckets.shape
+
+            def __getitem__(self, key):
+                return buckets.ranked("nrm", key)
+
+        return Normals()
+
+    def cells(self, plan, store, tile_points):
+        """The points grouped by the cells of ``plan`` into ``store``, as
+        :func:`pssd_fast.executor.group` puts them (each entry also with the points' input
+        ``row``), by tasks: each point's cell code, a histogram of the codes' first bits, and
+        the points binned by those bits into tiles of whole cells of at most ``tile_points``
+        points (a fuller bin alone), in the order of their cells. Returns the tiles
+        (:class:`pssd_fast.executor.Tile`)."""
+        runner = self.runner
+        # One shift for every bucket, from the whole cloud's largest cell coordinate: that of
+        # its high corner, rounded as each point's is (graph.cell_keys).
+        top = int(((self.high - plan.low) * (1.0 / plan.edge)).max())
+        grid = (self.centre, plan.low, plan.edge, max(0, top.bit_length() - MORTON_BITS))
+        buckets = [(path, self.dtype, grid) for path in self.paths]
+        # The codes' first bits: as many as they use, less the prefix.
+        largest = max(runner.map("cell codes", 0, 1, _largest_cell, buckets))
+        prefix = max(0, largest.bit_length() - PREFIX_BITS)
+        firsts = _bins(_histogram(runner.map("cell histogram", 0, 1, _cell_prefixes, [
+            (*bucket, prefix) for bucket in buckets])), tile_points)
+        pieces = [self.folder / f"cells_of_{i}.bin" for i in range(len(buckets))]
+        counts = ondisk.offsets(runner.map("cell bin", 0, 1, _bin_cells, [
+            (*bucket, prefix, firsts, int(self.starts[i]), path)
+            for i, (bucket, path) in enumerate(zip(buckets, pieces))]))
+        record = _cell_record(self.dtype)
+        grouped = [self.folder / f"cells_{t}.bin" for t in range(firsts.shape[0])]
+        sizes = runner.map("cells", 0, 1, _group_tile, [
+            (ondisk.pieces(pieces, counts, t), record, grid, path)
+            for t, path in enumerate(grouped)])
+        for path in pieces:
+            path.unlink()
+        c0 = np.concatenate(([0], np.cumsum(sizes)))
+        return runner.map("tiles", 0, 1, _put_tile, [
+            (path, record, self.centre, int(c0[t]), store, t) for t, path in enumerate(grouped)])
+
+
+def _scan(array, start, stop, mask, n_jobs):
+    """The rows a chunk takes and their bounds; or the ValueError its rows raise, so that the
+    first bad chunk is named whatever order the tasks ran in."""
+    try:
+        _, points, _ = ondisk.chunk(array, start, stop, mask)
+    except ValueError as exc:
+        return exc
+    if not points.shape[0]:
+        return 0, None, None
+    return (points.shape[0], *bounds(points))
+
+
+def _code_prefixes(array, start, stop, mask, codes, n_jobs):
+    """The sparse histogram (bins, counts) of the top bits of a chunk's position codes."""
+    _, points, _ = ondisk.chunk(array, start, stop, mask)
+    return np.unique(duplicates.codes(points, *codes) >> _code_shift(), return_counts=True)
+
+
+def _code_shift():
+    return np.uint64(3 * MORTON_BITS - PREFIX_BITS)
+
+
+def _bin_chunk(array, start, stop, mask, codes, firsts, dtype, path, n_jobs):
+    """A chunk's records (:data:`RECORD`) sorted by bucket (stably: in input order within
+    one) into a file at ``path``; the count of each bucket."""
+    rows, points, normals = ondisk.chunk(array, start, stop, mask)
+    records = np.empty(points.shape[0], dtype)
+    records["row"] = rows
+    records["code"] = code = duplicates.codes(points, *codes)
+    records["xyz"] = points
+    if normals is not None:
+        records["nrm"] = normals
+    return ondisk.sorted_save(records, _bucket_of(firsts, code >> _code_shift()),
+                              firsts.shape[0], path)
+
+
+def _merge_bucket(pieces, dtype, codes, path, n_jobs):
+    """A bucket's records from its ``pieces`` (in input order) sorted by code, with the rows at
+    the position of an earlier row set aside in a copies file beside ``path``; its number of
+    records, their bounds and the number set aside."""
+    records = ondisk.read_pieces(pieces, dtype)
+    # In input order: a stable sort by code is denoise's order.
+    records = records[np.argsort(records["code"], kind="stable")]
+    low, _, tolerance = codes
+    into = duplicates.merged(records["code"], lambda at: duplicates.keys(
+        records["xyz"][at], low, tolerance))
+    aside = 0
+    if into is not None:
+        copy = into != np.arange(into.shape[0])
+        aside = int(np.count_nonzero(copy))
+        copies = np.empty(aside, ondisk.COPY)
+        copies["row"] = records["row"][copy]
+        copies["first"] = records["row"][into[copy]]
+        copies["xyz"] = records["xyz"][copy]
+        if aside:
+            ondisk.save(copies, path.with_name(path.stem + "_copies.bin"))
+        records = records[~copy]
+    ondisk.save(records, path)
+    return (records.shape[0], *bounds(records["xyz"]), aside)
+
+
+def _keys(records, grid):
+    """The cell keys (:func:`pssd_fast.graph.cell_keys`) of bucket or tile records."""
+    centre, low, edge, shift = grid
+    return cell_keys(records["xyz"] - centre, low, edge, shift)
+
+
+def _largest_cell(path, dtype, grid, n_jobs):
+    return int(_keys(np.fromfile(path, dtype), grid)[0].max(initial=0))
+
+
+def _cell_prefixes(path, dtype, grid, prefix, n_jobs):
+    """The sparse histogram (bins, counts) of the first bits of a bucket's cell codes."""
+    return np.unique(_keys(np.fromfile(path, dtype), grid)[0] >> np.uint64(prefix),
+                     return_counts=True)
+
+
+def _cell_record(dtype):
+    """A point on its way to a tile: its rank in the Morton order (``gid``), its cell code
+    and the rest of its bucket record."""
+    return np.dtype([("gid", np.int64), ("code", np.uint64), *[
+        (name, dtype[name]) for name in dtype.names if name != "code"]])
+
+
+def _bin_cells(path, dtype, grid, prefix, firsts, first_rank, out, n_jobs):
+    """A bucket's points as :func:`_cell_record` records sorted by tile into a file at
+    ``out``; the count of each tile."""
+    records = np.fromfile(path, dtype)
+    found = np.empty(records.shape[0], _cell_record(dtype))
+    found["gid"] = first_rank + np.arange(records.shape[0])
+    found["code"] = code = _keys(records, grid)[0]
+    for name in records.dtype.names:
+        if name != "code":
+            found[name] = records[name]
+    return ondisk.sorted_save(found, _bucket_of(firsts, code >> np.uint64(prefix)),
+                              firsts.shape[0], out)
+
+
+def _group_tile(pieces, record, grid, path, n_jobs):
+    """A tile's points from its ``pieces`` (in Morton order) grouped by cell into a file at
+    ``path``; its number of cells."""
+    records = ondisk.read_pieces(pieces, record)
+    # Grouped stably by cell, the points of a cell stay in the Morton order, as in core.
+    code, cells = _keys(records, grid)
+    order, starts = cell_order(code, cells)
+    np.save(path.with_suffix(".starts.npy"), starts)
+    ondisk.save(records[order], path)
+    return starts.shape[0] - 1
+
+
+def _put_tile(path, record, centre, c0, store, i, n_jobs):
+    """The store entries of tile ``i`` (its cells numbered from ``c0``), as
+    :func:`pssd_fast.executor.group` puts them; the tile."""
+    from ..executor import Tile
+
+    records = np.fromfile(path, record)
+    starts = np.load(path.with_suffix(".starts.npy"))
+    m = starts.shape[0] - 1
+    xyz = records["xyz"] - centre
+    normals = records["nrm"] if "nrm" in records.dtype.names else None
+    means, mean_normals = core.cell_means(xyz, normals, np.arange(xyz.shape[0]), starts)
+    counts = np.diff(starts)
+    points = {"xyz": xyz, "gid": records["gid"], "row": records["row"],
+              "cell": c0 + np.repeat(np.arange(m), counts)}
+    cells = {"xyz": means, "mass": counts.astype(np.float64), "gid": np.arange(c0, c0 + m)}
+    if normals is not None:
+        points["given"] = normals
+        cells["normals"] = mean_normals
+    store.put(("points", i), points)
+    store.put(("cells", i, 0), cells)
+    path.unlink()
+    path.with_suffix(".starts.npy").unlink()
+    return Tile(c0, m, xyz.shape[0], regions.boxes(xyz), regions.boxes(means))
+
+
+def _histogram(sparse):
+    """The histogram of :data:`PREFIX_BITS` bits summed from sparse ``(bins, counts)``."""
+    histogram = np.zeros(1 << PREFIX_BITS, np.int64)
+    for found, counts in sparse:
+        histogram[found.astype(np.int64)] += counts
+    return histogram
+
+
+def _bins(histogram, tile_points):
+    """The first bin of each bucket of ``histogram``: consecutive bins, at most
+    ``tile_points`` points a bucket (a fuller bin alone)."""
+    firsts = []
+    filled = 0
+    for b in np.flatnonzero(histogram):
+        if not firsts or (filled and filled + histogram[b] > tile_points):
+            firsts.append(b)
+            filled = 0
+        filled += histogram[b]
+    return np.array(firsts, np.int64)
+
+
+def _bucket_of(firsts, found):
+    """The bucket of each of the bins ``found`` (bins that hold points)."""
+    return np.searchsorted(firsts, found.astype(np.int64), side="right") - 1
