@@ -18,7 +18,8 @@ SKIP = 2**31 + 3
 def lists(tmp_path_factory):
     """The cloud, its lists at offset 0 and the same lists after :data:`SKIP` entries."""
     cloud = datasets.cad_part(n_points=1_500, noise=0.01, seed=3)
-    points = cloud.points
+    # Writable copies: the kernels' signatures of every run (a dataset's arrays are read-only).
+    points, normals = cloud.points.copy(), cloud.normals.copy()
     graph = pssd_fast.neighbors(points, 16)
     assert graph.indptr.dtype == np.int64
     nnz = int(graph.indptr[-1])
@@ -28,7 +29,7 @@ def lists(tmp_path_factory):
     far[SKIP:] = graph.indices
     shifted = SimpleNamespace(indptr=graph.indptr + SKIP, indices=np.asarray(far))
     assert int(shifted.indptr[-1]) > 2**31
-    return points, cloud.normals, graph, shifted
+    return points, normals, graph, shifted
 
 
 def _each_kernel(points, normals, graph):
