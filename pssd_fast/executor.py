@@ -149,8 +149,8 @@ def run(plan, request, tiles, store, runner=None):
             _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, clock)
             refined = True
     if not refined:
-        for i in range(len(tiles)):
-            store.put(("out", i), store.get(("placed", i)))
+        runner.map("tile_out", plan.iterations - 1, plan.iterations, _placed_out,
+                   [(store, i) for i in range(len(tiles))])
     _drop(store, [("placed", i) for i in range(len(tiles))])
     if request.extras:
         clock.run("extras", extras, store, tiles, fits, plan)
@@ -278,21 +278,11 @@ def _test(store, keys, boxes, i, region, plan, n_jobs):
 def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, clock):
     """The failing points' own iterations, tile by tile (``("refine", i, t)`` entries; the
     last becomes ``("out", i)``), their stages timed on ``clock``."""
-    k, bound = plan.refine
-    for i in range(len(tiles)):
-        placed = store.get(("placed", i))
-        points = store.get(("points", i), ("xyz",) + (("given",) if given else ()))
-        flagged = store.get(("flags", i))["flagged"]
-        xyz = placed["xyz"].copy()
-        xyz[flagged] = points["xyz"][flagged]
-        entry = {"xyz": xyz, "normals": placed["normals"], "flagged": flagged,
-                 "gid": placed["gid"], "held": placed["held"]}
-        if given:
-            entry["given"] = points["given"]
-        store.put(("refine", i, 0), entry)
+    bound = plan.refine[1]
+    # Tasks, as every step that reads a tile's points: the calling process holds none.
+    boxes = runner.map("tile_out", plan.iterations - 1, plan.iterations, _refine_entry,
+                       [(store, i, given) for i in range(len(tiles))])
     _drop(store, [("flags", i) for i in range(len(tiles))])
-    boxes = [regions.boxes(store.get(("refine", i, 0), ("xyz",))["xyz"])
-             for i in range(len(tiles))]
     iterations = method.REFINE["iterations"]
     for t in range(iterations):
         use_given = given and (t == 0 or keep)
@@ -305,11 +295,37 @@ def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, cloc
         _tally(clock, [o[1] for o in out])
         _drop(store, keys)
         boxes = [o[0] for o in out]
-    for i in range(len(tiles)):
-        entry = store.get(("refine", i, iterations))
-        store.put(("out", i), {"xyz": entry["xyz"], "normals": entry["normals"],
-                               "held": entry["held"], "gid": entry["gid"]})
-        store.drop(("refine", i, iterations))
+    runner.map("tile_out", plan.iterations - 1, plan.iterations, _refined,
+               [(store, i, iterations) for i in range(len(tiles))])
+
+
+def _placed_out(store, i, n_jobs):
+    """Tile ``i``'s points as placed: its output, where no point failed the test (a task)."""
+    store.put(("out", i), store.get(("placed", i)))
+
+
+def _refine_entry(store, i, given, n_jobs):
+    """Tile ``i``'s first refining entry: its points as placed, the failing ones back at their
+    input positions (a task); the boxes of those positions."""
+    placed = store.get(("placed", i))
+    points = store.get(("points", i), ("xyz",) + (("given",) if given else ()))
+    flagged = store.get(("flags", i))["flagged"]
+    xyz = placed["xyz"].copy()
+    xyz[flagged] = points["xyz"][flagged]
+    entry = {"xyz": xyz, "normals": placed["normals"], "flagged": flagged,
+             "gid": placed["gid"], "held": placed["held"]}
+    if given:
+        entry["given"] = points["given"]
+    store.put(("refine", i, 0), entry)
+    return regions.boxes(xyz)
+
+
+def _refined(store, i, last, n_jobs):
+    """Tile ``i``'s output from its last refining entry ``last`` (a task)."""
+    entry = store.get(("refine", i, last))
+    store.put(("out", i), {"xyz": entry["xyz"], "normals": entry["normals"],
+                           "held": entry["held"], "gid": entry["gid"]})
+    store.drop(("refine", i, last))
 
 
 def _refine_task(store, keys, boxes, i, region, use_given, first, plan, sigma_n, shift,

@@ -99,17 +99,19 @@ class Buckets:
 
     def ranked(self, field, key):
         """The ``field`` of every ``key.step``-th point of the Morton order (``key``: a slice
-        ``[::step]``), read from the pages that hold them."""
+        ``[::step]``), each record read alone: a memory map would keep the pages around each
+        resident (95 MB of a bucket of 8,000,000 points for a sample every 5,200)."""
         if not isinstance(key, slice) or key.start is not None or key.stop is not None:
             raise TypeError("only [::step] is read from the buckets")
         ranks = np.arange(0, self.shape[0], key.step or 1)
         out = np.empty((ranks.shape[0], 3))
+        size = self.dtype.itemsize
         for i, path in enumerate(self.paths):
             lo, hi = np.searchsorted(ranks, self.starts[i:i + 2])
-            if hi > lo:
-                records = np.memmap(path, self.dtype, mode="r")
-                out[lo:hi] = records[field][ranks[lo:hi] - self.starts[i]]
-                del records
+            with open(path, "rb") as fh:
+                for at in range(lo, hi):
+                    fh.seek(int(ranks[at] - self.starts[i]) * size)
+                    out[at] = np.fromfile(fh, self.dtype, count=1)[field][0]
         return out
 
     @property
@@ -157,8 +159,11 @@ class Buckets:
         for path in pieces:
             path.unlink()
         c0 = np.concatenate(([0], np.cumsum(sizes)))
-        return runner.map("tiles", 0, 1, _put_tile, [
+        tiles = runner.map("tiles", 0, 1, _put_tile, [
             (path, record, self.centre, int(c0[t]), store, t) for t, path in enumerate(grouped)])
+        for path in self.paths:  # every point is in the tiles' entries now
+            path.unlink()
+        return tiles
 
 
 def _scan(array, start, stop, mask, n_jobs):
