@@ -34,6 +34,8 @@ from . import ondisk
 
 #: Histogram bins of the Morton codes' top bits (7 per axis).
 PREFIX_BITS = 21
+#: The shift that leaves a position code's top :data:`PREFIX_BITS` bits.
+_CODE_SHIFT = np.uint64(3 * MORTON_BITS - PREFIX_BITS)
 #: A point in a bucket file: its row in the input, its Morton code, its coordinates.
 RECORD = np.dtype([("row", np.int64), ("code", np.uint64), ("xyz", np.float64, 3)])
 #: The same with the point's unit normal, for a file that has normals.
@@ -181,11 +183,7 @@ def _scan(array, start, stop, mask, n_jobs):
 def _code_prefixes(array, start, stop, mask, codes, n_jobs):
     """The sparse histogram (bins, counts) of the top bits of a chunk's position codes."""
     _, points, _ = ondisk.chunk(array, start, stop, mask)
-    return np.unique(duplicates.codes(points, *codes) >> _code_shift(), return_counts=True)
-
-
-def _code_shift():
-    return np.uint64(3 * MORTON_BITS - PREFIX_BITS)
+    return np.unique(duplicates.codes(points, *codes) >> _CODE_SHIFT, return_counts=True)
 
 
 def _bin_chunk(array, start, stop, mask, codes, firsts, dtype, path, n_jobs):
@@ -198,7 +196,7 @@ def _bin_chunk(array, start, stop, mask, codes, firsts, dtype, path, n_jobs):
     records["xyz"] = points
     if normals is not None:
         records["nrm"] = normals
-    return ondisk.sorted_save(records, _bucket_of(firsts, code >> _code_shift()),
+    return ondisk.sorted_save(records, _bucket_of(firsts, code >> _CODE_SHIFT),
                               firsts.shape[0], path)
 
 

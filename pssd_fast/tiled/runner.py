@@ -419,6 +419,7 @@ def _write(runner, array, output, sources, blocks, dtype, folder, fields, copies
 
 
 def _write_file(array, output, table, columns, fields, n_jobs):
+    """A Zarr or LAS/LAZ ``output`` of the rows of the ``.npy`` ``table`` (a task)."""
     table = ondisk.NpyFile(table, columns=ondisk.columns_width(columns))
     if isinstance(array, ondisk.ZarrFile):
         array.write(output, table)
