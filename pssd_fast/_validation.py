@@ -139,6 +139,15 @@ def check_orient(orient):
     return view
 
 
+def check_orient_estimated(orient, has_normals, source="the given normals",
+                           fix="drop orient, or pass normals=None"):
+    """Raise where ``orient`` is set although the normals are given (by ``source``): only
+    estimated normals are turned; given normals keep their signs."""
+    if orient is not None and has_normals:
+        raise ValueError(f"orient applies to estimated normals; {source} keep their signs "
+                         f"({fix})")
+
+
 def check_k(k, n_points, minimum=MIN_K):
     """Check the neighbour count against the cubic's needs and the cloud's size."""
     k = check_int(k, "k", minimum=minimum)

@@ -39,6 +39,15 @@ class CommandError(Exception):
     """A failure explained by its message alone."""
 
 
+def _orient_estimated(orient, has_normals, inp):
+    """:func:`pssd_fast._validation.check_orient_estimated` as a command's error."""
+    from ._validation import check_orient_estimated
+    try:
+        check_orient_estimated(orient, has_normals, f"the normals of {inp}", "drop --orient")
+    except ValueError as exc:
+        raise CommandError(f"--{exc}") from None
+
+
 class Terminated(BaseException):
     """SIGTERM, raised where the process is, like KeyboardInterrupt for Ctrl-C, so that every
     cleanup (temporary files included) runs before the process exits."""
@@ -623,9 +632,7 @@ def _denoise_on_disk(args, params, inp, out, say):
         raise CommandError(f"--fields: {out} cannot hold {', '.join(fields)} (use .las/.laz, "
                            f"or .npz, .ply or text without --tile-points)")
     has_normals = las and ondisk.LasFile(inp).has_normals
-    if args.orient is not None and has_normals:
-        raise CommandError(f"--orient applies to estimated normals; {inp} has normals, whose "
-                           "signs are kept")
+    _orient_estimated(args.orient, has_normals, inp)
     orient = "up" if args.orient is None and las and not has_normals else args.orient
     progress = _Progress(STAGE_COUNT[args.method], not args.quiet)
     try:
@@ -704,9 +711,7 @@ def _denoise_file(args, params, inp, out, say):
     orient = args.orient
     if orient is None and cloud.format == "las" and given is None:
         orient = "up"  # aerial and terrestrial LiDAR: the ground's normals point to the sky
-    if orient is not None and given is not None:
-        raise CommandError(f"--orient applies to estimated normals; {inp} has normals, whose "
-                           "signs are kept")
+    _orient_estimated(orient, given is not None, inp)
     # The default method computes the likelihood and the feature intensity on request only.
     names = _field_names(args)
     extras = names == "all" or bool({"likelihood", "feature_intensity"} & set(names))

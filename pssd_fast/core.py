@@ -23,10 +23,8 @@ FIT_DEGREES = {"cubic": kernels.mls.CUBIC, "quadratic": kernels.mls.QUADRATIC,
                "plane": kernels.mls.PLANE}
 #: Fit codes of the feature-aware fit (number of coefficients fitted).
 AWARE_FIT_DEGREES = {"quadratic": 6, "plane": 3, "mean_height": 1, "none": 0}
-# No rows, no entries: :func:`kernels.mls.aware_fit` keeps no coefficients, and does not say
-# where it took the robust fit.
+# No rows, no entries: :func:`kernels.mls.aware_fit` keeps no coefficients, or no leverage.
 _NO_COEF = np.empty((0, 7))
-_NO_TAKEN = np.empty(0, np.bool_)
 _NO_LEVERAGE = np.empty(0)
 
 
@@ -193,22 +191,8 @@ def aware_fit(points, nrm, graph, sigma_n, mass=None, robust=False):
     degree = np.empty(n, np.int8)
     mass = np.empty(0) if mass is None else mass
     kernels.mls.aware_fit(points, points, nrm, mass, graph.indptr, graph.indices, sigma_n,
-                          robust, height, rms, degree, _NO_COEF, _NO_TAKEN, _NO_LEVERAGE)
+                          robust, height, rms, degree, _NO_COEF, _NO_LEVERAGE)
     return height, rms, degree
-
-
-def robust_fits(points, nrm, graph, sigma_n):
-    """:func:`aware_fit` with its robust alternative, and the fits kept: height, RMS residual,
-    degree, coefficients with the inverse list radius ``(n, 7)``, and where the robust fit
-    was taken (a list reaching across a thin wall)."""
-    n = points.shape[0]
-    height, rms = np.empty(n), np.empty(n)
-    degree = np.empty(n, np.int8)
-    coef = np.empty((n, 7))
-    taken = np.empty(n, np.bool_)
-    kernels.mls.aware_fit(points, points, nrm, np.empty(0), graph.indptr, graph.indices,
-                          sigma_n, True, height, rms, degree, coef, taken, _NO_LEVERAGE)
-    return height, rms, degree, coef, taken
 
 
 def surface_fits(surface, nrm, lists, sigma_n, mass=None):
@@ -221,7 +205,7 @@ def surface_fits(surface, nrm, lists, sigma_n, mass=None):
     coef = np.empty((m, 7))
     kernels.mls.aware_fit(surface, surface, nrm, np.empty(0) if mass is None else mass,
                           lists.indptr, lists.indices, sigma_n, False, np.empty(m), rms, degree,
-                          coef, _NO_TAKEN, _NO_LEVERAGE)
+                          coef, _NO_LEVERAGE)
     return coef, rms, degree
 
 
@@ -232,7 +216,7 @@ def own_fits(points, nrm, lists, sigma_n):
     height, rms, leverage = np.empty(n), np.empty(n), np.empty(n)
     degree = np.empty(n, np.int8)
     kernels.mls.aware_fit(points, points, nrm, np.empty(0), lists.indptr, lists.indices,
-                          sigma_n, True, height, rms, degree, _NO_COEF, _NO_TAKEN, leverage)
+                          sigma_n, True, height, rms, degree, _NO_COEF, leverage)
     return height, rms, degree, leverage
 
 

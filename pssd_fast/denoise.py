@@ -7,7 +7,9 @@ from . import classes as lidar
 from . import core, duplicates, executor, interop
 from . import plan as planning
 from ._threads import threads
-from ._validation import as_normals, as_points, auto, check_k, check_precision, check_size
+from ._validation import (
+    as_normals, as_points, auto, check_k, check_orient_estimated, check_precision, check_size,
+)
 from .graph import bounds
 from .parameters import (
     BY_NAME, DEFAULT_ONLY, METHOD_DEFAULTS, METHODS, PAPER_ONLY, PARAMETERS, check,
@@ -239,9 +241,7 @@ def _run(points, normals, runner, tile_points, store, **options):
     given = None if normals is None else as_normals(normals, n)
     if params["keep_normals"] and given is None:
         raise ValueError("keep_normals=True needs normals; pass normals=... or drop keep_normals")
-    if orient is not None and given is not None:
-        raise ValueError("orient applies to estimated normals; the given normals keep their "
-                         "signs (pass normals=None or drop orient)")
+    check_orient_estimated(orient, given is not None)
     remove_outliers, extras = o["remove_outliers"], o["extras"]
     duplicate_tolerance, rebuild_graph, report = (o["duplicate_tolerance"], o["rebuild_graph"],
                                                   o["report"])

@@ -43,23 +43,3 @@ def _inside(points, low, high):
         inside &= (points[:, a] >= low[a]) & (points[:, a] <= high[a])
     return inside
 
-
-def gather(points, start, stop, width, whole=False):
-    """The rows a task on ``points[start:stop]`` reads: those, then every other row within
-    ``width`` of their boxes, in increasing order (``whole``: the task covers every row)."""
-    return around(points, points[start:stop], width, whole, np.arange(start, stop))
-
-
-def around(points, near, width, whole=False, own=None):
-    """The rows of ``points`` within ``width`` of the boxes of ``near``, in increasing order;
-    with ``own`` (rows of ``points``), those first and the others after. ``whole``: every row
-    (``own`` first where given)."""
-    n = points.shape[0]
-    if whole:
-        inside = np.ones(n, np.bool_)
-    else:
-        inside = within(points, widened(boxes(near), width))
-    if own is None:
-        return np.flatnonzero(inside)
-    inside[own] = False
-    return np.concatenate((own, np.flatnonzero(inside)))

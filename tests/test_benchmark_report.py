@@ -5,6 +5,8 @@ import pytest
 
 from benchmarks import report
 
+pytestmark = pytest.mark.tooling
+
 TABLE = "| a | b |\n|---|---|\n| 1 | 2 |"
 
 

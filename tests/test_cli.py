@@ -1034,3 +1034,26 @@ def test_ctrl_c_is_one_line_and_status_130(tmp_path, cloud, monkeypatch):
     status, _, err = pssd("denoise", source, tmp_path / "out.ply", "--quiet")
     assert status == 130 and err.strip().splitlines() == ["pssd: interrupted"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.npy"]
+
+
+@pytest.mark.parametrize("tile_points", [None, 1000])
+def test_orient_is_refused_with_given_normals_in_every_entry(tmp_path, tile_points):
+    """One check, one message: ``denoise``, ``tiled.denoise_file`` and ``pssd denoise`` (in
+    core and tiled) refuse to orient normals the input gives, naming whose they are."""
+    cloud = datasets.cad_part(n_points=2000, noise=0.002, seed=4)
+    points = np.array(cloud.points)
+    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    source = tmp_path / "with.las"
+    pssd_fast.io.write(source, pssd_fast.io.PointCloud(points, normals))
+    want = "orient applies to estimated normals"
+    with pytest.raises(ValueError, match=f"{want}; the given normals keep their signs"):
+        pssd_fast.denoise(points, normals, orient="up")
+    if tile_points:
+        with pytest.raises(ValueError, match=f"{want}; the normals of .*with.las keep"):
+            pssd_fast.tiled.denoise_file(source, tmp_path / "t.las", tile_points=tile_points,
+                                         orient="up", client="sync")
+    flags = ("--tile-points", str(tile_points)) if tile_points else ()
+    status, _, err = pssd("denoise", source, tmp_path / "out.las", "--orient", "up", *flags)
+    assert_one_line_error(status, err, f"--{want}; the normals of {source} keep their signs "
+                                       "(drop --orient)")
+    assert not (tmp_path / "out.las").exists() and not (tmp_path / "t.las").exists()

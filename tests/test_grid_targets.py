@@ -1,5 +1,9 @@
 """The grid benchmark's verdicts (``benchmarks.presets``), on hand-made cells."""
+import pytest
+
 from benchmarks import presets
+
+pytestmark = pytest.mark.tooling
 
 
 def _cell(preset, queries, mean, edge, points=100_000, noise=0.001):

@@ -1,7 +1,11 @@
 """benchmarks/howlong.py: the seconds table of the default preset, end to end at a tiny size."""
 import json
 
+import pytest
+
 from benchmarks import howlong
+
+pytestmark = pytest.mark.tooling
 
 
 def test_howlong_writes_the_table_and_the_cells(tmp_path):

@@ -40,7 +40,6 @@ def _each_kernel(points, normals, graph):
              "mls": core.mls_fit(points, normals, graph, 0.05),
              "aware": core.aware_fit(points, normals, graph, 0.1, np.arange(len(points)) % 5
                                      + 1.0),
-             "robust": core.robust_fits(points, normals, graph, 0.1),
              "own": core.own_fits(points, normals, graph, 0.1),
              "filter": core.filter_normals(points, normals, graph),
              "bil": core.filter_points(points, normals, graph, 0.0, 0.0),

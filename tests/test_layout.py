@@ -6,6 +6,8 @@ import pytest
 
 import pssd_fast
 
+pytestmark = pytest.mark.tooling
+
 PACKAGE = Path(pssd_fast.__file__).resolve().parent
 #: What kernel modules may import: numpy, numba and two modules of the standard library.
 #: Where compiled code is cached (files, hashes, warnings) is ``pssd_fast.jit``'s business.

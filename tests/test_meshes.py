@@ -12,6 +12,8 @@ from benchmarks import meshes, models
 
 from .conftest import data_file
 
+pytestmark = pytest.mark.tooling
+
 
 def cube_mesh():
     """Unit cube with 2 outward-wound triangles per face: 8 vertices, 12 faces, 18 edges."""

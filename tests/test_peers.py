@@ -13,6 +13,8 @@ import pytest
 
 from benchmarks import peers
 
+pytestmark = pytest.mark.tooling
+
 N_POINTS = 3000
 NOISE = 0.01
 

@@ -4,6 +4,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.tooling
+
 pytest.importorskip("sphinx")
 pytest.importorskip("numpydoc")
 

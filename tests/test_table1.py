@@ -8,8 +8,8 @@ from benchmarks import metrics, models, table1
 
 pytest.importorskip("point_cloud_utils")
 # The suite finds the meshes itself (benchmarks.models.mesh_dir); skip where it cannot.
-pytestmark = pytest.mark.skipif(not models.available(),
-                                reason=models.missing("meshes", models.MESH_FILES))
+pytestmark = [pytest.mark.tooling, pytest.mark.skipif(not models.available(),
+                                reason=models.missing("meshes", models.MESH_FILES))]
 
 
 def test_models_are_prepared_as_in_the_paper():

@@ -5,6 +5,8 @@ import pytest
 
 from benchmarks import versus
 
+pytestmark = pytest.mark.tooling
+
 pytest.importorskip("point_cloud_utils")
 
 

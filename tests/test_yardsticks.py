@@ -11,6 +11,8 @@ from benchmarks import meshes, metrics, punet, rawscans, versus
 
 from .conftest import data_file
 
+pytestmark = pytest.mark.tooling
+
 pcu = pytest.importorskip("point_cloud_utils")
 
 TRIANGLE = (np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),

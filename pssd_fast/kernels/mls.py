@@ -297,11 +297,10 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
                inv_sigma_n, robust, wts, base, xs, zs, a, b, other, phi):
     """Weighted quadratic over the listed ``points`` in the frame of origin ``(px, py, pz)`` and
     unit axis ``(nx, ny, nz)``: the height ``g(0, 0)``, the weighted RMS residual, the number
-    of coefficients fitted (see :func:`aware_fit`) and the inverse of the list radius that
-    scales the tangent coordinates, whether the robust fit was taken, and the plain fit's
-    leverage on the origin where the list holds it first (:func:`_leverage`); ``b`` holds the
-    coefficients. With ``robust``, the fit of :func:`_robust_fit` replaces the plain one where
-    it explains the list better."""
+    of coefficients fitted (see :func:`aware_fit`), the inverse of the list radius that scales
+    the tangent coordinates, and the plain fit's leverage on the origin where the list holds it
+    first (:func:`_leverage`); ``b`` holds the coefficients. With ``robust``, the fit of
+    :func:`_robust_fit` replaces the plain one where it explains the list better."""
     ux, uy, uz, vx, vy, vz = orthonormal_basis(nx, ny, nz)
     radius2 = 0.0
     for t in range(count):
@@ -334,7 +333,6 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
     leverage = _leverage(a, m, base, phi, zs, count, other)
     _residuals(phi, b, m, zs, count, xs)
     rms = _weighted_rms(base, xs, count)
-    taken = False
     if robust and rms > 0.0:
         inv_spread = 1.0 / (ROBUST_SPREAD * rms)
         m_other = _robust_fit(phi, base, zs, count, inv_spread, wts, xs, a, other)
@@ -342,11 +340,10 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
         if _welsch_score(phi, other, m_other, zs, count, base, inv_spread, xs) > (
                 1.0 + ROBUST_MARGIN) * plain:
             m = m_other
-            taken = True
             for p in range(6):
                 b[p] = other[p]
             rms = _weighted_rms(base, xs, count)  # xs: the residuals about ``other``
-    return b[0], rms, m, inv_r, taken, leverage
+    return b[0], rms, m, inv_r, leverage
 
 
 @helper
@@ -393,7 +390,7 @@ def _weighted_rms(wts, xs, count):
 
 @parallel_kernel
 def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, robust, height, rms,
-              degree, coef, taken, leverage):
+              degree, coef, leverage):
     """Feature-aware local quadratic of each point's listed ``surface`` points, in the frame of
     the point and the normal of its first (nearest) listed one: the iterations of the default
     method on its cell means and on the points it refines (``surface`` is ``points``, each list
@@ -431,8 +428,6 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, robust, 
     coef : (n, 7) float64 or (0, 7)
         Output, if it has rows: the six coefficients of ``g`` (monomials ``1, y, x, xy, y^2,
         x^2``; those not fitted are 0) and ``1 / r_i``, for :func:`evaluate_fits`.
-    taken : (n,) bool or (0,)
-        Output, if it has entries: whether the robust fit replaced the plain one.
     leverage : (n,) float64 or (0,)
         Output, if it has entries: the plain fit's leverage on the point, where its list holds
         it first (:func:`_leverage`), else 0.
@@ -466,21 +461,17 @@ def aware_fit(points, surface, normals, mass, indptr, indices, sigma_n, robust, 
                 height[i], rms[i], degree[i] = 0.0, 0.0, 0
                 if coef.shape[0] > 0:
                     coef[i, :] = 0.0
-                if taken.shape[0] > 0:
-                    taken[i] = False
                 if leverage.shape[0] > 0:
                     leverage[i] = 0.0
                 continue
             first = indices[start]
-            height[i], rms[i], degree[i], inv_r, robust_taken, own = _frame_fit(
+            height[i], rms[i], degree[i], inv_r, own = _frame_fit(
                 points[i, 0], points[i, 1], points[i, 2], normals[first, 0],
                 normals[first, 1], normals[first, 2], surface, normals, mass, indices, start,
                 count, inv_sigma_n, robust, wts, base, xs, zs, a, b, other, phi)
             if coef.shape[0] > 0:
                 coef[i, :6] = b
                 coef[i, 6] = inv_r
-            if taken.shape[0] > 0:
-                taken[i] = robust_taken
             if leverage.shape[0] > 0:
                 leverage[i] = own
 

@@ -21,7 +21,7 @@ from ..denoise import checked_options
 from ..denoise import run as run_in_core
 from .. import plan as planning
 from .._threads import threads
-from .._validation import check_int
+from .._validation import check_int, check_orient_estimated
 from ..parameters import BY_NAME
 from ..progress import Clock, reporter
 from ..run import Request, check_distinct, stats
@@ -341,9 +341,8 @@ def _file_run(setting, keep, folder, started):
     cloud = first.run("buckets", binning.Buckets, setting.array, folder, setting.tile_points,
                       settings["duplicate_tolerance"], keep, runner)
     n = check_distinct(cloud.shape[0], cloud.rows, None)
-    if cloud.normals is not None and settings["orient"] is not None:
-        raise ValueError(f"orient applies to estimated normals; {setting.array.path} has "
-                         f"normals, whose signs are kept (drop orient)")
+    check_orient_estimated(settings["orient"], cloud.normals is not None,
+                           f"the normals of {setting.array.path}", "drop orient")
     plan, _ = planning.make(cloud, cloud.normals, settings["preset"], "default",
                             distinct=n, low=cloud.corner, k=settings["k"],
                             iterations=settings["iterations"])
