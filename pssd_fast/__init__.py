@@ -17,11 +17,12 @@ The subpackages load on first use, so that ``import pssd_fast`` stays cheap: ``p
 (point-cloud files), ``pssd_fast.pictures`` (pictures of a cloud), ``pssd_fast.datasets``
 (generated clouds with their truth) and ``pssd_fast.tiled`` (tiled runs on Dask).
 """
-from . import interop
+from . import interop  # noqa: F401 (pssd_fast.interop, loaded with the package)
 from ._threads import configure_threads
 from ._validation import DenoiseWarning
-from .denoise import METHODS, DenoiseResult, denoise
+from .denoise import METHODS, denoise
 from .graph import NeighborGraph, morton_order, neighbors
+from .run import DenoiseResult
 from .stages import (
     MLSFit, estimate_normals, feature_intensity, filter_normals, mls_fit, outlier_score,
     sampling_likelihood,

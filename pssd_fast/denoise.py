@@ -16,8 +16,7 @@ from .parameters import (
 )
 from .plan import PRESETS
 from .run import (
-    DenoiseResult, Input, Iterated, Request, check_distinct, iterate, outlier_scores, result,
-    stats,
+    Input, Iterated, Request, check_distinct, iterate, outlier_scores, result, stats,
 )
 from .store import Memory
 

@@ -25,7 +25,6 @@ from ._threads import threads
 from .graph import bounded_graph, knn_graph
 from .pipelines import aware
 from .progress import Clock
-from .run import Iterated
 from .store import gather
 
 #: Tiles start at multiples of this many cells (where a tile holds more).

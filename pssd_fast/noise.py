@@ -28,7 +28,7 @@ PROBE = {"points": 20_000, "lengths": (12, 24, 48), "min_ratio": 2.0}
 #: What each list length reads on a plane with Gaussian noise of standard deviation ``sigma``:
 #: ``(mean list radius / sigma, median reading / sigma)``, from 80,000 uniformly random points
 #: of the unit square at 14 noise levels (``python -m benchmarks.noise_probe --calibrate``
-#: measures it again; tests/test_noise.py checks a few rows).
+#: measures it again: within 3% of these rows at its seed; tests/test_noise.py checks a few).
 CALIBRATION = {
     12: ((1.06, 0.1791), (1.3, 0.2172), (1.62, 0.2645), (2.02, 0.3178), (2.55, 0.3782),
          (3.29, 0.43), (4.32, 0.4709), (5.76, 0.4905), (7.78, 0.502), (10.6, 0.5079),

@@ -212,6 +212,24 @@ def test_bad_arguments_are_named(kwargs, error, match):
         tiled.denoise(np.random.default_rng(0).normal(size=(100, 3)), **kwargs)
 
 
+def test_tiled_runs_show_denoise_s_parameters():
+    """help() and editors see every parameter of pssd_fast.denoise, at its default, in both
+    tiled runs' signatures, after their own."""
+    import inspect
+
+    from pssd_fast.parameters import PARAMETERS
+
+    for func, own in ((tiled.denoise, ["points", "normals", "tile_points", "client"]),
+                      (tiled.denoise_file, ["source", "destination", "tile_points", "client",
+                                            "fields", "scratch", "overwrite"])):
+        shown = inspect.signature(func).parameters
+        assert list(shown) == own + [p.name for p in PARAMETERS]
+        for name, parameter in inspect.signature(pssd_fast.denoise).parameters.items():
+            if parameter.kind == inspect.Parameter.KEYWORD_ONLY:
+                assert shown[name].default == parameter.default, name
+                assert shown[name].kind == inspect.Parameter.KEYWORD_ONLY
+
+
 def test_tiled_runs_take_denoise_s_parameters_at_their_defaults(tmp_path):
     """Every named parameter of pssd_fast.denoise, at its default, runs in both tiled runs (a
     file's points and normals are the file's)."""

@@ -7,6 +7,7 @@ executor of :func:`pssd_fast.denoise` too): :func:`denoise` tiles an array in me
 
 Dask is an optional dependency: ``pip install "pssd_fast[dask]"``.
 """
+import inspect
 import shutil
 import tempfile
 import time
@@ -22,7 +23,7 @@ from ..denoise import run as run_in_core
 from .. import plan as planning
 from .._threads import threads
 from .._validation import check_int, check_orient_estimated
-from ..parameters import BY_NAME
+from ..parameters import BY_NAME, PARAMETERS
 from ..progress import Clock, reporter
 from ..run import Request, check_distinct, stats
 from ..store import Files, Memory
@@ -33,6 +34,18 @@ from .scheduler import LOCAL_SCHEDULERS, Runner, check_client
 FILE_KINDS = {".npy": "npy", ".zarr": "zarr", ".las": "las", ".laz": "las"}
 
 
+def _declared(func):
+    """``func`` (which takes ``**options``) with a signature that names every parameter of
+    :mod:`pssd_fast.parameters` at its default in their place, for ``help()`` and editors."""
+    own = inspect.signature(func)
+    kept = [p for p in own.parameters.values() if p.kind != inspect.Parameter.VAR_KEYWORD]
+    func.__signature__ = own.replace(parameters=kept + [
+        inspect.Parameter(p.name, inspect.Parameter.KEYWORD_ONLY, default=p.default)
+        for p in PARAMETERS])
+    return func
+
+
+@_declared
 def denoise(points, normals=None, *, tile_points=2_000_000, client=None, **options):
     """Denoise ``points`` tile by tile on Dask; the result of :func:`pssd_fast.denoise`.
 
@@ -118,6 +131,7 @@ def _check_options(options):
                         f"pssd_fast.denoise's")
 
 
+@_declared
 def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fields=(),
                  scratch=None, overwrite=False, **options):
     """Denoise the points of an ``.npy``, Zarr or LAS/LAZ file into another, out of core, tile
