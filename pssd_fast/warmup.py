@@ -18,8 +18,8 @@ def warmup():
     """Compile every kernel on a tiny cloud, so later calls run at full speed.
 
     A call compiles only the kernels it needs; ``warmup`` compiles all of them (about a minute
-    on 2 cores from an empty cache) and stores them in the kernel cache (see the README, "How
-    it works"), so that no later process compiles: run it when building a container image or
+    on 2 cores from an empty cache) and stores them in the kernel cache (docs/architecture.md, "The
+    kernel cache"), so that no later process compiles: run it when building a container image or
     on each machine type of a cluster. With the cache warm it only loads them (under a second).
 
     Returns

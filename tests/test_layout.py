@@ -35,8 +35,8 @@ def test_kernels_import_nothing_from_the_python_layer():
                 assert name in KERNEL_IMPORTS, f"{path.name} imports {name}"
 
 
-#: The package's layers, bottom first, as README's "How it works" lists them: a module imports
-#: only from its own layer and the layers before it.
+#: The package's layers, bottom first, as docs/architecture.md, "Layers", lists them: a module
+#: imports only from its own layer and the layers before it.
 LAYERS = (("kernels",), ("jit", "_threads", "_validation", "interop", "progress", "atomic"),
           ("graph", "core", "duplicates", "io"), ("pipelines",),
           ("noise", "method", "plan", "parameters"),

@@ -531,12 +531,12 @@ def test_displacement_has_a_labelled_bar_in_the_file_s_units(units, label):
                                       size=SIZE).axes[0].get_ylabel()
 
 
-def test_the_readme_s_call_draws_a_picture(tmp_path):
+def test_the_docs_call_draws_a_picture(tmp_path):
     import re
 
-    import pssd_fast  # noqa: F401 (the README's call names it)
+    import pssd_fast  # noqa: F401 (the docs' call names it)
 
-    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    readme = (Path(__file__).resolve().parent.parent / "docs" / "architecture.md").read_text()
     call = 'pssd_fast.pictures.render(points, result.displacement, "moved.png", ' \
         'field="displacement")'
     assert call in re.sub(r"\s+", " ", readme)

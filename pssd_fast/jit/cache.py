@@ -126,8 +126,8 @@ def clear_stale(days=STALE_DAYS):
     """Remove the kernel cache folders of other versions and CPUs unused for ``days`` days.
 
     Each installed version of pssd_fast (and of numba, llvmlite, numpy or Python) and each CPU
-    type fills a folder of its own under the cache folder (the README, "How it works"), and
-    nothing removes one but this call: run it when no process of an older install is running,
+    type fills a folder of its own under the cache folder (docs/architecture.md, "The kernel
+    cache"), and nothing removes one but this call: run it when no process of an older install is running,
     as a folder removed while in use costs that process its cached kernels.
 
     Parameters
