@@ -205,7 +205,7 @@ def checked_options(options):
     params = _method_params(method, options)
     lam = o["lam"]
     _check_pipeline_params(method, preset, pipeline, explicit, lam, rebuild_graph)
-    lam = setting["lam"] if lam is None else lam
+    lam = setting.get("lam") if lam is None else lam
     remove_outliers = check("remove_outliers", o["remove_outliers"])
     extras = check("extras", o["extras"])
     return {"method": method, "preset": preset, "pipeline": pipeline, "params": params,
@@ -223,14 +223,13 @@ def _run(points, normals, runner, tile_points, store, **options):
     method, preset, pipeline, params, lam = (o["method"], o["preset"], o["pipeline"],
                                              o["params"], o["lam"])
     k, iterations, orient, n_jobs = o["k"], o["iterations"], o["orient"], o["n_jobs"]
-    setting = PRESETS[preset]
     pts, dtype = as_points(points)
     check_precision(pts, dtype, stacklevel=5)
     n = pts.shape[0]
-    if k is None and setting["k"] is not None and pipeline != "default":
+    if k is None and preset == "paper":
         # The caller chose no k: the message is about the cloud's size, not about k.
         check_size(n)
-        k = setting["k"]
+        k = PRESETS[preset]["k"]
         if n < k + 1:
             raise ValueError(f"the cloud has {n} points; preset {preset!r} uses k = {k} "
                              f"neighbours and needs at least {k + 1}; pass a smaller k")

@@ -17,18 +17,29 @@ from . import method
 from .noise import Noise, probe
 from .pipelines import aware
 
-#: Presets: the pipeline of the robust method and, where the caller gives none, the
-#: iterations, ``k`` and ``rebuild_graph`` of the paper's pipeline and of the baselines
-#: (``k`` None: from the baselines' noise probe, ``probe``), and whether the default method
-#: refines the points that fail its test. "fast" is the default method without that pass.
+#: Presets: the pipeline of the robust method; for the default method whether it refines
+#: the points that fail its test ("fast" is the default method without that pass); for the
+#: paper's pipeline its ``k``, ``lam``, iterations and ``rebuild_graph``; and the baselines'
+#: (``"k": "probe"``: from their noise probe, :data:`BASELINE_PROBE`; an integer: that ``k``,
+#: at most the distinct positions less one). Under "paper" the baselines take the paper's
+#: (its ``k`` exactly: a smaller cloud is refused).
 PRESETS = {
-    "default": {"pipeline": "default", "iterations": 4, "k": None, "lam": None,
-                "rebuild_graph": True, "probe": (100_000, 96), "refine": True},
-    "fast": {"pipeline": "default", "iterations": 2, "k": None, "lam": None,
-             "rebuild_graph": False, "probe": (5_000, 32), "baseline_k": 48, "refine": False},
-    "paper": {"pipeline": "paper", "iterations": 2, "k": 25, "lam": 0.5, "rebuild_graph": True,
-              "probe": (100_000, 96)},
+    "default": {"pipeline": "default", "refine": True,
+                "baselines": {"iterations": 4, "k": "probe", "rebuild_graph": True}},
+    "fast": {"pipeline": "default", "refine": False,
+             "baselines": {"iterations": 2, "k": 48, "rebuild_graph": False}},
+    "paper": {"pipeline": "paper", "iterations": 2, "k": 25, "lam": 0.5, "rebuild_graph": True},
 }
+#: The baselines' noise probe behind their ``k`` (:func:`pssd_fast.pipelines.aware.choose_k`):
+#: at most this many points, each with this many neighbours.
+BASELINE_PROBE = (100_000, 96)
+
+
+def iterating(preset, pipeline):
+    """The iterations, ``k`` and ``rebuild_graph`` of the paper's pipeline or of a baseline
+    (``pipeline``) under ``preset``."""
+    setting = PRESETS[preset]
+    return setting if pipeline == "paper" or preset == "paper" else setting["baselines"]
 
 
 @dataclass(frozen=True)
@@ -109,18 +120,18 @@ def make(points, given, preset, pipeline, *, distinct, low, k=None, iterations=N
         The caller's, or None (the preset's; ``k`` of the default method from its probe, of
         the baselines under "default" and "fast" from their own noise probe).
     """
-    setting = PRESETS[preset]
     if pipeline == "default":
-        return _default(points, setting, distinct, low, k, iterations), None
+        return _default(points, PRESETS[preset], distinct, low, k, iterations), None
+    setting = iterating(preset, pipeline)
     iterations = setting["iterations"] if iterations is None else iterations
     probe = lists = None
-    if k is None and setting["k"] is None:
-        k, probe, lists = aware.choose_k(points, given, *setting["probe"])
-        k = min(setting.get("baseline_k") or k, distinct - 1)
+    if k is None and setting["k"] == "probe":
+        k, probe, lists = aware.choose_k(points, given, *BASELINE_PROBE)
+        k = min(k, distinct - 1)
         if lists is not None and k > probe["probe_k"]:
             lists = None  # too short to serve
     elif k is None:
-        k = setting["k"]
+        k = setting["k"] if preset == "paper" else min(setting["k"], distinct - 1)
     rebuild = setting["rebuild_graph"] if rebuild_graph is None else rebuild_graph
     return Plan(pipeline, iterations, k, rebuild_graph=bool(rebuild), probe=probe), lists
 

@@ -85,18 +85,19 @@ def test_the_callers_choices_override_the_preset_s(quiet):
 def test_the_paper_s_pipeline_and_the_baselines_iterate_on_the_points(quiet, preset, pipeline,
                                                                       k, iterations, rebuild):
     """Their k (the preset's, else from the baselines' own noise probe, whose lists serve the
-    first iteration where they are long enough), iterations and rebuild_graph."""
+    first iteration where they are long enough; no probe runs where the preset gives k),
+    iterations and rebuild_graph."""
     found, lists = _make(quiet, preset, pipeline)
     assert (found.pipeline, found.iterations, found.rebuild_graph) == (pipeline, iterations,
                                                                       rebuild)
     assert found.noise is None and found.edge is None and found.refine is None
     if k is not None:
         assert found.k == k
-    if preset == "paper":
+    if k is not None:
         assert found.probe is None and lists is None
     else:
-        want, probe, _ = aware.choose_k(quiet[0], None, *plan.PRESETS[preset]["probe"])
-        assert found.k == plan.PRESETS[preset].get("baseline_k", want)
+        want, probe, _ = aware.choose_k(quiet[0], None, *plan.BASELINE_PROBE)
+        assert found.k == want
         assert found.probe["noise"] == probe["noise"] and found.probe["k"] == want
         assert (lists is not None) == (found.k <= probe["probe_k"])
     assert found.describe() == {"method": pipeline, "k": found.k, "iterations": iterations,
