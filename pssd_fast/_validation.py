@@ -22,7 +22,10 @@ class DenoiseWarning(UserWarning):
 
 
 def as_points(points, name="points"):
-    """Return ``points`` as a C-contiguous ``(n, 3) float64`` copy-or-view, checking it first.
+    """Return ``points`` as a C-contiguous, writable ``(n, 3) float64`` copy-or-view, checking
+    it first. A read-only array is copied: the kernels then run with the signatures they
+    compile for every run, not with one more of their own (each a compile of its own on a
+    first run, a load on every later one).
 
     Returns
     -------
@@ -64,6 +67,8 @@ def as_points(points, name="points"):
         first = int(np.flatnonzero(bad)[0])
         raise ValueError(f"{name} contains NaN or Inf in {int(bad.sum())} row(s); the first is "
                          f"row {first}: {arr[first].tolist()}; drop or repair those rows")
+    if not arr.flags.writeable:
+        arr = arr.copy()
     return arr, out_dtype
 
 

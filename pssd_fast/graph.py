@@ -226,8 +226,11 @@ def _nearest_blocks(data, queries, k, bound, ids):
     for start in range(0, m, chunk):
         stop = min(m, start + chunk)
         if grid:
-            found = np.empty((stop - start, q), np.int64)
+            # Rows of the index width of knn_graph's, so that one signature of the grid query
+            # serves both (a compile saved in a process that takes both).
+            found = np.empty((stop - start, q), np.int32 if n < 2**31 else np.int64)
             dists = query(start, stop, found)
+            found = found.astype(np.int64)
             beyond = ~(dists < bound)  # as pykdtree's bound: strictly within
             dists[beyond] = np.inf
             found[beyond] = n

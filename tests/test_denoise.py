@@ -907,3 +907,31 @@ def test_time_left_is_the_mean_iteration_times_the_iterations_to_go(monkeypatch)
     now[0] = 113.0
     elapsed, left = clock(2, 4, 3.0)             # 3 s into iteration 2
     assert elapsed == 15.0 and left == 12.0 * 3 - 3.0
+
+
+@pytest.mark.parametrize("preset", ["default", "paper"])
+def test_a_read_only_cloud_reaches_the_kernels_writable(monkeypatch, preset):
+    """A read-only cloud (a generated one, a read-only memory map) is copied once on the way
+    in: every kernel sees writable arrays, so a run compiles or loads the signatures every run
+    takes, not one more of its own. The input stays as it was, and the result is the one of a
+    writable copy."""
+    from pssd_fast.kernels.config import Kernel
+
+    cloud = datasets.cad_part(n_points=2000, noise=0.004, seed=5)
+    points, normals = cloud.points, cloud.normals
+    assert not points.flags.writeable and not normals.flags.writeable
+    before = points.copy()
+    seen = []
+    call = Kernel.__call__
+
+    def spy(self, *args):
+        seen.extend(a.flags.writeable for a in args if isinstance(a, np.ndarray))
+        return call(self, *args)
+
+    monkeypatch.setattr(Kernel, "__call__", spy)
+    result = pssd_fast.denoise(points, normals, preset=preset)
+    assert seen and all(seen)
+    np.testing.assert_array_equal(points, before)
+    monkeypatch.undo()
+    again = pssd_fast.denoise(np.array(points), np.array(normals), preset=preset)
+    np.testing.assert_array_equal(result.points, again.points)
