@@ -127,8 +127,8 @@ def clear_stale(days=STALE_DAYS):
 
     Each installed version of pssd_fast (and of numba, llvmlite, numpy or Python) and each CPU
     type fills a folder of its own under the cache folder (docs/architecture.md, "The kernel
-    cache"), and nothing removes one but this call: run it when no process of an older install is running,
-    as a folder removed while in use costs that process its cached kernels.
+    cache"), and nothing removes one but this call: run it when no process of an older install
+    is running, as a folder removed while in use costs that process its cached kernels.
 
     Parameters
     ----------
