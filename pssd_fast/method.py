@@ -29,7 +29,9 @@ from .progress import Clock
 
 #: The cell edge: the larger of ``spacing`` point spacings and ``noise`` noise widths.
 CELL = {"spacing": 0.7, "noise": 1.5}
-#: A fit's list reaches this many noise widths.
+#: A fit's list reaches this many noise widths, counting one mean per cell of the surface
+#: (where the cells slice the noise, a column holds several and the lists reach about 5;
+#: docs/ALGORITHM.md, "Known behaviour of the default method").
 RADIUS = 8.0
 #: The fewest and the most means (or points) in a fit's list, and how far a list may reach
 #: (``reach``), in radii of a list of its length on a uniform sample: lists in sparse regions
