@@ -118,7 +118,7 @@ def make(points, given, preset, pipeline, *, distinct, low, k=None, iterations=N
         The cloud's low corner, relative to the centre (the default method's grid).
     k, iterations, rebuild_graph
         The caller's, or None (the preset's; ``k`` of the default method from its probe, of
-        the baselines under "default" and "fast" from their own noise probe).
+        the baselines under "default" from their own noise probe).
     """
     if pipeline == "default":
         return _default(points, PRESETS[preset], distinct, low, k, iterations), None

@@ -1040,6 +1040,8 @@ def test_ctrl_c_is_one_line_and_status_130(tmp_path, cloud, monkeypatch):
 def test_orient_is_refused_with_given_normals_in_every_entry(tmp_path, tile_points):
     """One check, one message: ``denoise``, ``tiled.denoise_file`` and ``pssd denoise`` (in
     core and tiled) refuse to orient normals the input gives, naming whose they are."""
+    if tile_points:
+        pytest.importorskip("dask")
     cloud = datasets.cad_part(n_points=2000, noise=0.002, seed=4)
     points = np.array(cloud.points)
     normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
