@@ -144,25 +144,6 @@ def _fast_vs_jet(path):
     return Table(header, rows).markdown()
 
 
-def _edges_route(path):
-    """The cells where the default takes the edges route (its ``edge_fit`` stage), beside the
-    default and ``fast`` of the grid's baseline: queries, then mean / edge."""
-    baseline = {(r["points"], r["noise"]): r
-                for r in Table.first_in(path.parent / "grid_baseline.md").records()}
-    rows = []
-    for cell in json.loads(path.with_suffix(".json").read_text())["cells"]:
-        if cell["preset"] != "default" or "edge_fit" not in cell["stages"]:
-            continue
-        key = (f"{cell['points']:,}", f"{cell['noise']:.2%}")
-        before = baseline.get(key, {})
-        rows.append([", ".join(key)] + [
-            f"{before.get(f'{p}: queries', '-')}, {before.get(f'{p}: mean / edge', '-')}"
-            for p in ("default", "fast")] + [
-            f"{cell['total'] / cell['knn_query']:.1f}, "
-            f"{cell['mean_after']:.2f} / {cell['edge_after']:.2f}"])
-    return Table(["points, noise", "default before", "`fast`", "default now"], rows).markdown()
-
-
 def _bullets(path):
     """The first bulleted list of the file: the standings a script states in words."""
     lines = Path(path).read_text().splitlines()
@@ -181,7 +162,7 @@ VIEWS = {"table": lambda path: Table.first_in(path).markdown(),
          "frontier": lambda path: Table.nth_in(path, 2).markdown(),
          "cgal": _cgal,
          "cgal-errors": _cgal_errors, "paper-rows": _paper_rows, "scan-sizes": _scan_sizes,
-         "stages": _stages, "fast-vs-jet": _fast_vs_jet, "edges-route": _edges_route}
+         "stages": _stages, "fast-vs-jet": _fast_vs_jet}
 
 
 def render(source, results=RESULTS):
