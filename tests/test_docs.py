@@ -30,10 +30,12 @@ def test_no_text_cites_an_issue_number():
 # citation of a page as it was at a commit (``ALGORITHM.md at aed3026, "Routes"``) is history,
 # not one of these.
 DECISIONS = ROOT / "docs" / "DECISIONS.md"
-#: The pages whose sections are cited: each docs/ page, and the README.
+#: The pages whose sections are cited: each docs/ page, the records of retired designs
+#: (docs/history/) and the README.
 PAGES = {name: ROOT / "docs" / f"{name}.md" for name in (
     "DECISIONS", "ALGORITHM", "benchmarks", "tiled", "cli", "interop", "architecture")}
 PAGES["README"] = ROOT / "README.md"
+PAGES.update({page.stem: page for page in (ROOT / "docs" / "history").glob("*.md")})
 
 
 def _citation(name):
@@ -89,8 +91,9 @@ def test_every_citation_of_a_page_names_one_of_its_sections(name):
     assert len(found) >= {"DECISIONS": 40, "ALGORITHM": 20}.get(name, 0) and not missing, missing
 
 
-def test_the_links_of_decisions_and_its_notes_lead_to_files():
-    pages = [DECISIONS] + sorted((ROOT / "docs" / "notes").glob("*.md"))
+def test_the_links_of_decisions_its_notes_and_history_lead_to_files():
+    pages = [DECISIONS] + sorted((ROOT / "docs" / "notes").glob("*.md")) + sorted(
+        (ROOT / "docs" / "history").glob("*.md"))
     broken = [f"{page.relative_to(ROOT)}: {target}" for page in pages
               for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text())
               if not re.match(r"[a-z]+:|#", target)
