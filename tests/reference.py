@@ -656,6 +656,56 @@ def local_noise(points, lists, lengths):
     return scale, radius
 
 
+def noise_probe(points, lengths, table, min_ratio):
+    """The noise probe on a cloud small enough to be read whole (``points``: its distinct
+    positions): each point's ``max(lengths)`` nearest, :func:`local_noise` of every prefix in
+    ``lengths``; for each length the median reading and the mean radius, read back to a noise
+    through ``table`` (``{length: ((radius / sigma, reading / sigma), ...)}``, log-linear
+    between rows, held at the ends) by bisection in ``log sigma``; the least noise among the
+    lengths whose mean radius spans ``min_ratio`` of theirs (else the longest's), and the
+    spacing ``mean radius of the longest * sqrt(pi / longest)``. Returns ``(sigma,
+    spacing)``."""
+    lists, _ = knn_lists(points, max(lengths))
+    scale, radius = local_noise(points, lists, np.array(lengths))
+    found = []
+    for c, length in enumerate(lengths):
+        read, mean_radius = float(np.median(scale[:, c])), float(np.mean(radius[:, c]))
+        xs = np.log([row[0] for row in table[length]])
+        fs = np.log([row[1] for row in table[length]])
+        lo, hi = math.log(read) - 1.0, math.log(read) + 10.0
+        for _ in range(100):
+            mid = 0.5 * (lo + hi)
+            ratio = math.log(mean_radius) - mid
+            if mid + np.interp(ratio, xs, fs) < math.log(read):
+                lo = mid
+            else:
+                hi = mid
+        found.append((mean_radius, math.exp(0.5 * (lo + hi))))
+    usable = [sigma for r, sigma in found if r >= min_ratio * sigma]
+    sigma = min(usable) if usable else found[-1][1]
+    return sigma, found[-1][0] * math.sqrt(math.pi / lengths[-1])
+
+
+def method_plan(sigma, spacing, n, cell, radius, shortest, longest, reach, refine_radius,
+                refine_k, span):
+    """The default method's sizes from the noise and the spacing, as docs/ALGORITHM.md states
+    them: the cell edge (the larger of ``cell[0]`` spacings and ``cell[1]`` noise widths); the
+    means within ``radius`` noise widths, one per cell of the surface (``pi (radius sigma)^2``
+    over the larger of the spacing and the edge, squared), at least ``shortest``, at most
+    ``longest`` and ``n - 1``; their bound, ``reach`` radii of such a list; the refinement's
+    points within ``refine_radius`` noise widths (over the spacing alone, at least
+    ``refine_k``), their bound, and whether those lists span ``span`` noise widths."""
+    edge = max(cell[0] * spacing, cell[1] * sigma)
+    side = max(spacing, edge)
+    k = min(max(shortest, min(longest, round(math.pi * (radius * sigma) ** 2 / side ** 2))),
+            n - 1)
+    k_r = min(max(refine_k, min(longest, round(math.pi * (refine_radius * sigma) ** 2
+                                               / spacing ** 2))), n - 1)
+    return {"cell_edge": edge, "k": k, "bound": reach * math.sqrt(k / math.pi) * side,
+            "refine": {"k": k_r, "bound": reach * math.sqrt(k_r / math.pi) * spacing,
+                       "own_noise": math.sqrt(k_r / math.pi) * spacing >= span * sigma}}
+
+
 # The default method (pssd_fast.method): its iterations on the cell means, every point onto
 # their fits, the test and the failing points' own fits.
 def bounded_lists(points, k, bound, rows=None):
