@@ -70,29 +70,34 @@ def test_cells_of_never_averages_points_of_different_cells():
     np.testing.assert_array_equal(cells.owner, [0, 0, 1])
 
 
-def test_the_sizes_follow_from_the_noise_and_the_spacing():
-    """The cell edge, the list length and the reach of a list (docs/ALGORITHM.md, "The
-    default method"), by their formulas."""
-    sigma, spacing = 0.002, 0.01
-    edge = method.cell_edge(sigma, spacing)
-    assert edge == max(method.CELL["spacing"] * spacing, method.CELL["noise"] * sigma)
-    assert edge == pytest.approx(0.007, rel=1e-15)
-    # pi (8 sigma)^2 over the area a mean covers (the larger of the spacing and the edge).
-    assert method.list_length(sigma, spacing, edge) == max(
-        method.LIST["shortest"], round(math.pi * (method.RADIUS * sigma) ** 2 / spacing ** 2))
-    noisy = 0.02  # cells of 1.5 sigma: pi 64 / 2.25 = 89 means
-    assert method.list_length(noisy, spacing, method.cell_edge(noisy, spacing)) == round(
-        math.pi * method.RADIUS ** 2 / method.CELL["noise"] ** 2) == 89
-    assert method.list_length(1.0, spacing, edge) == method.LIST["longest"]  # the most
-    assert method.list_length(0.0, spacing, edge) == method.LIST["shortest"]  # no noise: the fewest
-    assert method.list_length(0.0, 0.0, 0.0) == method.LIST["shortest"]
-    # The refinement's lists: 4 noise widths over the spacing alone, at least 24 points.
-    assert method.list_length(0.01, spacing, 0.0, 4.0, 24) == round(math.pi * 16) == 50
-    assert method.list_length(sigma, spacing, 0.0, 4.0, 24) == 24
-    for k in (40, 89, 160):
-        for area_side in (spacing, 0.03):
-            assert method.list_bound(k, spacing, area_side) == pytest.approx(
-                method.LIST["reach"] * math.sqrt(k / math.pi) * max(spacing, area_side), rel=1e-15)
+@pytest.mark.parametrize("scale", [1e-3, 250.0])
+def test_the_plan_scales_with_the_cloud(scale):
+    """A cloud and the same cloud scaled: the same list lengths, every width and reach scaled
+    with it (the sizes follow the noise and the spacing, both lengths; their values against the
+    reference are checked end to end in test_the_method_matches_the_reference)."""
+    cloud = np.array(datasets.cad_part(n_points=4000, noise=0.01, seed=6).points)
+    base = pssd_fast.denoise(cloud, preset="fast").stats["plan"]
+    scaled = pssd_fast.denoise(cloud * scale, preset="fast").stats["plan"]
+    assert scaled["k"] == base["k"]
+    for name in ("cell_edge", "bound"):
+        assert scaled[name] == pytest.approx(base[name] * scale, rel=1e-9)
+    assert scaled["noise"]["sigma"] == pytest.approx(base["noise"]["sigma"] * scale, rel=1e-9)
+
+
+def test_the_lists_hold_between_the_fewest_and_the_most_means():
+    """At no noise the fewest means, at any noise no more than the most (the refinement's
+    lists of points reach the most); never more than the other means of the cloud."""
+    spacing = 0.01
+    for sigma in (0.0, 1e-4, 0.002, 0.02, 1.0):
+        k = method.list_length(sigma, spacing, method.cell_edge(sigma, spacing))
+        assert method.LIST["shortest"] <= k <= method.LIST["longest"]
+    assert method.list_length(0.0, spacing, method.cell_edge(0.0, spacing)) == method.LIST[
+        "shortest"]
+    assert method.list_length(1.0, spacing, 0.0, method.REFINE["radius"],
+                              method.REFINE["k"]) == method.LIST["longest"]
+    few = pssd_fast.denoise(np.array(datasets.cad_part(n_points=40, noise=0.01, seed=1).points),
+                            preset="fast")
+    assert few.stats["plan"]["k"] == 39
 
 
 def _two_point_cells(residuals):

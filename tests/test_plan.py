@@ -30,30 +30,28 @@ def _make(quiet, preset, pipeline, **options):
 
 @pytest.mark.parametrize("preset", ["default", "fast"])
 def test_the_default_method_s_plan(quiet, preset):
-    """The probe, the cells, the lists on the means and their reach, and the refinement's
-    lists (none under "fast"); no lists handed over, no graph rebuilt."""
+    """The plan holds the probe's reading and what it sized from it (the sizes themselves are
+    checked against the reference end to end, tests/test_method.py): the cells, the lists on
+    the means and their reach, the refinement's lists (none under "fast"); no lists handed
+    over, no graph rebuilt; ``stats["plan"]`` says the same."""
     found, lists = _make(quiet, preset, "default")
     assert lists is None
     probe = noise.probe(quiet[0])
     assert found.noise == probe
-    edge = method.cell_edge(probe.sigma, probe.spacing)
-    k = method.list_length(probe.sigma, probe.spacing, edge)
-    assert (found.pipeline, found.iterations, found.k, found.edge) == (
-        "default", method.ITERATIONS, k, edge)
-    assert found.bound == method.list_bound(k, probe.spacing, edge)
+    assert (found.pipeline, found.iterations) == ("default", method.ITERATIONS)
+    assert found.edge >= method.CELL["spacing"] * probe.spacing
+    assert method.LIST["shortest"] <= found.k <= method.LIST["longest"]
+    assert found.bound > found.edge
     np.testing.assert_array_equal(found.low, quiet[1])
     if preset == "fast":
         assert found.refine is None
     else:
-        k_r = method.list_length(probe.sigma, probe.spacing, 0.0, method.REFINE["radius"],
-                                 method.REFINE["k"])
-        assert found.refine == (k_r, method.list_bound(k_r, probe.spacing, 0.0))
-        # The test reads the points' own noise where their lists span TEST["span"] widths.
-        assert found.own_noise == method.own_lists_span(k_r, probe.spacing, probe.sigma)
+        k_r, bound_r = found.refine
+        assert k_r >= method.REFINE["k"] and bound_r > 0.0
     assert not found.rebuild_graph and set(found.probe) == {"seconds"}
     assert found.describe() == {
-        "method": "default", "iterations": found.iterations, "k": k, "cell_edge": edge,
-        "bound": found.bound, "noise": probe.record(),
+        "method": "default", "iterations": found.iterations, "k": found.k,
+        "cell_edge": found.edge, "bound": found.bound, "noise": probe.record(),
         "refine": None if found.refine is None else {"k": found.refine[0],
                                                      "bound": found.refine[1],
                                                      "own_noise": found.own_noise}}
