@@ -20,9 +20,9 @@ from .pipelines import aware
 #: Presets: the pipeline of the robust method; for the default method whether it refines
 #: the points that fail its test ("fast" is the default method without that pass); for the
 #: paper's pipeline its ``k``, ``lam``, iterations and ``rebuild_graph``; and the baselines'
-#: (``"k": "probe"``: from their noise probe, :data:`BASELINE_PROBE`; an integer: that ``k``,
-#: at most the distinct positions less one). Under "paper" the baselines take the paper's
-#: (its ``k`` exactly: a smaller cloud is refused).
+#: (``"k": "probe"``: from their noise probe, :func:`pssd_fast.pipelines.aware.choose_k`; an
+#: integer: that ``k``, at most the distinct positions less one). Under "paper" the baselines
+#: take the paper's (its ``k`` exactly: a smaller cloud is refused).
 PRESETS = {
     "default": {"pipeline": "default", "refine": True,
                 "baselines": {"iterations": 4, "k": "probe", "rebuild_graph": True}},
@@ -30,16 +30,12 @@ PRESETS = {
              "baselines": {"iterations": 2, "k": 48, "rebuild_graph": False}},
     "paper": {"pipeline": "paper", "iterations": 2, "k": 25, "lam": 0.5, "rebuild_graph": True},
 }
-#: The baselines' noise probe behind their ``k`` (:func:`pssd_fast.pipelines.aware.choose_k`):
-#: at most this many points, each with this many neighbours.
-BASELINE_PROBE = (100_000, 96)
 
 
-def iterating(preset, pipeline):
+def iterating(preset):
     """The iterations, ``k`` and ``rebuild_graph`` of the paper's pipeline or of a baseline
-    (``pipeline``) under ``preset``."""
-    setting = PRESETS[preset]
-    return setting if pipeline == "paper" or preset == "paper" else setting["baselines"]
+    under ``preset`` (the paper's pipeline runs under "paper" only)."""
+    return PRESETS[preset] if preset == "paper" else PRESETS[preset]["baselines"]
 
 
 @dataclass(frozen=True)
@@ -122,11 +118,11 @@ def make(points, given, preset, pipeline, *, distinct, low, k=None, iterations=N
     """
     if pipeline == "default":
         return _default(points, PRESETS[preset], distinct, low, k, iterations), None
-    setting = iterating(preset, pipeline)
+    setting = iterating(preset)
     iterations = setting["iterations"] if iterations is None else iterations
     probe = lists = None
     if k is None and setting["k"] == "probe":
-        k, probe, lists = aware.choose_k(points, given, *BASELINE_PROBE)
+        k, probe, lists = aware.choose_k(points, given)
         k = min(k, distinct - 1)
         if lists is not None and k > probe["probe_k"]:
             lists = None  # too short to serve

@@ -94,7 +94,7 @@ def test_the_paper_s_pipeline_and_the_baselines_iterate_on_the_points(quiet, pre
     if k is not None:
         assert found.probe is None and lists is None
     else:
-        want, probe, _ = aware.choose_k(quiet[0], None, *plan.BASELINE_PROBE)
+        want, probe, _ = aware.choose_k(quiet[0], None)
         assert found.k == want
         assert found.probe["noise"] == probe["noise"] and found.probe["k"] == want
         assert (lists is not None) == (found.k <= probe["probe_k"])

@@ -10,7 +10,7 @@ from .._validation import check_k
 from ..graph import knn_graph
 
 #: The noise-driven choice of the baselines' ``k`` (``method="bilateral"`` or ``"mls"`` under
-#: presets "default" and "fast"). A probe fit with ``probe_k``
+#: preset "default"). A probe fit with ``probe_k``
 #: neighbours measures the noise ``sigma`` (median RMS residual of the unweighted quadratic
 #: fits) relative to the probe's mean list radius ``r``; ``k`` is interpolated, linearly in
 #: ``log(sigma / r)`` and ``log k``, between the anchors ``(ratio, k)`` and held at the end
