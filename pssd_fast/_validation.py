@@ -166,8 +166,8 @@ def check_k(k, n_points, minimum=MIN_K):
 def check_size(n_points, minimum=MIN_K):
     """Refuse a cloud too small for any allowed ``k`` (``minimum`` neighbours and the point)."""
     if n_points < minimum + 1:
-        raise ValueError(f"the cloud has {n_points} points; denoising needs at least "
-                         f"{minimum + 1}")
+        raise ValueError(f"the cloud has {n_points} point{'s' * (n_points != 1)}; denoising "
+                         f"needs at least {minimum + 1}")
 
 
 def check_int(value, name, minimum=None):

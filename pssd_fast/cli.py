@@ -141,7 +141,7 @@ def _parser():
     for dest in METHOD_OPTIONS:
         # No choices for --likelihood: pssd_fast.denoise names a bad one.
         add_parameter(den, dest, choices=None, more=_applies(BY_NAME[dest]))
-    add_parameter(den, "keep_normals", more=": the file's")
+    add_parameter(den, "keep_normals", more=" (the file's normals)")
     add_parameter(den, "shift_normals", "--no-shift-normals", more="; this option keeps its own")
     add_parameter(den, "orient", type=_orientation, metavar="HOW",
                   more="; a viewpoint as X,Y,Z; for .las/.laz input by default up")
@@ -652,7 +652,13 @@ def _denoise_on_disk(args, params, inp, out, say):
         print(f"{inp} -> {out}: {total:,} points, method {args.method}, "
               f"{stats['n_iterations']} iterations, {stats['total_seconds']:.2f} s; "
               f"{tiles['count']} tiles of at most {tiles['most_points']:,} points, out of core"
-              f"{_classes_done(stats)}", file=say)
+              f"{_copies(stats)}{_classes_done(stats)}", file=say)
+
+
+def _copies(stats):
+    """What the tiles' sizes leave out: rows at another row's position ride with it."""
+    copies = stats.get("duplicates", 0)
+    return f" ({copies:,} rows at another row's position, denoised with it)" if copies else ""
 
 
 def _denoise(args):
