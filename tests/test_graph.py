@@ -321,3 +321,18 @@ def test_keep_nearest_on_hand_made_rows():
     # Ties by ids where given (a tile's points by their places in the whole cloud).
     keep_nearest(dists, found, 10, np.arange(11)[::-1].copy(), kept, kept_dists, lengths)
     np.testing.assert_array_equal(kept[0], [5, 9, 3, 10])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_high_corners_cell_code_has_the_bits_of_the_largest(seed):
+    # The tiled binning sizes its histogram of cell codes from the high corner's code alone.
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(3000, 3)) * rng.uniform(0.1, 1000.0, size=3)
+    low, high = graph_module.bounds(points)
+    edge = float(rng.uniform(0.001, 1.0)) * (high - low).max() / 50
+    top = int(((high - low) * (1.0 / edge)).max())
+    shift = max(0, top.bit_length() - graph_module.MORTON_BITS)
+    codes, _ = graph_module.cell_keys(points, low, edge, shift)
+    corner, _ = graph_module.cell_keys(high[None, :], low, edge, shift)
+    assert int(corner[0]).bit_length() == int(codes.max()).bit_length()
+    assert corner[0] >= codes.max()

@@ -382,6 +382,37 @@ def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path, stage, mon
     np.testing.assert_array_equal(np.load(out), expected.points)
 
 
+@pytest.mark.usefixtures("small_chunks")
+def test_a_classified_las_file_is_split_by_the_tasks_that_read_it(tmp_path, monkeypatch):
+    """Each class of a LAS file on its own, as in core; the tasks find their chunk's rows of a
+    class from their own read (the calling process holds no row's class)."""
+    laspy = pytest.importorskip("laspy")
+    from pssd_fast import io
+
+    cloud = datasets.cad_part(n_points=5_000, noise=0.02, seed=3)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = [0.0001, 0.0001, 0.0001]
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = (cloud.points * 100).T
+    las.classification = np.where(np.arange(5_000) % 3 == 0, 6, 2).astype(np.uint8)
+    las.classification[:40] = 1
+    las.write(str(tmp_path / "scan.las"))
+    read = io.read(tmp_path / "scan.las")
+    whole = pssd_fast.denoise(read.points, classification=read.fields["classification"],
+                              classes="each", iterations=1)
+    io.write(tmp_path / "in_core.las", read, points=whole.points)
+    masks = []
+    chunk = ondisk.chunk
+    monkeypatch.setattr(ondisk, "chunk", lambda array, start, stop, mask=None: (
+        masks.append(mask), chunk(array, start, stop, mask))[1])
+    stats = tiled.denoise_file(tmp_path / "scan.las", tmp_path / "tiled.las", tile_points=900,
+                               client="sync", classes="each", iterations=1)
+    assert sorted(stats["classes"]["runs"]) == [1, 2, 6]
+    assert {type(mask) for mask in masks} == {ondisk.Classes}
+    got, want = (laspy.read(str(tmp_path / name)) for name in ("tiled.las", "in_core.las"))
+    np.testing.assert_array_equal(got.points.array, want.points.array)
+
+
 @pytest.mark.slow  # Dask's local process pool
 def test_tasks_read_bin_and_write_a_file_the_caller_never_reads(tmp_path, monkeypatch):
     """Every pass over the points runs in the tasks' processes: the calling process fails

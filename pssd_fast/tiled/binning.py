@@ -16,10 +16,12 @@ passes:
 3. per chunk, its records sorted by bucket into a file of its own;
 4. per bucket, its pieces of every chunk in input order, sorted by code: their concatenation
    is ``denoise``'s Morton order, so the noise probe reads its evenly spread sample (every
-   ``s``-th point of that order) by rank; the rows at the position of an earlier row are set
-   aside, to take its result when the output is written (:mod:`pssd_fast.duplicates`);
-5. per bucket, the largest cell code of the plan's grid, then a sparse histogram of the codes'
-   first bits; the driver groups them into *tiles* of whole cells;
+   ``s``-th point of that order) by rank, a task a bucket; the rows at the position of an
+   earlier row are set aside, to take its result when the output is written
+   (:mod:`pssd_fast.duplicates`);
+5. per bucket, a sparse histogram of the first bits of the plan's cell codes (as many bits as
+   the high corner's code has, less :data:`PREFIX_BITS`); the driver groups them into *tiles*
+   of whole cells;
 6. per bucket, its records sorted by tile; per tile, its pieces grouped by cell (which numbers
    its cells), then its store entries written with the cells numbered from the tiles before.
 """
@@ -49,8 +51,9 @@ class Buckets:
     an earlier row (:mod:`pssd_fast.duplicates`; ``tolerance``: ``denoise``'s
     ``duplicate_tolerance``) are set aside in the :data:`~pssd_fast.tiled.ondisk.COPY` files
     ``copies``, ``duplicates`` of them, out of ``rows`` rows in all: the rows of ``array`` that
-    ``keep`` selects (``keep(start, stop)``: a mask of rows ``start..stop-1``; every row where
-    None), each keeping its row. ``runner``: where the tasks run
+    ``keep`` selects (``keep(start, stop)``: a mask of rows ``start..stop-1``, or the
+    :class:`~pssd_fast.tiled.ondisk.Classes` that finds it; every row where None), each keeping
+    its row. ``runner``: where the tasks run
     (:class:`pssd_fast.tiled.scheduler.Runner`)."""
 
     def __init__(self, array, folder, tile_points, tolerance, keep, runner):
@@ -101,20 +104,15 @@ class Buckets:
 
     def ranked(self, field, key):
         """The ``field`` of every ``key.step``-th point of the Morton order (``key``: a slice
-        ``[::step]``), each record read alone: a memory map would keep the pages around each
-        resident (95 MB of a bucket of 8,000,000 points for a sample every 5,200)."""
+        ``[::step]``), read by a task a bucket (:func:`_sample`)."""
         if not isinstance(key, slice) or key.start is not None or key.stop is not None:
             raise TypeError("only [::step] is read from the buckets")
         ranks = np.arange(0, self.shape[0], key.step or 1)
-        out = np.empty((ranks.shape[0], 3))
-        size = self.dtype.itemsize
-        for i, path in enumerate(self.paths):
-            lo, hi = np.searchsorted(ranks, self.starts[i:i + 2])
-            with open(path, "rb") as fh:
-                for at in range(lo, hi):
-                    fh.seek(int(ranks[at] - self.starts[i]) * size)
-                    out[at] = np.fromfile(fh, self.dtype, count=1)[field][0]
-        return out
+        cuts = np.searchsorted(ranks, self.starts)
+        parts = self.runner.map("sample", 0, 1, _sample, [
+            (path, self.dtype, field, ranks[cuts[i]:cuts[i + 1]] - self.starts[i])
+            for i, path in enumerate(self.paths)])
+        return np.concatenate(parts).reshape(-1, 3)
 
     @property
     def normals(self):
@@ -144,8 +142,9 @@ class Buckets:
         top = int(((self.high - plan.low) * (1.0 / plan.edge)).max())
         grid = (self.centre, plan.low, plan.edge, max(0, top.bit_length() - MORTON_BITS))
         buckets = [(path, self.dtype, grid) for path in self.paths]
-        # The codes' first bits: as many as they use, less the prefix.
-        largest = max(runner.map("cell codes", 0, 1, _largest_cell, buckets))
+        # The codes' first bits: as many as they use, less the prefix. A Morton code grows
+        # with each coordinate, so the high corner's cell code has the bits of the largest.
+        largest = int(cell_keys(self.high[None, :], plan.low, plan.edge, grid[3])[0][0])
         prefix = max(0, largest.bit_length() - PREFIX_BITS)
         firsts = _bins(_histogram(runner.map("cell histogram", 0, 1, _cell_prefixes, [
             (*bucket, prefix) for bucket in buckets])), tile_points)
@@ -178,6 +177,19 @@ def _scan(array, start, stop, mask, n_jobs):
     if not points.shape[0]:
         return 0, None, None
     return (points.shape[0], *bounds(points))
+
+
+def _sample(path, dtype, field, ranks, n_jobs):
+    """The ``field`` of the records at ``ranks`` of a bucket file, each record read alone: a
+    memory map would keep the pages around each resident (95 MB of a bucket of 8,000,000
+    points for a sample every 5,200)."""
+    out = np.empty((ranks.shape[0], 3))
+    size = dtype.itemsize
+    with open(path, "rb") as fh:
+        for at, rank in enumerate(ranks.tolist()):
+            fh.seek(rank * size)
+            out[at] = np.fromfile(fh, dtype, count=1)[field][0]
+    return out
 
 
 def _code_prefixes(array, start, stop, mask, codes, n_jobs):
@@ -229,10 +241,6 @@ def _keys(records, grid):
     """The cell keys (:func:`pssd_fast.graph.cell_keys`) of bucket or tile records."""
     centre, low, edge, shift = grid
     return cell_keys(records["xyz"] - centre, low, edge, shift)
-
-
-def _largest_cell(path, dtype, grid, n_jobs):
-    return int(_keys(np.fromfile(path, dtype), grid)[0].max(initial=0))
 
 
 def _cell_prefixes(path, dtype, grid, prefix, n_jobs):

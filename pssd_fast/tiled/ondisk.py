@@ -107,8 +107,10 @@ class LasFile:
     def __getitem__(self, rows):
         return self.chunk(rows.start or 0, rows.stop)[0]
 
-    def chunk(self, start, stop):
-        """The coordinates of rows ``start..stop-1``, and their normals or None.
+    def chunk(self, start, stop, classes=False):
+        """The coordinates of rows ``start..stop-1``, and their normals or None; with
+        ``classes``, their classes as a third item (:meth:`classification`), from the same
+        read.
 
         Rows that follow the previous call's are read on from there, and a read from row 0
         opens the file afresh: laspy fills the rows beyond a LAZ file's real end with zeros
@@ -126,6 +128,8 @@ class LasFile:
             # As pssd_fast.io.read takes them.
             normals = np.column_stack([np.asarray(records[c]) for c in NORMALS]).astype(
                 np.float64)
+        if classes:
+            return points, normals, np.asarray(records["classification"], np.uint8)
         return points, normals
 
     def __getstate__(self):
@@ -272,12 +276,22 @@ def _named(exc):
     return " ".join(f"{type(exc).__name__}: {exc}".split())
 
 
+class Classes(NamedTuple):
+    """The rows of a LAS/LAZ chunk whose class is one of ``codes`` (``invert``: none of
+    them), found by the task that reads the chunk, from the same read: the calling process
+    never holds a file's classes, nor ships a mask of its rows to the tasks."""
+
+    codes: tuple
+    invert: bool = False
+
+
 def chunk(array, start, stop, mask=None):
     """``(rows, points, normals)`` of rows ``start..stop-1`` of ``array`` (n, 3) of real
     numbers, the points as float64 and checked for NaN and Inf; ``normals``: the file's, of
     unit length as :func:`pssd_fast.denoise` makes them, or None. ``mask``: the rows of the
-    chunk to take (every row where None); ``rows``: the rows taken."""
-    points, normals = _read(array, start, stop)
+    chunk to take (a boolean array or :class:`Classes`; every row where None); ``rows``: the
+    rows taken."""
+    points, normals, mask = _read(array, start, stop, mask)
     # Every point is checked, as denoise checks those of a classification's classes.
     points = _finite(np.ascontiguousarray(points, dtype=np.float64), start, "points")
     rows = np.arange(start, start + points.shape[0])
@@ -296,9 +310,15 @@ def chunk(array, start, stop, mask=None):
     return rows, points, normals
 
 
-def _read(array, start, stop):
-    """The points of rows ``start..stop-1`` as stored, and the file's normals or None."""
-    return array.chunk(start, stop) if hasattr(array, "chunk") else (array[start:stop], None)
+def _read(array, start, stop, mask=None):
+    """The points of rows ``start..stop-1`` as stored, the file's normals or None, and the
+    rows ``mask`` selects as a boolean array (None: every row)."""
+    if isinstance(mask, Classes):
+        points, normals, classes = array.chunk(start, stop, classes=True)
+        return points, normals, np.isin(classes, mask.codes) != mask.invert
+    if hasattr(array, "chunk"):
+        return (*array.chunk(start, stop), mask)
+    return array[start:stop], None, mask
 
 
 def unmoved(array, start, stop, mask, path, blocks, n_jobs):
@@ -307,7 +327,7 @@ def unmoved(array, start, stop, mask, path, blocks, n_jobs):
     classes it does not denoise: their coordinates and normals as read (NaN without), NaN
     likelihood and feature intensity, zero displacement; the count of each of the output's
     :class:`Blocks` (:func:`sorted_save`)."""
-    points, normals = _read(array, start, stop)
+    points, normals, mask = _read(array, start, stop, mask)
     rows = np.flatnonzero(mask)
     normals = np.full((rows.shape[0], 3), np.nan) if normals is None else normals[rows]
     nan = np.full(rows.shape[0], np.nan)

@@ -173,7 +173,8 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
         need every point at once: :func:`pssd_fast.io.read`, then :func:`pssd_fast.denoise`
         or :func:`denoise`, runs them. ``classification``: of an ``.npy`` or Zarr input, as
         in :func:`pssd_fast.denoise`; a LAS/LAZ input's classes are its ``classification``
-        field (read first, in chunks, one byte a point), and it refuses ``classification``.
+        field (counted first, by a task a chunk; each task then takes its class's rows of
+        the chunk it reads), and it refuses ``classification``.
         ``classes``: as in :func:`pssd_fast.denoise`, of either; each class chosen runs out
         of core on its own (a run reads the file three times and takes the rows of its
         class), and the rows of the other classes keep their coordinates (a LAS/LAZ record
@@ -230,10 +231,10 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
     tile_points = check_int(tile_points, "tile_points", minimum=1)
     check_client(client)
     _check_options(options)
-    settings = _file_settings(options)
     if kinds[source] == "las" and options.get("classification") is not None:
         raise ValueError(f"the classes of {source.name} are its classification field; pass "
                          f"classes=... alone")
+    settings = _file_settings(options, kinds[source] == "las")
     unknown = sorted(set(fields) - set(ondisk.RESULT_FIELDS))
     if unknown:
         raise ValueError(f"unknown field(s) {', '.join(unknown)}; choose from "
@@ -255,15 +256,15 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
     try:
         with threads(options.get("n_jobs")) as n_threads, \
                 Runner(client, n_threads, report) as runner:
-            labels = _file_labels(array, options.get("classification"), options.get("classes"),
-                                  runner)
+            classified = _file_classes(array, options.get("classification"),
+                                       options.get("classes"), runner)
             runs, small, least = [None], [], None
-            if labels is not None:
-                codes, counts = np.unique(labels, return_counts=True)
+            if classified is not None:
+                codes, counts, rows_of = classified
                 least = lidar.least_points(options)
                 found, small = lidar.choose(codes, counts, options.get("classes"), least)
                 if found is None:
-                    labels = None  # classes 0 and 1 only: no classification
+                    classified = None  # classes 0 and 1 only: no classification
                 else:
                     runs = found
             lidar.warn_small(small, least, stacklevel=2)
@@ -275,16 +276,17 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
                     done.append((code, *(_file_run(setting, None, folder, started)
                                          if code is None else
                                          _file_run(setting, lambda a, b, code=code:
-                                                   labels[a:b] == code, folder / f"class_{code}",
+                                                   rows_of(a, b, (code,), False),
+                                                   folder / f"class_{code}",
                                                    time.perf_counter()))))
             last = done[-1][3]
             stage = (last["n_iterations"] - 1, last["n_iterations"])
             sources = [source for _, found, _, _ in done for source in found]
-            if labels is not None:
+            if classified is not None:
                 ranges = setting.blocks.ranges()
                 kept = [folder / f"kept_{start}.bin" for start, _ in ranges]
                 sources += zip(kept, runner.map("kept", *stage, ondisk.unmoved, [
-                    (array, start, stop, ~np.isin(labels[start:stop], runs), path,
+                    (array, start, stop, rows_of(start, stop, tuple(runs), True), path,
                      setting.blocks) for (start, stop), path in zip(ranges, kept)]))
             clock = Clock(report, *stage)
             clock.run("write", _write, runner, array, output, sources, setting.blocks, dtype,
@@ -297,7 +299,7 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
         if output.is_dir():
             shutil.rmtree(output, ignore_errors=True)
         output.unlink(missing_ok=True)
-    if labels is None:
+    if classified is None:
         found = done[0][3]
         found["total_seconds"] = time.perf_counter() - started
     else:
@@ -323,29 +325,41 @@ class _FileRun(NamedTuple):
     blocks: ondisk.Blocks
 
 
-def _file_labels(array, classification, classes, runner):
-    """The class of each row of ``array``: a LAS/LAZ file's classification field (unless
-    ``classes`` is ``"all"``, read by tasks a chunk each), or ``classification`` checked;
-    None for one cloud."""
+def _file_classes(array, classification, classes, runner):
+    """The classes of ``array``'s rows: the codes present (increasing), how many rows each
+    has, and ``rows_of(start, stop, codes, invert)``, the rows of ``start..stop-1`` whose
+    class is one of ``codes`` (``invert``: none of them), as a task's mask takes them; None
+    for one cloud (``classes`` ``"all"``, or no classes). A LAS/LAZ file's are its
+    classification field, counted by a task a chunk, and each task finds its own chunk's rows
+    when it reads them (:class:`pssd_fast.tiled.ondisk.Classes`); else ``classification``,
+    checked."""
     if isinstance(classes, str) and classes == "all":
         return None
     if isinstance(array, ondisk.LasFile):
-        return np.concatenate(runner.map("classes", 0, 1, _classes, [
-            (array, *rows) for rows in ondisk.Blocks.of(array.shape[0]).ranges()]) or
-            [np.empty(0, np.uint8)])
+        total = sum(runner.map("classes", 0, 1, _class_counts, [
+            (array, *rows) for rows in ondisk.Blocks.of(array.shape[0]).ranges()]),
+            np.zeros(256, np.int64))
+        present = np.flatnonzero(total)
+        return (present.astype(np.uint8), total[present],
+                lambda start, stop, codes, invert: ondisk.Classes(codes, invert))
     if classification is None:
         return None
-    return lidar.check_labels(classification, array.shape[0])
+    labels = lidar.check_labels(classification, array.shape[0])
+    codes, counts = np.unique(labels, return_counts=True)
+    return (codes, counts,
+            lambda start, stop, codes, invert: np.isin(labels[start:stop], codes) != invert)
 
 
-def _classes(array, start, stop, n_jobs):
-    """The classes of rows ``start..stop-1`` of a LAS/LAZ file (a task)."""
-    return array.classification(start, stop)
+def _class_counts(array, start, stop, n_jobs):
+    """How many of rows ``start..stop-1`` of a LAS/LAZ file are of each class 0-255 (a
+    task)."""
+    return np.bincount(array.classification(start, stop), minlength=256)
 
 
 def _file_run(setting, keep, folder, started):
     """One run of :func:`denoise_file` on the rows of ``setting.array`` that ``keep`` selects
-    (``keep(start, stop)``: a mask of rows ``start..stop-1``; None: every row), its scratch
+    (``keep(start, stop)``: a mask of rows ``start..stop-1`` or the
+    :class:`~pssd_fast.tiled.ondisk.Classes` that finds it; None: every row), its scratch
     files in ``folder``: its results (``(path, counts)`` of each tile's
     :data:`~pssd_fast.tiled.ondisk.PART` file, :func:`pssd_fast.tiled.rows.write`), the files
     of rows set aside as copies and the run's ``stats``."""
@@ -379,9 +393,10 @@ def _file_run(setting, keep, folder, started):
                "scheduler": runner.name, "threads": runner.threads})
 
 
-def _file_settings(options):
+def _file_settings(options, classified):
     """The options of a run from a file, checked as :func:`pssd_fast.denoise` checks them, and
-    refused where they need every point at once."""
+    refused where they need every point at once; ``classified``: the file gives its own
+    classification (LAS/LAZ), which ``classes`` then chooses from."""
     refused = [name for name in ("remove_outliers",) if options.get(name)]
     method = options.get("method", "robust")
     preset = options.get("preset", "default")
@@ -392,7 +407,7 @@ def _file_settings(options):
                          f"'fast') and never holds every point; {', '.join(refused)} need "
                          f"them all: read the file with pssd_fast.io.read, then "
                          f"pssd_fast.denoise or tiled.denoise")
-    lidar.check_classes(options.get("classification"), options.get("classes"))
+    lidar.check_classes(classified or options.get("classification"), options.get("classes"))
     # denoise's own checks, on a cloud it does not run: what it would refuse, this refuses.
     # (The classes are denoise's, not the method's parameters.)
     return checked_options({name: value for name, value in options.items()
