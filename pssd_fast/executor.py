@@ -22,10 +22,10 @@ import numpy as np
 
 from . import core, method, regions
 from ._threads import threads
-from .graph import bounded_graph, knn_graph
+from .graph import ListScales, bounded_graph, knn_graph
 from .pipelines import aware
 from .progress import Clock
-from .store import gather
+from .store import gather, gather_again, gather_halo
 
 #: Tiles start at multiples of this many cells (where a tile holds more).
 ALIGN = 64
@@ -106,12 +106,14 @@ def run(plan, request, tiles, store, runner=None):
         clock = Clock(request.report, t, plan.iterations)
         own_given = given and (t == 0 or keep)
         first = None if own_given else t == 0
-        width = (4 if first and shift else 3) * plan.bound
         keys = [("cells", i, t) for i in range(len(tiles))]
-        out = runner.map("tile_iteration", t, plan.iterations, _iteration, [
-            (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
-             own_given, first, plan, sigma_n, t == plan.iterations - 1, shift)
-            for i in range(len(tiles))])
+        if whole:
+            out = runner.map("tile_iteration", t, plan.iterations, _iteration, [
+                (store, keys, boxes, 0, None, own_given, first, plan, sigma_n,
+                 t == plan.iterations - 1, shift)])
+        else:
+            out = _exchanged(runner, store, keys, boxes, own_given, first, plan, sigma_n,
+                             t, shift)
         _tally(clock, [o[4] for o in out])
         if t > 0:  # read by this iteration only; the first means are the test's
             _drop(store, keys)
@@ -128,13 +130,11 @@ def run(plan, request, tiles, store, runner=None):
     refined = False
     if plan.refine is not None:
         if plan.own_noise:
-            # The own fits read the points within three of their lists' bounds: the lists,
-            # the members' PCA normals and their filtered normals.
+            keys = [("own", j) for j in range(len(tiles))]
+            point_boxes = [t.point_boxes for t in tiles]
             _tally(clock, runner.map("tile_noise", plan.iterations - 1, plan.iterations, _noise, [
-                (store, [("own", j) for j in range(len(tiles))],
-                 [t.point_boxes for t in tiles], i, None if whole else regions.widened(
-                     tiles[i].point_boxes, 3 * plan.refine[1]), plan, sigma_n)
-                for i in range(len(tiles))]))
+                (store, keys, point_boxes, 0, None, plan, sigma_n)]) if whole else
+                _noise_exchanged(runner, store, keys, point_boxes, plan, sigma_n))
             _drop(store, [("own", i) for i in range(len(tiles))])
         keys = [("test", i) for i in range(len(tiles))]
         flagged = clock.run("test", runner.map, "tile_test", plan.iterations - 1,
@@ -179,26 +179,40 @@ def _tally(clock, times):
 
 def _iteration(store, keys, boxes, i, region, own_given, first, plan, sigma_n, last, shift,
                n_jobs):
-    """A tile's task of one iteration on the means (:func:`pssd_fast.method.iteration` on its
-    own means and its halo): its own means' next entry (their positions and filtered normals;
-    in the ``last`` iteration also their fits, :data:`FITS`), and the boxes of their new
-    positions, held count, RMS sum, degree counts and stage times. The first iteration's PCA
-    normals are signed away from the cloud's centre (the positions are relative to it), as
-    every tile sees it."""
-    names = ("xyz", "mass", "gid", "normals" if own_given else "hints") if (
-        own_given or not first) else ("xyz", "mass", "gid")
-    items = gather(store, keys, i, boxes, region, names, "xyz")
-    n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
-    if own_given:
-        normals = items["normals"]
-    elif first:
-        normals = items["xyz"]  # away from the cloud's centre, whatever the tile
-    else:
-        normals = items["hints"]
+    """The task of one iteration on the means in one tile (:func:`pssd_fast.method.iteration`
+    on all of them): :func:`_next_means`. The first iteration's PCA normals are signed away
+    from the cloud's centre (the positions are relative to it)."""
+    items = gather(store, keys, i, boxes, region, _iteration_names(own_given, first), "xyz")
     clock = Clock(None, 0, 1)
     with threads(n_jobs):
         fits = method.iteration(items["xyz"], items["mass"], plan.k, plan.bound, sigma_n,
-                                normals, clock, first, items["gid"], shift)
+                                _signs(items, own_given, first), clock, first, items["gid"],
+                                shift)
+    return _next_means(store, keys, i, items, fits, last, clock.times)
+
+
+def _iteration_names(own_given, first):
+    """What an iteration reads of the means: positions, points held, places, and the given
+    normals, or the hints of the PCA normals after the first."""
+    if own_given:
+        return ("xyz", "mass", "gid", "normals")
+    return ("xyz", "mass", "gid") if first else ("xyz", "mass", "gid", "hints")
+
+
+def _signs(items, own_given, first):
+    """The given normals, or what signs the PCA normals: away from the cloud's centre in the
+    first iteration (whatever the tile), then the previous filtered normals."""
+    if own_given:
+        return items["normals"]
+    return items["xyz"] if first else items["hints"]
+
+
+def _next_means(store, keys, i, items, fits, last, times):
+    """Tile ``i``'s own means after an iteration's ``fits`` (of ``items``, its own first):
+    their next entry (positions and filtered normals; in the ``last`` iteration their fits,
+    ``("fits", i)``), and the boxes of their new positions, held count, RMS sum, degree
+    counts and the stage ``times``."""
+    n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
     own = {name: items[name][:n_own] for name in ("mass", "gid")}
     entry = store.get(keys[i])
     own.update({"xyz": fits.moved[:n_own], "hints": fits.filtered[:n_own]})
@@ -212,7 +226,114 @@ def _iteration(store, keys, boxes, i, region, own_given, first, plan, sigma_n, l
                                 "rms": fits.rms[:n_own]})
     return (regions.boxes(fits.moved[:n_own]), int(fits.held[:n_own].sum()),
             float(fits.rms[:n_own].sum()), np.bincount(fits.degree[:n_own], minlength=7),
-            clock.times)
+            times)
+
+
+def _exchanged(runner, store, keys, boxes, own_given, first, plan, sigma_n, t, shift):
+    """One iteration on the means in several tiles, a round a step
+    (:func:`pssd_fast.method.iteration`): each tile lists its own means and computes their
+    step, and the next round reads the results of its lists' members from the tiles that own
+    them. A round's halo is one list bound, not one for each step the lists' members pass on
+    (three or four); each mean's result is the one its own tile computes, so the whole
+    cloud's. Returns what :func:`_iteration` returns, for each tile."""
+    tiles = range(len(keys))
+    stage = (t, plan.iterations)
+    halo = [regions.widened(boxes[i], plan.bound) for i in tiles]
+    times = runner.map("tile_lists", *stage, _lists_round, [
+        (store, keys, boxes, i, halo[i], own_given, first, plan, shift) for i in tiles])
+    step = [("normals", i) for i in tiles]
+    if first and shift:
+        times = _added(times, runner.map("tile_shift", *stage, _shift_round, [
+            (store, keys, step, i, plan) for i in tiles]))
+        _drop(store, step)
+        step = [("shifted", i) for i in tiles]
+    times = _added(times, runner.map("tile_filter", *stage, _filter_round, [
+        (store, keys, step, i, "", "filter") for i in tiles]))
+    _drop(store, step)
+    step = [("filtered", i) for i in tiles]
+    out = runner.map("tile_fit", *stage, _fit_round, [
+        (store, keys, step, i, sigma_n, t == plan.iterations - 1) for i in tiles])
+    _drop(store, step + [("lists", i) for i in tiles])
+    return [(*found[:4], {**before, **{name: before.get(name, 0.0) + seconds
+                                       for name, seconds in found[4].items()}})
+            for found, before in zip(out, times)]
+
+
+def _added(times, more):
+    """Each tile's stage ``times`` with those of another round added."""
+    return [{**a, **{name: a.get(name, 0.0) + seconds for name, seconds in b.items()}}
+            for a, b in zip(times, more)]
+
+
+def _lists_round(store, keys, boxes, i, region, own_given, first, plan, shift, n_jobs):
+    """The first round of :func:`_exchanged`: tile ``i``'s means' lists (``("lists", i)``)
+    and PCA normals, with their lists' planes where they are shifted next
+    (``("normals", i)``); its stage times."""
+    items, picks = gather_halo(store, keys, i, boxes, region,
+                               _iteration_names(own_given, first), "xyz")
+    n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
+    clock = Clock(None, 0, 1)
+    with threads(n_jobs):
+        lists = method.listed(items["xyz"], plan.k, plan.bound, items["gid"], clock, n_own)
+        nrm, planes = method.pca_step(items["xyz"], lists, _signs(items, own_given, first),
+                                      first, shift, clock)
+    store.put(("lists", i), {**lists._asdict(), "own": n_own, "picks": picks})
+    entry = {"normals": nrm[:n_own]}
+    if planes is not None:
+        entry.update(centres=planes.centres[:n_own], variation=planes.variation[:n_own],
+                     spread=planes.spread[:n_own])
+    store.put(("normals", i), entry)
+    return clock.times
+
+
+def _shift_round(store, keys, step, i, plan, n_jobs):
+    """The first iteration's shifted normals of tile ``i``'s means (``("shifted", i)``), from
+    the planes of their lists' members; its stage times."""
+    lists, n_own, picks = _own_lists(store, ("lists", i))
+    items = {**gather_again(store, keys, i, picks, ("xyz",)), **gather_again(
+        store, step, i, picks, ("normals", "centres", "variation", "spread"))}
+    planes = core.ListPlanes(items["centres"], items["normals"], items["variation"],
+                             items["spread"])
+    clock = Clock(None, 0, 1)
+    with threads(n_jobs):
+        nrm = method.shift_step(items["xyz"], items["normals"], lists, planes, plan.k, clock)
+    store.put(("shifted", i), {"normals": nrm[:n_own]})
+    return clock.times
+
+
+def _filter_round(store, keys, step, i, prefix, stage, n_jobs):
+    """Tile ``i``'s filtered normals (``(prefix + "filtered", i)``), from the normals of its
+    lists' members (its lists: ``(prefix + "lists", i)``); its time, as ``stage``."""
+    lists, n_own, picks = _own_lists(store, (prefix + "lists", i))
+    items = {**gather_again(store, keys, i, picks, ("xyz",)),
+             **gather_again(store, step, i, picks, ("normals",))}
+    clock = Clock(None, 0, 1)
+    with threads(n_jobs):
+        filtered = clock.run(stage, core.filter_normals, items["xyz"], items["normals"],
+                             lists)
+    store.put((prefix + "filtered", i), {"filtered": filtered[:n_own]})
+    return clock.times
+
+
+def _fit_round(store, keys, step, i, sigma_n, last, n_jobs):
+    """The last round of :func:`_exchanged`: tile ``i``'s means fitted with the filtered
+    normals of their lists' members and moved (:func:`_next_means`)."""
+    lists, _, picks = _own_lists(store, ("lists", i))
+    items = gather_again(store, keys, i, picks, ("xyz", "mass", "gid"))
+    filtered = gather_again(store, step, i, picks, ("filtered",))["filtered"]
+    clock = Clock(None, 0, 1)
+    with threads(n_jobs):
+        fits = method.fit_step(items["xyz"], items["mass"], filtered, lists, sigma_n, clock)
+    return _next_means(store, keys, i, items, fits, last, clock.times)
+
+
+def _own_lists(store, key):
+    """A tile's lists of an exchanged iteration's first round (``key``), its number of own
+    items and the rows of the other tiles' entries its halo took
+    (:func:`pssd_fast.store.gather_halo`)."""
+    entry = store.get(key)
+    own, picks = entry.pop("own"), entry.pop("picks")
+    return ListScales(**entry), own, picks
 
 
 def _project(store, fits, boxes, i, region, plan, n_jobs):
@@ -249,13 +370,19 @@ def _noise(store, keys, boxes, i, region, plan, sigma_n, n_jobs):
     with threads(n_jobs):
         noise2, spread2 = clock.run("own_noise", method.own_noise, items["xyz"],
                                     items["hints"], *plan.refine, sigma_n, items["gid"])
+    _noise_sums(store, i, noise2[:n_own], spread2[:n_own])
+    return clock.times
+
+
+def _noise_sums(store, i, noise2, spread2):
+    """The sums over each of tile ``i``'s cells of its points' noise variances ``noise2``
+    and of what their own fits leave of them, ``spread2``, added to its ``("test", i)``
+    entry."""
     cell = store.get(("points", i), ("cell",))["cell"]
     entry = store.get(("test", i))
     local, m = cell - entry["gid"][0], entry["gid"].shape[0]
-    entry.update(noise=np.bincount(local, noise2[:n_own], m),
-                 spread=np.bincount(local, spread2[:n_own], m))
+    entry.update(noise=np.bincount(local, noise2, m), spread=np.bincount(local, spread2, m))
     store.put(("test", i), entry)
-    return clock.times
 
 
 def _test(store, keys, boxes, i, region, plan, n_jobs):
@@ -267,7 +394,7 @@ def _test(store, keys, boxes, i, region, plan, n_jobs):
     with threads(n_jobs):
         fails = method.failing(cells["xyz"], cells["sums"], cells["mass"], plan.noise.sigma,
                                plan.bound, cells["gid"], (cells["noise"], cells["spread"])
-                               if plan.own_noise else None)[:n_own]
+                               if plan.own_noise else None, n_own)[:n_own]
     points = store.get(("points", i), ("cell",))
     flagged = fails[points["cell"] - cells["gid"][0]]
     store.put(("flags", i), {"flagged": flagged})
@@ -277,7 +404,6 @@ def _test(store, keys, boxes, i, region, plan, n_jobs):
 def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, clock):
     """The failing points' own iterations, tile by tile (``("refine", i, t)`` entries; the
     last becomes ``("out", i)``), their stages timed on ``clock``."""
-    bound = plan.refine[1]
     # Tasks, as every step that reads a tile's points: the calling process holds none.
     boxes = runner.map("tile_out", plan.iterations - 1, plan.iterations, _refine_entry,
                        [(store, i, given) for i in range(len(tiles))])
@@ -285,12 +411,15 @@ def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, cloc
     iterations = method.REFINE["iterations"]
     for t in range(iterations):
         use_given = given and (t == 0 or keep)
-        width = (3 if use_given or t > 0 or not shift else 4) * bound
         keys = [("refine", i, t) for i in range(len(tiles))]
         # Reported in the run's last iteration, as the rest of the refinement.
-        out = runner.map("tile_refine", plan.iterations - 1, plan.iterations, _refine_task, [
-            (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
-             use_given, t == 0, plan, sigma_n, shift) for i in range(len(tiles))])
+        if whole:
+            out = runner.map("tile_refine", plan.iterations - 1, plan.iterations, _refine_task,
+                             [(store, keys, boxes, 0, None, use_given, t == 0, plan, sigma_n,
+                               shift)])
+        else:
+            out = _refine_exchanged(runner, store, keys, boxes, use_given, t == 0, plan,
+                                    sigma_n, shift)
         _tally(clock, [o[1] for o in out])
         _drop(store, keys)
         boxes = [o[0] for o in out]
@@ -333,17 +462,166 @@ def _refine_task(store, keys, boxes, i, region, use_given, first, plan, sigma_n,
     points' next entry; the boxes of their positions and the stage times."""
     names = ("xyz", "normals", "flagged", "gid") + (("given",) if use_given else ())
     items = gather(store, keys, i, boxes, region, names, "xyz")
-    entry = store.get(keys[i])
-    n_own = entry["gid"].shape[0]
     k, bound = plan.refine
     clock = Clock(None, 0, 1)
     with threads(n_jobs):
         out, normals, held = method.refine_step(
             items["xyz"], items["normals"], items["flagged"], k, bound, sigma_n,
             items["given"] if use_given else None, clock, first, items["gid"], shift)
+    return _next_refined(store, keys, i, out, normals, held, clock.times)
+
+
+def _next_refined(store, keys, i, out, normals, held, times):
+    """Tile ``i``'s next refining entry from a refining iteration's results (its own points
+    first); the boxes of their positions and the stage ``times``."""
+    entry = store.get(keys[i])
+    n_own = entry["gid"].shape[0]
     entry.update(xyz=out[:n_own], normals=normals[:n_own], held=entry["held"] | held[:n_own])
     store.put(keys[i][:2] + (keys[i][2] + 1,), entry)
-    return regions.boxes(entry["xyz"]), clock.times
+    return regions.boxes(entry["xyz"]), times
+
+
+def _noise_exchanged(runner, store, keys, boxes, plan, sigma_n):
+    """The points' own noise in several tiles, a round a step
+    (:func:`pssd_fast.method.own_noise`), as :func:`_exchanged` runs an iteration; returns the
+    stage times of each tile."""
+    tiles = range(len(keys))
+    stage = (plan.iterations - 1, plan.iterations)
+    times = runner.map("tile_noise_lists", *stage, _noise_lists_round, [
+        (store, keys, boxes, i, regions.widened(boxes[i], plan.refine[1]), plan)
+        for i in tiles])
+    step = [("noise_normals", i) for i in tiles]
+    times = _added(times, runner.map("tile_noise_filter", *stage, _filter_round, [
+        (store, keys, step, i, "noise_", "own_noise") for i in tiles]))
+    _drop(store, step)
+    step = [("noise_filtered", i) for i in tiles]
+    times = _added(times, runner.map("tile_noise_fit", *stage, _noise_fit_round, [
+        (store, keys, step, i, sigma_n) for i in tiles]))
+    _drop(store, step + [("noise_lists", i) for i in tiles])
+    return times
+
+
+def _noise_lists_round(store, keys, boxes, i, region, plan, n_jobs):
+    """The first round of :func:`_noise_exchanged`: tile ``i``'s points' lists
+    (``("noise_lists", i)``) and PCA normals (``("noise_normals", i)``); its stage times."""
+    items, picks = gather_halo(store, keys, i, boxes, region, ("xyz", "hints", "gid"), "xyz")
+    n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
+    clock = Clock(None, 0, 1)
+    with threads(n_jobs):
+        lists = clock.run("own_noise", bounded_graph, items["xyz"], *plan.refine, None,
+                          items["gid"], n_own)
+        nrm = clock.run("own_noise", method.noise_normals, items["xyz"], items["hints"], lists)
+    store.put(("noise_lists", i), {**lists._asdict(), "own": n_own, "picks": picks})
+    store.put(("noise_normals", i), {"normals": nrm[:n_own]})
+    return clock.times
+
+
+def _noise_fit_round(store, keys, step, i, sigma_n, n_jobs):
+    """The last round of :func:`_noise_exchanged`: tile ``i``'s points' own fits, their
+    sums over its cells added to its ``("test", i)`` entry (:func:`_noise_sums`)."""
+    lists, n_own, picks = _own_lists(store, ("noise_lists", i))
+    xyz = gather_again(store, keys, i, picks, ("xyz",))["xyz"]
+    filtered = gather_again(store, step, i, picks, ("filtered",))["filtered"]
+    clock = Clock(None, 0, 1)
+    with threads(n_jobs):
+        noise2, spread2 = clock.run("own_noise", method.noise_fits, xyz, filtered, lists,
+                                    sigma_n)
+    _noise_sums(store, i, noise2[:n_own], spread2[:n_own])
+    return clock.times
+
+
+def _refine_exchanged(runner, store, keys, boxes, use_given, first, plan, sigma_n, shift):
+    """One refining iteration in several tiles, a round a step
+    (:func:`pssd_fast.method.refine_step`), as :func:`_exchanged` runs an iteration on the
+    means; returns what :func:`_refine_task` returns, for each tile."""
+    tiles = range(len(keys))
+    stage = (plan.iterations - 1, plan.iterations)
+    halo = [regions.widened(boxes[i], plan.refine[1]) for i in tiles]
+    times = runner.map("tile_refine_lists", *stage, _refine_lists_round, [
+        (store, keys, boxes, i, halo[i], use_given, first, plan, shift) for i in tiles])
+    step = [("refine_normals", i) for i in tiles]
+    if first and shift and not use_given:
+        times = _added(times, runner.map("tile_refine_shift", *stage, _refine_shift_round, [
+            (store, keys, step, i, plan) for i in tiles]))
+        _drop(store, step)
+        step = [("refine_shifted", i) for i in tiles]
+    times = _added(times, runner.map("tile_refine_filter", *stage, _refine_filter_round, [
+        (store, keys, step, i) for i in tiles]))
+    _drop(store, step)
+    step = [("refine_filtered", i) for i in tiles]
+    out = runner.map("tile_refine_fit", *stage, _refine_fit_round, [
+        (store, keys, step, i, sigma_n) for i in tiles])
+    _drop(store, step + [("refine_lists", i) for i in tiles])
+    return [(found[0], _added([before], [found[1]])[0]) for found, before in zip(out, times)]
+
+
+def _refine_lists_round(store, keys, boxes, i, region, use_given, first, plan, shift, n_jobs):
+    """The first round of :func:`_refine_exchanged`: the lists of tile ``i``'s flagged points
+    (``("refine_lists", i)``) and their normals before the others' are put back, with the
+    lists' planes where they are shifted next (``("refine_normals", i)``); its stage times."""
+    names = ("xyz", "normals", "flagged", "gid") + (("given",) if use_given else ())
+    items, picks = gather_halo(store, keys, i, boxes, region, names, "xyz")
+    n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
+    own_flagged = items["flagged"].copy()
+    own_flagged[n_own:] = False
+    clock = Clock(None, 0, 1)
+    with threads(n_jobs):
+        lists = method.refine_lists(items["xyz"], own_flagged, *plan.refine, items["gid"],
+                                    clock)
+        nrm, planes = method.refine_pca(items["xyz"], lists, items["normals"],
+                                        items["given"] if use_given else None, first, shift,
+                                        clock)
+    store.put(("refine_lists", i), {**lists._asdict(), "own": n_own, "picks": picks})
+    entry = {"normals": nrm[:n_own]}
+    if planes is not None:
+        entry.update(centres=planes.centres[:n_own], variation=planes.variation[:n_own],
+                     spread=planes.spread[:n_own])
+    store.put(("refine_normals", i), entry)
+    return clock.times
+
+
+def _refine_shift_round(store, keys, step, i, plan, n_jobs):
+    """The first refining iteration's shifted normals of tile ``i``'s points
+    (``("refine_shifted", i)``); its stage times."""
+    lists, n_own, picks = _own_lists(store, ("refine_lists", i))
+    items = {**gather_again(store, keys, i, picks, ("xyz",)), **gather_again(
+        store, step, i, picks, ("normals", "centres", "variation", "spread"))}
+    planes = core.ListPlanes(items["centres"], items["normals"], items["variation"],
+                             items["spread"])
+    clock = Clock(None, 0, 1)
+    with threads(n_jobs):
+        nrm = method.refine_shift(items["xyz"], items["normals"], lists, planes,
+                                  plan.refine[0], clock)
+    store.put(("refine_shifted", i), {"normals": nrm[:n_own]})
+    return clock.times
+
+
+def _refine_filter_round(store, keys, step, i, n_jobs):
+    """Tile ``i``'s points' filtered normals of a refining iteration
+    (``("refine_filtered", i)``); its stage times."""
+    lists, n_own, picks = _own_lists(store, ("refine_lists", i))
+    items = gather_again(store, keys, i, picks, ("xyz", "normals", "flagged"))
+    nrm = gather_again(store, step, i, picks, ("normals",))["normals"]
+    clock = Clock(None, 0, 1)
+    with threads(n_jobs):
+        filtered = method.refine_filter(items["xyz"], items["normals"], items["flagged"], nrm,
+                                        lists, clock)
+    store.put(("refine_filtered", i), {"filtered": filtered[:n_own]})
+    return clock.times
+
+
+def _refine_fit_round(store, keys, step, i, sigma_n, n_jobs):
+    """The last round of :func:`_refine_exchanged`: tile ``i``'s flagged points fitted and
+    moved, its next entry (:func:`_next_refined`)."""
+    lists, _, picks = _own_lists(store, ("refine_lists", i))
+    items = gather_again(store, keys, i, picks, ("xyz", "normals", "flagged"))
+    filtered = gather_again(store, step, i, picks, ("filtered",))["filtered"]
+    clock = Clock(None, 0, 1)
+    with threads(n_jobs):
+        out, normals, held = method.refine_fit(items["xyz"], items["normals"],
+                                               items["flagged"], filtered, lists, sigma_n,
+                                               clock)
+    return _next_refined(store, keys, i, out, normals, held, clock.times)
 
 
 def collect(store, tiles, n, names=("xyz", "normals", "held", "likelihood", "feature")):

@@ -210,11 +210,12 @@ def nearest_within(data, queries, k, bound, ids=None):
     return rows, distances, lengths
 
 
-def _nearest_blocks(data, queries, k, bound, ids):
+def _nearest_blocks(data, queries, k, bound, ids, count=None):
     """:func:`nearest_within` one chunk of queries at a time: ``(start, stop, rows,
-    distances, lengths)`` of the queries ``start:stop``."""
+    distances, lengths)`` of the queries ``start:stop``; of the first ``count`` only where
+    given."""
     n = data.shape[0]
-    m = queries.shape[0]
+    m = queries.shape[0] if count is None else count
     q = min(k + 1, n)
     # Long lists of the data's own points come from the grid query (pykdtree's cost grows as
     # k^2); it finds the same points at the same distances.
@@ -249,14 +250,15 @@ def _nearest_blocks(data, queries, k, bound, ids):
         yield start, stop, rows, distances, lengths
 
 
-def bounded_graph(points, k, bound, rows=None, ids=None):
+def bounded_graph(points, k, bound, rows=None, ids=None, first=None):
     """Lists of the ``k`` nearest points within distance ``bound`` of each of ``rows`` (all
-    points by default), the point itself first (:func:`nearest_within`; ties ordered by
-    ``ids`` where given), as a :class:`ListScales`; every other point's list is the point
-    alone."""
+    points by default; the ``first`` points where given, found as the lists of all are, to
+    the bit), the point itself first (:func:`nearest_within`; ties ordered by ``ids`` where
+    given), as a :class:`ListScales`; every other point's list is the point alone."""
     n = points.shape[0]
     queries = points if rows is None else points[rows]
-    rows = np.arange(n) if rows is None else np.asarray(rows, np.int64)
+    rows = (np.arange(n if first is None else first) if rows is None
+            else np.asarray(rows, np.int64))
     dtype = np.int32 if n < 2**31 else np.int64
     counts = np.empty(rows.shape[0], np.int64)
     radius = np.zeros(n)
@@ -266,7 +268,8 @@ def bounded_graph(points, k, bound, rows=None, ids=None):
     # pieces joined at the end twice it.
     found_lists = np.empty(rows.shape[0] * k, dtype)
     end = 0
-    for start, stop, found, dists, kept in _nearest_blocks(points, queries, k, bound, ids):
+    for start, stop, found, dists, kept in _nearest_blocks(points, queries, k, bound, ids,
+                                                           first):
         counts[start:stop] = kept
         chunk = found[np.arange(k) < kept[:, None]]
         found_lists[end:end + chunk.shape[0]] = chunk

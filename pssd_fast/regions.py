@@ -7,6 +7,7 @@ widened by the halo's width.
 import numpy as np
 
 from .graph import bounds
+from .kernels.boxes import inside_any
 
 #: A tile's halo is the items near the boxes of this many runs of its own.
 PIECES = 32
@@ -25,21 +26,9 @@ def widened(region, width):
 
 
 def within(points, region):
-    """The mask of ``points`` inside any of the boxes ``region`` ``(p, 2, 3)``."""
-    low, high = region[:, 0].min(axis=0), region[:, 1].max(axis=0)
-    rows = np.flatnonzero(_inside(points, low, high))
-    near = points[rows]
-    hit = np.zeros(rows.shape[0], np.bool_)
-    for low, high in region:
-        hit |= _inside(near, low, high)
-    inside = np.zeros(points.shape[0], np.bool_)
-    inside[rows[hit]] = True
+    """The mask of ``points`` inside any of the boxes ``region`` ``(p, 2, 3)``, faces
+    included."""
+    inside = np.empty(points.shape[0], np.bool_)
+    inside_any(np.ascontiguousarray(points, dtype=np.float64),
+               np.ascontiguousarray(region, dtype=np.float64), inside)
     return inside
-
-
-def _inside(points, low, high):
-    inside = (points[:, 0] >= low[0]) & (points[:, 0] <= high[0])
-    for a in (1, 2):
-        inside &= (points[:, a] >= low[a]) & (points[:, a] <= high[a])
-    return inside
-

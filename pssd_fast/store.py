@@ -64,17 +64,43 @@ def gather(store, keys, own, boxes, region, names, position):
     concatenated in that order (the own entry's arrays themselves where no other entry is
     read: tasks never change an array they read). Each entry's rows are in the order of the
     whole cloud (the tiles follow it), so the halo's rows are too."""
+    return gather_halo(store, keys, own, boxes, region, names, position)[0]
+
+
+def gather_halo(store, keys, own, boxes, region, names, position):
+    """:func:`gather`, and the rows it took of each other entry (``[(i, rows)]``; rows None:
+    all of them), which :func:`gather_again` takes of entries of the same rows."""
     parts = [store.get(keys[own], names)]
+    picks = []
     for i, key in enumerate(keys):
         if i == own:
             continue
         if region is not None and not _meets(boxes[i], region):
             continue
         entry = store.get(key, names)
+        rows = None
         if region is not None:
-            inside = regions.within(entry[position], region)
-            entry = {name: value[inside] for name, value in entry.items()}
+            rows = np.flatnonzero(regions.within(entry[position], region))
+            entry = {name: value[rows] for name, value in entry.items()}
         parts.append(entry)
+        picks.append((i, rows))
+    return _joined(parts, names), picks
+
+
+def gather_again(store, keys, own, picks, names):
+    """:func:`gather` of entries ``keys`` whose rows are those of the entries an earlier
+    :func:`gather_halo` read (the same points, other values): the rows it took, ``picks``,
+    without testing positions again."""
+    parts = [store.get(keys[own], names)]
+    for i, rows in picks:
+        entry = store.get(keys[i], names)
+        parts.append(entry if rows is None else
+                     {name: value[rows] for name, value in entry.items()})
+    return _joined(parts, names)
+
+
+def _joined(parts, names):
+    """The parts' arrays ``names`` concatenated (the only part's own where one)."""
     if len(parts) == 1:
         return parts[0]
     return {name: np.concatenate([part[name] for part in parts]) for name in names}

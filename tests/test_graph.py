@@ -336,3 +336,29 @@ def test_the_high_corners_cell_code_has_the_bits_of_the_largest(seed):
     corner, _ = graph_module.cell_keys(high[None, :], low, edge, shift)
     assert int(corner[0]).bit_length() == int(codes.max()).bit_length()
     assert corner[0] >= codes.max()
+
+
+def _inside_reference(points, boxes):
+    """Plain loops: whether each point lies in some box, faces included."""
+    out = []
+    for p in points:
+        out.append(any(all(box[0][a] <= p[a] <= box[1][a] for a in range(3)) for box in boxes))
+    return np.array(out, np.bool_)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_points_inside_any_box_match_a_loop(seed):
+    from pssd_fast.kernels.boxes import inside_any
+
+    rng = np.random.default_rng(seed)
+    corners = rng.uniform(-1.0, 1.0, size=(7, 2, 3))
+    boxes = np.stack([corners.min(axis=1), corners.max(axis=1)], axis=1)
+    points = rng.uniform(-1.2, 1.2, size=(2000, 3))
+    points[:14] = boxes.reshape(-1, 3)  # on the corners themselves
+    points[14, :] = [boxes[0, 0, 0], boxes[0, 1, 1], 0.5 * (boxes[0, 0, 2] + boxes[0, 1, 2])]
+    for pts, bxs in ((points, boxes), (points, boxes[:0]), (points[:0], boxes),
+                     (points, boxes[:1])):
+        out = np.empty(pts.shape[0], np.bool_)
+        inside_any(pts, bxs, out)
+        np.testing.assert_array_equal(out, _inside_reference(pts, bxs))
+    assert out[:2].all() and out.any() and not out.all()

@@ -170,8 +170,9 @@ def test_the_paper_s_pipeline_and_the_baselines_run_in_one_task():
 
 
 def test_progress_hears_of_every_tile(noisy):
-    """Each round's tiles as they finish (``tile_iteration 3/8``), then the round's stages,
-    in the iterations counted from 1 as the stages count them."""
+    """Each round's tiles as they finish (``tile_fit 3/8``), then the round's stages, in the
+    iterations counted from 1 as the stages count them: in several tiles a round a step of
+    each iteration (the first shifts its normals, and so does the refinement's)."""
     heard = []
     got = tiled.denoise(noisy.points, tile_points=1_000,
                         progress=lambda *args: heard.append(args))
@@ -180,11 +181,14 @@ def test_progress_hears_of_every_tile(noisy):
     assert iterations == sorted(iterations) and iterations[0] == (1, method.ITERATIONS)
     assert iterations[-1] == (method.ITERATIONS, method.ITERATIONS)
     count = got.stats["tiles"]["count"]
-    for stage in ("tile_iteration", "tile_project", "tile_test", "tile_refine"):
+    refined = method.REFINE["iterations"]
+    rounds = {"tile_lists": method.ITERATIONS, "tile_shift": 1, "tile_filter": method.ITERATIONS,
+              "tile_fit": method.ITERATIONS, "tile_project": 1, "tile_test": 1,
+              "tile_refine_lists": refined, "tile_refine_shift": 1,
+              "tile_refine_filter": refined, "tile_refine_fit": refined}
+    for stage, times in rounds.items():
         ours = [s for s in seen if s.startswith(stage + " ")]
-        rounds = {"tile_iteration": method.ITERATIONS,
-                  "tile_refine": method.REFINE["iterations"]}.get(stage, 1)
-        assert len(ours) == rounds * count, stage
+        assert len(ours) == times * count, stage
         assert ours[-1] == f"{stage} {count}/{count}"
     assert {"neighbors", "normals", "filter", "mls", "update", "project", "test",
             "refine_neighbors", "refine_fit"} <= set(seen)
@@ -354,7 +358,7 @@ def test_a_zarr_group_tiled_out_of_core_gives_the_in_core_points(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("stage", ["bin", "tile_iteration", "tile_refine", "write"])
+@pytest.mark.parametrize("stage", ["bin", "tile_fit", "tile_refine", "write"])
 def test_a_file_on_a_local_cluster_survives_a_killed_worker(tmp_path, stage, monkeypatch):
     """A worker killed while the file is binned, the tiles run or the output is written (in
     blocks of 5,000 rows): Dask runs its tasks again, the result stands."""

@@ -5,8 +5,8 @@ Every kernel works on points ``(n, 3) float64`` and a CSR neighbour graph (``ind
 written by exactly one loop iteration, so results do not depend on the number of threads.
 This package never imports from the Python layer of ``pssd_fast``.
 """
-from . import (bilateral, cells, feature, graph, knn, likelihood, linalg, mls, noise, normals,
-               order, orient, outliers, update)
+from . import (bilateral, boxes, cells, feature, graph, knn, likelihood, linalg, mls, noise,
+               normals, order, orient, outliers, update)
 
-__all__ = ["bilateral", "cells", "feature", "graph", "knn", "likelihood", "linalg", "mls",
-           "noise", "normals", "order", "orient", "outliers", "update"]
+__all__ = ["bilateral", "boxes", "cells", "feature", "graph", "knn", "likelihood", "linalg",
+           "mls", "noise", "normals", "order", "orient", "outliers", "update"]

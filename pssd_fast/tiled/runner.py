@@ -66,8 +66,9 @@ def denoise(points, normals=None, *, tile_points=2_000_000, client=None, **optio
         of this machine that the tasks share: the local schedulers run at most that many tasks
         at once, with ``n_jobs // tasks`` threads each (``"sync"``: one task with all of
         them); on ``distributed`` each worker shares its own cores between the tasks it runs
-        at once. ``progress`` also hears of each finished tile (stages ``tile_iteration``,
-        ``tile_project``, ``tile_test``, ``tile_refine``).
+        at once. ``progress`` also hears of each finished tile of each round (stages
+        ``tile_lists``, ``tile_fit``, ``tile_project``, ``tile_test``, ``tile_refine_fit``
+        and others, docs/tiled.md).
 
     Returns
     -------
