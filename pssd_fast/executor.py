@@ -130,11 +130,13 @@ def run(plan, request, tiles, store, runner=None):
     refined = False
     if plan.refine is not None:
         if plan.own_noise:
-            keys = [("own", j) for j in range(len(tiles))]
-            point_boxes = [t.point_boxes for t in tiles]
+            # The own fits read the points within three of their lists' bounds: the lists,
+            # the members' PCA normals and their filtered normals.
             _tally(clock, runner.map("tile_noise", plan.iterations - 1, plan.iterations, _noise, [
-                (store, keys, point_boxes, 0, None, plan, sigma_n)]) if whole else
-                _noise_exchanged(runner, store, keys, point_boxes, plan, sigma_n))
+                (store, [("own", j) for j in range(len(tiles))],
+                 [t.point_boxes for t in tiles], i, None if whole else regions.widened(
+                     tiles[i].point_boxes, 3 * plan.refine[1]), plan, sigma_n)
+                for i in range(len(tiles))]))
             _drop(store, [("own", i) for i in range(len(tiles))])
         keys = [("test", i) for i in range(len(tiles))]
         flagged = clock.run("test", runner.map, "tile_test", plan.iterations - 1,
@@ -248,15 +250,14 @@ def _exchanged(runner, store, keys, boxes, own_given, first, plan, sigma_n, t, s
         _drop(store, step)
         step = [("shifted", i) for i in tiles]
     times = _added(times, runner.map("tile_filter", *stage, _filter_round, [
-        (store, keys, step, i, "", "filter") for i in tiles]))
+        (store, keys, step, i) for i in tiles]))
     _drop(store, step)
     step = [("filtered", i) for i in tiles]
     out = runner.map("tile_fit", *stage, _fit_round, [
         (store, keys, step, i, sigma_n, t == plan.iterations - 1) for i in tiles])
     _drop(store, step + [("lists", i) for i in tiles])
-    return [(*found[:4], {**before, **{name: before.get(name, 0.0) + seconds
-                                       for name, seconds in found[4].items()}})
-            for found, before in zip(out, times)]
+    totals = _added(times, [found[4] for found in out])
+    return [(*found[:4], total) for found, total in zip(out, totals)]
 
 
 def _added(times, more):
@@ -289,7 +290,7 @@ def _lists_round(store, keys, boxes, i, region, own_given, first, plan, shift, n
 def _shift_round(store, keys, step, i, plan, n_jobs):
     """The first iteration's shifted normals of tile ``i``'s means (``("shifted", i)``), from
     the planes of their lists' members; its stage times."""
-    lists, n_own, picks = _own_lists(store, ("lists", i))
+    lists, n_own, picks = _own_lists(store, i)
     items = {**gather_again(store, keys, i, picks, ("xyz",)), **gather_again(
         store, step, i, picks, ("normals", "centres", "variation", "spread"))}
     planes = core.ListPlanes(items["centres"], items["normals"], items["variation"],
@@ -301,24 +302,24 @@ def _shift_round(store, keys, step, i, plan, n_jobs):
     return clock.times
 
 
-def _filter_round(store, keys, step, i, prefix, stage, n_jobs):
-    """Tile ``i``'s filtered normals (``(prefix + "filtered", i)``), from the normals of its
-    lists' members (its lists: ``(prefix + "lists", i)``); its time, as ``stage``."""
-    lists, n_own, picks = _own_lists(store, (prefix + "lists", i))
+def _filter_round(store, keys, step, i, n_jobs):
+    """Tile ``i``'s means' filtered normals (``("filtered", i)``), from the normals of their
+    lists' members; its stage times."""
+    lists, n_own, picks = _own_lists(store, i)
     items = {**gather_again(store, keys, i, picks, ("xyz",)),
              **gather_again(store, step, i, picks, ("normals",))}
     clock = Clock(None, 0, 1)
     with threads(n_jobs):
-        filtered = clock.run(stage, core.filter_normals, items["xyz"], items["normals"],
+        filtered = clock.run("filter", core.filter_normals, items["xyz"], items["normals"],
                              lists)
-    store.put((prefix + "filtered", i), {"filtered": filtered[:n_own]})
+    store.put(("filtered", i), {"filtered": filtered[:n_own]})
     return clock.times
 
 
 def _fit_round(store, keys, step, i, sigma_n, last, n_jobs):
     """The last round of :func:`_exchanged`: tile ``i``'s means fitted with the filtered
     normals of their lists' members and moved (:func:`_next_means`)."""
-    lists, _, picks = _own_lists(store, ("lists", i))
+    lists, _, picks = _own_lists(store, i)
     items = gather_again(store, keys, i, picks, ("xyz", "mass", "gid"))
     filtered = gather_again(store, step, i, picks, ("filtered",))["filtered"]
     clock = Clock(None, 0, 1)
@@ -327,11 +328,10 @@ def _fit_round(store, keys, step, i, sigma_n, last, n_jobs):
     return _next_means(store, keys, i, items, fits, last, clock.times)
 
 
-def _own_lists(store, key):
-    """A tile's lists of an exchanged iteration's first round (``key``), its number of own
-    items and the rows of the other tiles' entries its halo took
-    (:func:`pssd_fast.store.gather_halo`)."""
-    entry = store.get(key)
+def _own_lists(store, i):
+    """Tile ``i``'s lists of :func:`_exchanged`'s first round, its number of means and the
+    rows of the other tiles' entries its halo took (:func:`pssd_fast.store.gather_halo`)."""
+    entry = store.get(("lists", i))
     own, picks = entry.pop("own"), entry.pop("picks")
     return ListScales(**entry), own, picks
 
@@ -370,19 +370,13 @@ def _noise(store, keys, boxes, i, region, plan, sigma_n, n_jobs):
     with threads(n_jobs):
         noise2, spread2 = clock.run("own_noise", method.own_noise, items["xyz"],
                                     items["hints"], *plan.refine, sigma_n, items["gid"])
-    _noise_sums(store, i, noise2[:n_own], spread2[:n_own])
-    return clock.times
-
-
-def _noise_sums(store, i, noise2, spread2):
-    """The sums over each of tile ``i``'s cells of its points' noise variances ``noise2``
-    and of what their own fits leave of them, ``spread2``, added to its ``("test", i)``
-    entry."""
     cell = store.get(("points", i), ("cell",))["cell"]
     entry = store.get(("test", i))
     local, m = cell - entry["gid"][0], entry["gid"].shape[0]
-    entry.update(noise=np.bincount(local, noise2, m), spread=np.bincount(local, spread2, m))
+    entry.update(noise=np.bincount(local, noise2[:n_own], m),
+                 spread=np.bincount(local, spread2[:n_own], m))
     store.put(("test", i), entry)
+    return clock.times
 
 
 def _test(store, keys, boxes, i, region, plan, n_jobs):
@@ -404,6 +398,7 @@ def _test(store, keys, boxes, i, region, plan, n_jobs):
 def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, clock):
     """The failing points' own iterations, tile by tile (``("refine", i, t)`` entries; the
     last becomes ``("out", i)``), their stages timed on ``clock``."""
+    bound = plan.refine[1]
     # Tasks, as every step that reads a tile's points: the calling process holds none.
     boxes = runner.map("tile_out", plan.iterations - 1, plan.iterations, _refine_entry,
                        [(store, i, given) for i in range(len(tiles))])
@@ -411,15 +406,12 @@ def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, cloc
     iterations = method.REFINE["iterations"]
     for t in range(iterations):
         use_given = given and (t == 0 or keep)
+        width = (3 if use_given or t > 0 or not shift else 4) * bound
         keys = [("refine", i, t) for i in range(len(tiles))]
         # Reported in the run's last iteration, as the rest of the refinement.
-        if whole:
-            out = runner.map("tile_refine", plan.iterations - 1, plan.iterations, _refine_task,
-                             [(store, keys, boxes, 0, None, use_given, t == 0, plan, sigma_n,
-                               shift)])
-        else:
-            out = _refine_exchanged(runner, store, keys, boxes, use_given, t == 0, plan,
-                                    sigma_n, shift)
+        out = runner.map("tile_refine", plan.iterations - 1, plan.iterations, _refine_task, [
+            (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
+             use_given, t == 0, plan, sigma_n, shift) for i in range(len(tiles))])
         _tally(clock, [o[1] for o in out])
         _drop(store, keys)
         boxes = [o[0] for o in out]
@@ -462,166 +454,17 @@ def _refine_task(store, keys, boxes, i, region, use_given, first, plan, sigma_n,
     points' next entry; the boxes of their positions and the stage times."""
     names = ("xyz", "normals", "flagged", "gid") + (("given",) if use_given else ())
     items = gather(store, keys, i, boxes, region, names, "xyz")
+    entry = store.get(keys[i])
+    n_own = entry["gid"].shape[0]
     k, bound = plan.refine
     clock = Clock(None, 0, 1)
     with threads(n_jobs):
         out, normals, held = method.refine_step(
             items["xyz"], items["normals"], items["flagged"], k, bound, sigma_n,
             items["given"] if use_given else None, clock, first, items["gid"], shift)
-    return _next_refined(store, keys, i, out, normals, held, clock.times)
-
-
-def _next_refined(store, keys, i, out, normals, held, times):
-    """Tile ``i``'s next refining entry from a refining iteration's results (its own points
-    first); the boxes of their positions and the stage ``times``."""
-    entry = store.get(keys[i])
-    n_own = entry["gid"].shape[0]
     entry.update(xyz=out[:n_own], normals=normals[:n_own], held=entry["held"] | held[:n_own])
     store.put(keys[i][:2] + (keys[i][2] + 1,), entry)
-    return regions.boxes(entry["xyz"]), times
-
-
-def _noise_exchanged(runner, store, keys, boxes, plan, sigma_n):
-    """The points' own noise in several tiles, a round a step
-    (:func:`pssd_fast.method.own_noise`), as :func:`_exchanged` runs an iteration; returns the
-    stage times of each tile."""
-    tiles = range(len(keys))
-    stage = (plan.iterations - 1, plan.iterations)
-    times = runner.map("tile_noise_lists", *stage, _noise_lists_round, [
-        (store, keys, boxes, i, regions.widened(boxes[i], plan.refine[1]), plan)
-        for i in tiles])
-    step = [("noise_normals", i) for i in tiles]
-    times = _added(times, runner.map("tile_noise_filter", *stage, _filter_round, [
-        (store, keys, step, i, "noise_", "own_noise") for i in tiles]))
-    _drop(store, step)
-    step = [("noise_filtered", i) for i in tiles]
-    times = _added(times, runner.map("tile_noise_fit", *stage, _noise_fit_round, [
-        (store, keys, step, i, sigma_n) for i in tiles]))
-    _drop(store, step + [("noise_lists", i) for i in tiles])
-    return times
-
-
-def _noise_lists_round(store, keys, boxes, i, region, plan, n_jobs):
-    """The first round of :func:`_noise_exchanged`: tile ``i``'s points' lists
-    (``("noise_lists", i)``) and PCA normals (``("noise_normals", i)``); its stage times."""
-    items, picks = gather_halo(store, keys, i, boxes, region, ("xyz", "hints", "gid"), "xyz")
-    n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
-    clock = Clock(None, 0, 1)
-    with threads(n_jobs):
-        lists = clock.run("own_noise", bounded_graph, items["xyz"], *plan.refine, None,
-                          items["gid"], n_own)
-        nrm = clock.run("own_noise", method.noise_normals, items["xyz"], items["hints"], lists)
-    store.put(("noise_lists", i), {**lists._asdict(), "own": n_own, "picks": picks})
-    store.put(("noise_normals", i), {"normals": nrm[:n_own]})
-    return clock.times
-
-
-def _noise_fit_round(store, keys, step, i, sigma_n, n_jobs):
-    """The last round of :func:`_noise_exchanged`: tile ``i``'s points' own fits, their
-    sums over its cells added to its ``("test", i)`` entry (:func:`_noise_sums`)."""
-    lists, n_own, picks = _own_lists(store, ("noise_lists", i))
-    xyz = gather_again(store, keys, i, picks, ("xyz",))["xyz"]
-    filtered = gather_again(store, step, i, picks, ("filtered",))["filtered"]
-    clock = Clock(None, 0, 1)
-    with threads(n_jobs):
-        noise2, spread2 = clock.run("own_noise", method.noise_fits, xyz, filtered, lists,
-                                    sigma_n)
-    _noise_sums(store, i, noise2[:n_own], spread2[:n_own])
-    return clock.times
-
-
-def _refine_exchanged(runner, store, keys, boxes, use_given, first, plan, sigma_n, shift):
-    """One refining iteration in several tiles, a round a step
-    (:func:`pssd_fast.method.refine_step`), as :func:`_exchanged` runs an iteration on the
-    means; returns what :func:`_refine_task` returns, for each tile."""
-    tiles = range(len(keys))
-    stage = (plan.iterations - 1, plan.iterations)
-    halo = [regions.widened(boxes[i], plan.refine[1]) for i in tiles]
-    times = runner.map("tile_refine_lists", *stage, _refine_lists_round, [
-        (store, keys, boxes, i, halo[i], use_given, first, plan, shift) for i in tiles])
-    step = [("refine_normals", i) for i in tiles]
-    if first and shift and not use_given:
-        times = _added(times, runner.map("tile_refine_shift", *stage, _refine_shift_round, [
-            (store, keys, step, i, plan) for i in tiles]))
-        _drop(store, step)
-        step = [("refine_shifted", i) for i in tiles]
-    times = _added(times, runner.map("tile_refine_filter", *stage, _refine_filter_round, [
-        (store, keys, step, i) for i in tiles]))
-    _drop(store, step)
-    step = [("refine_filtered", i) for i in tiles]
-    out = runner.map("tile_refine_fit", *stage, _refine_fit_round, [
-        (store, keys, step, i, sigma_n) for i in tiles])
-    _drop(store, step + [("refine_lists", i) for i in tiles])
-    return [(found[0], _added([before], [found[1]])[0]) for found, before in zip(out, times)]
-
-
-def _refine_lists_round(store, keys, boxes, i, region, use_given, first, plan, shift, n_jobs):
-    """The first round of :func:`_refine_exchanged`: the lists of tile ``i``'s flagged points
-    (``("refine_lists", i)``) and their normals before the others' are put back, with the
-    lists' planes where they are shifted next (``("refine_normals", i)``); its stage times."""
-    names = ("xyz", "normals", "flagged", "gid") + (("given",) if use_given else ())
-    items, picks = gather_halo(store, keys, i, boxes, region, names, "xyz")
-    n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
-    own_flagged = items["flagged"].copy()
-    own_flagged[n_own:] = False
-    clock = Clock(None, 0, 1)
-    with threads(n_jobs):
-        lists = method.refine_lists(items["xyz"], own_flagged, *plan.refine, items["gid"],
-                                    clock)
-        nrm, planes = method.refine_pca(items["xyz"], lists, items["normals"],
-                                        items["given"] if use_given else None, first, shift,
-                                        clock)
-    store.put(("refine_lists", i), {**lists._asdict(), "own": n_own, "picks": picks})
-    entry = {"normals": nrm[:n_own]}
-    if planes is not None:
-        entry.update(centres=planes.centres[:n_own], variation=planes.variation[:n_own],
-                     spread=planes.spread[:n_own])
-    store.put(("refine_normals", i), entry)
-    return clock.times
-
-
-def _refine_shift_round(store, keys, step, i, plan, n_jobs):
-    """The first refining iteration's shifted normals of tile ``i``'s points
-    (``("refine_shifted", i)``); its stage times."""
-    lists, n_own, picks = _own_lists(store, ("refine_lists", i))
-    items = {**gather_again(store, keys, i, picks, ("xyz",)), **gather_again(
-        store, step, i, picks, ("normals", "centres", "variation", "spread"))}
-    planes = core.ListPlanes(items["centres"], items["normals"], items["variation"],
-                             items["spread"])
-    clock = Clock(None, 0, 1)
-    with threads(n_jobs):
-        nrm = method.refine_shift(items["xyz"], items["normals"], lists, planes,
-                                  plan.refine[0], clock)
-    store.put(("refine_shifted", i), {"normals": nrm[:n_own]})
-    return clock.times
-
-
-def _refine_filter_round(store, keys, step, i, n_jobs):
-    """Tile ``i``'s points' filtered normals of a refining iteration
-    (``("refine_filtered", i)``); its stage times."""
-    lists, n_own, picks = _own_lists(store, ("refine_lists", i))
-    items = gather_again(store, keys, i, picks, ("xyz", "normals", "flagged"))
-    nrm = gather_again(store, step, i, picks, ("normals",))["normals"]
-    clock = Clock(None, 0, 1)
-    with threads(n_jobs):
-        filtered = method.refine_filter(items["xyz"], items["normals"], items["flagged"], nrm,
-                                        lists, clock)
-    store.put(("refine_filtered", i), {"filtered": filtered[:n_own]})
-    return clock.times
-
-
-def _refine_fit_round(store, keys, step, i, sigma_n, n_jobs):
-    """The last round of :func:`_refine_exchanged`: tile ``i``'s flagged points fitted and
-    moved, its next entry (:func:`_next_refined`)."""
-    lists, _, picks = _own_lists(store, ("refine_lists", i))
-    items = gather_again(store, keys, i, picks, ("xyz", "normals", "flagged"))
-    filtered = gather_again(store, step, i, picks, ("filtered",))["filtered"]
-    clock = Clock(None, 0, 1)
-    with threads(n_jobs):
-        out, normals, held = method.refine_fit(items["xyz"], items["normals"],
-                                               items["flagged"], filtered, lists, sigma_n,
-                                               clock)
-    return _next_refined(store, keys, i, out, normals, held, clock.times)
+    return regions.boxes(entry["xyz"]), clock.times
 
 
 def collect(store, tiles, n, names=("xyz", "normals", "held", "likelihood", "feature")):

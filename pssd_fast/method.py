@@ -159,9 +159,9 @@ def iteration(current, mass, k, bound, sigma_n, normals, clock, first, ids=None,
     return fit_step(current, mass, filtered, lists, sigma_n, clock)
 
 
-def listed(current, k, bound, ids, clock, first=None):
-    """The lists of :func:`iteration` (of the ``first`` means only, where given)."""
-    return clock.run("neighbors", bounded_graph, current, k, bound, None, ids, first)
+def listed(current, k, bound, ids, clock, own=None):
+    """The lists of :func:`iteration` (of the first ``own`` means only, where given)."""
+    return clock.run("neighbors", bounded_graph, current, k, bound, None, ids, own)
 
 
 def pca_step(current, lists, normals, first, shift, clock):
@@ -290,24 +290,10 @@ def own_noise(points, hints, k, bound, sigma_n, ids=None):
     squared residual about the feature-aware quadratic (robust alternative included) of its
     ``k`` nearest points within ``bound`` (ties ordered by ``ids``), PCA normals signed along
     ``hints`` (where not finite: away from the centre), over ``1 - H``, ``H`` the plain fit's
-    leverage on the point; and that times ``H``. Its steps, each reading the lists' members'
-    results of the one before: the lists, :func:`noise_normals`, the filter and
-    :func:`noise_fits`."""
+    leverage on the point; and that times ``H``."""
     lists = bounded_graph(points, k, bound, None, ids)
-    filtered = core.filter_normals(points, noise_normals(points, hints, lists), lists)
-    return noise_fits(points, filtered, lists, sigma_n)
-
-
-def noise_normals(points, hints, lists):
-    """The PCA normals of :func:`own_noise`, signed along ``hints`` where they are finite,
-    else away from the centre."""
     signs = np.where(np.isfinite(hints).all(axis=1)[:, None], hints, points)
-    return _normals(points, lists, signs, None)
-
-
-def noise_fits(points, filtered, lists, sigma_n):
-    """The last step of :func:`own_noise`: each point's own fit with the ``filtered`` normals
-    of its lists' members; its noise variance and what the fit leaves of it."""
+    filtered = core.filter_normals(points, _normals(points, lists, signs, None), lists)
     height, _, _, leverage = core.own_fits(points, filtered, lists, sigma_n)
     noise2 = height * height / (TEST["reads"] * np.maximum(1.0 - leverage,
                                                            np.finfo(np.float64).eps))
@@ -321,57 +307,18 @@ def refine_step(current, normals, flagged, k, bound, sigma_n, given, clock, firs
     given), the others lending their positions and ``normals``. ``given``: the flagged points'
     normals from the caller's, else None (PCA signed like ``normals``, shifted where ``first``
     and ``shift``). Returns every point's position and normal after it, and the flagged
-    points held in place. Its steps, each reading the lists' members' results of the one
-    before, are :func:`refine_lists`, :func:`refine_pca`, :func:`refine_shift`,
-    :func:`refine_filter` and :func:`refine_fit`, which tiles run as rounds of their own."""
-    lists = refine_lists(current, flagged, k, bound, ids, clock)
-    nrm, planes = refine_pca(current, lists, normals, given, first, shift, clock)
-    if planes is not None:
-        nrm = refine_shift(current, nrm, lists, planes, k, clock)
-    filtered = refine_filter(current, normals, flagged, nrm, lists, clock)
-    return refine_fit(current, normals, flagged, filtered, lists, sigma_n, clock)
-
-
-def refine_lists(current, flagged, k, bound, ids, clock):
-    """The lists of :func:`refine_step`: the flagged points' (every other point's is the
-    point alone)."""
-    return clock.run("refine_neighbors", bounded_graph, current, k, bound,
-                     np.flatnonzero(flagged), ids)
-
-
-def refine_pca(current, lists, normals, given, first, shift, clock):
-    """The normals of :func:`refine_step` before the others' are put back: the given ones,
-    else PCA signed like ``normals``; and the lists' planes where they are shifted next (else
-    None)."""
-    if given is not None:
-        return given.copy(), None
-    nrm, _, planes = clock.run("refine_normals", pca, current, lists, normals,
-                               bool(first and shift))
-    return nrm, planes
-
-
-def refine_shift(current, nrm, lists, planes, k, clock):
-    """The first refining iteration's shifted normals, from the ``planes`` of the lists'
-    members."""
-    return clock.run("refine_normals", shifted, current, nrm, lists, planes, k)
-
-
-def refine_filter(current, normals, flagged, nrm, lists, clock):
-    """The filtered normals of :func:`refine_step`: ``nrm`` where a point is flagged, its
-    ``normals`` where not, filtered over the lists."""
-    nrm = nrm.copy()
-    nrm[~flagged] = normals[~flagged]
-    return clock.run("refine_fit", core.filter_normals, current, nrm, lists)
-
-
-def refine_fit(current, normals, flagged, filtered, lists, sigma_n, clock):
-    """The last step of :func:`refine_step`: the flagged points fitted with the ``filtered``
-    normals of their lists' members (robust alternative included) and moved; its result."""
-    height, _, _ = clock.run("refine_fit", core.aware_fit, current, filtered, lists, sigma_n,
-                             None, True)
-    moved, held = clock.run("refine_fit", core.project, current, filtered, height,
-                            lists.list_radius())
+    points held in place."""
     rows = np.flatnonzero(flagged)
+    lists = clock.run("refine_neighbors", bounded_graph, current, k, bound, rows, ids)
+    if given is not None:
+        nrm = given.copy()
+    else:
+        nrm = clock.run("refine_normals", _normals, current, lists, normals,
+                        k if first and shift else None)
+    # Few points are flagged: one pass, not a masked copy of every other row.
+    nrm = np.where(flagged[:, None], nrm, normals)
+    moved, filtered, _, _, held = clock.run("refine_fit", aware.fit_and_move, current, nrm,
+                                            lists, sigma_n, Clock(None, 0, 1))
     out = current.copy()
     out[rows] = moved[rows]
     out_normals = normals.copy()

@@ -3,9 +3,10 @@ folder that every task reads and writes (docs/ALGORITHM.md, "Tiles").
 
 Each entry is a tile's named arrays at one step (``key``: a tuple such as ``("cells", tile,
 iteration)``); a task reads its own tile's entry whole and, from the other tiles' entries of
-the same step, only the rows inside its halo.
+the same step, only the rows inside its halo (:meth:`Files.rows`: those rows alone).
 """
 import pickle
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -29,32 +30,66 @@ class Memory:
         entry = self.entries[key]
         return dict(entry) if names is None else {name: entry[name] for name in names}
 
+    def rows(self, key, names, rows):
+        """The arrays ``names`` of entry ``key``, at ``rows`` only."""
+        entry = self.entries[key]
+        return {name: entry[name][rows] for name in names}
+
     def drop(self, key):
         self.entries.pop(key, None)
 
 
 class Files:
-    """The entries as files of ``folder`` (one pickle of arrays an entry, written whole): the
-    runs from a file to a file, and tiled runs in other processes."""
+    """The entries as files of ``folder``, a folder an entry and a file a value (an array as
+    ``.npy``, anything else pickled), each written whole: the runs from a file to a file, and
+    tiled runs in other processes. A task that reads some rows of another tile's entry reads
+    those rows alone (a memory map of each array it names)."""
 
     def __init__(self, folder):
         self.folder = Path(folder)
 
     def _path(self, key):
-        return self.folder / ("_".join(map(str, key)) + ".pkl")
+        return self.folder / "_".join(map(str, key))
 
     def put(self, key, arrays):
-        with atomic.scratch(self._path(key)) as fh:
-            pickle.dump({name: np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a
-                         for name, a in arrays.items()}, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        # Each file whole through a temporary name: a task run again (a worker thought lost)
+        # writes the same values, so a reader meets whole files of either run.
+        folder = self._path(key)
+        folder.mkdir(exist_ok=True)
+        for path in folder.iterdir():  # values an earlier put of the entry had, and this lacks
+            if not path.name.startswith(".") and path.stem not in arrays:
+                path.unlink(missing_ok=True)
+        for name, value in arrays.items():
+            array = isinstance(value, np.ndarray)
+            with atomic.scratch(folder / (name + (".npy" if array else ".pkl"))) as fh:
+                if array:
+                    np.save(fh, np.ascontiguousarray(value), allow_pickle=False)
+                else:
+                    pickle.dump(value, fh, protocol=pickle.HIGHEST_PROTOCOL)
 
     def get(self, key, names=None):
-        with open(self._path(key), "rb") as fh:
-            entry = pickle.load(fh)
-        return entry if names is None else {name: entry[name] for name in names}
+        folder = self._path(key)
+        if names is None:
+            names = sorted({path.stem for path in folder.iterdir()
+                            if path.suffix in (".npy", ".pkl") and not path.name.startswith(".")})
+        return {name: self._read(folder, name) for name in names}
+
+    def rows(self, key, names, rows):
+        """The arrays ``names`` of entry ``key``, at ``rows`` only (read through a memory map:
+        the pages that hold them)."""
+        folder = self._path(key)
+        return {name: np.load(folder / f"{name}.npy", mmap_mode="r")[rows] for name in names}
+
+    @staticmethod
+    def _read(folder, name):
+        path = folder / f"{name}.npy"
+        if path.exists():
+            return np.load(path, allow_pickle=False)
+        with open(folder / f"{name}.pkl", "rb") as fh:
+            return pickle.load(fh)
 
     def drop(self, key):
-        self._path(key).unlink(missing_ok=True)
+        shutil.rmtree(self._path(key), ignore_errors=True)
 
 
 def gather(store, keys, own, boxes, region, names, position):
@@ -77,11 +112,12 @@ def gather_halo(store, keys, own, boxes, region, names, position):
             continue
         if region is not None and not _meets(boxes[i], region):
             continue
-        entry = store.get(key, names)
-        rows = None
-        if region is not None:
-            rows = np.flatnonzero(regions.within(entry[position], region))
-            entry = {name: value[rows] for name, value in entry.items()}
+        if region is None:
+            rows, entry = None, store.get(key, names)
+        else:
+            inside = regions.within(store.get(key, (position,))[position], region)
+            rows = np.flatnonzero(inside)
+            entry = store.rows(key, names, rows)
         parts.append(entry)
         picks.append((i, rows))
     return _joined(parts, names), picks
@@ -93,9 +129,8 @@ def gather_again(store, keys, own, picks, names):
     without testing positions again."""
     parts = [store.get(keys[own], names)]
     for i, rows in picks:
-        entry = store.get(keys[i], names)
-        parts.append(entry if rows is None else
-                     {name: value[rows] for name, value in entry.items()})
+        parts.append(store.get(keys[i], names) if rows is None else
+                     store.rows(keys[i], names, rows))
     return _joined(parts, names)
 
 

@@ -172,7 +172,7 @@ def test_the_paper_s_pipeline_and_the_baselines_run_in_one_task():
 def test_progress_hears_of_every_tile(noisy):
     """Each round's tiles as they finish (``tile_fit 3/8``), then the round's stages, in the
     iterations counted from 1 as the stages count them: in several tiles a round a step of
-    each iteration (the first shifts its normals, and so does the refinement's)."""
+    each iteration on the means (the first shifts its normals)."""
     heard = []
     got = tiled.denoise(noisy.points, tile_points=1_000,
                         progress=lambda *args: heard.append(args))
@@ -181,11 +181,9 @@ def test_progress_hears_of_every_tile(noisy):
     assert iterations == sorted(iterations) and iterations[0] == (1, method.ITERATIONS)
     assert iterations[-1] == (method.ITERATIONS, method.ITERATIONS)
     count = got.stats["tiles"]["count"]
-    refined = method.REFINE["iterations"]
     rounds = {"tile_lists": method.ITERATIONS, "tile_shift": 1, "tile_filter": method.ITERATIONS,
               "tile_fit": method.ITERATIONS, "tile_project": 1, "tile_test": 1,
-              "tile_refine_lists": refined, "tile_refine_shift": 1,
-              "tile_refine_filter": refined, "tile_refine_fit": refined}
+              "tile_refine": method.REFINE["iterations"]}
     for stage, times in rounds.items():
         ours = [s for s in seen if s.startswith(stage + " ")]
         assert len(ours) == times * count, stage
@@ -557,3 +555,33 @@ def test_a_run_holds_only_what_its_later_rounds_read(noisy, in_core, tile_points
     assert kinds == ["cells", "fits", "out", "points"]
     assert {key[2] for key in store.entries if key[0] == "cells"} == {0}
     _assert_same(got, in_core["default"])
+
+
+@pytest.mark.parametrize("kind", ["memory", "files"])
+def test_a_store_gives_back_what_was_put_and_the_rows_asked(kind, tmp_path):
+    """Whole entries, the names asked, the rows asked (from files: through a memory map), an
+    entry put again with fewer names, values that are not arrays, and entries dropped."""
+    from pssd_fast.store import Files, Memory
+
+    store = Memory() if kind == "memory" else Files(tmp_path)
+    rng = np.random.default_rng(0)
+    xyz, gid = rng.normal(size=(50, 3)), np.arange(50, 100)
+    store.put(("cells", 0, 1), {"xyz": xyz, "gid": gid, "picks": [(1, np.arange(3)), (2, None)]})
+    got = store.get(("cells", 0, 1))
+    assert sorted(got) == ["gid", "picks", "xyz"]
+    np.testing.assert_array_equal(got["xyz"], xyz)
+    assert got["picks"][1] == (2, None)
+    np.testing.assert_array_equal(got["picks"][0][1], np.arange(3))
+    rows = np.array([0, 7, 49])
+    part = store.rows(("cells", 0, 1), ("gid", "xyz"), rows)
+    np.testing.assert_array_equal(part["gid"], gid[rows])
+    np.testing.assert_array_equal(part["xyz"], xyz[rows])
+    assert store.rows(("cells", 0, 1), ("gid",), rows[:0])["gid"].shape == (0,)
+    store.put(("cells", 0, 1), {"xyz": xyz[:5]})
+    assert list(store.get(("cells", 0, 1))) == ["xyz"]
+    store.drop(("cells", 0, 1))
+    store.drop(("cells", 0, 1))  # twice: nothing left to drop
+    with pytest.raises((KeyError, FileNotFoundError)):
+        store.get(("cells", 0, 1), ("xyz",))
+    if kind == "files":
+        assert list(tmp_path.iterdir()) == []
