@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from . import core
+from . import core, regions
 from .denoise import METHODS, denoise
 from .graph import GRID_K, knn_graph
 from .jit import cache
@@ -41,6 +41,8 @@ def warmup():
     denoise(points, iterations=1, orient="outward")
     denoise(points, iterations=1, preset="fast")
     outlier_score(points, k=10)
+    # The halo test of tiled runs.
+    regions.within(points, regions.boxes(points))
     # Lists as long as the baselines' at scan sizes come from the grid query.
     sphere = rng.normal(size=(GRID_K + 1, 3))
     knn_graph(sphere / np.linalg.norm(sphere, axis=1)[:, None], GRID_K, False)
