@@ -400,7 +400,7 @@ def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, cloc
     last becomes ``("out", i)``), their stages timed on ``clock``."""
     bound = plan.refine[1]
     # Tasks, as every step that reads a tile's points: the calling process holds none.
-    boxes = runner.map("tile_out", plan.iterations - 1, plan.iterations, _refine_entry,
+    found = runner.map("tile_out", plan.iterations - 1, plan.iterations, _refine_entry,
                        [(store, i, given) for i in range(len(tiles))])
     _drop(store, [("flags", i) for i in range(len(tiles))])
     iterations = method.REFINE["iterations"]
@@ -408,13 +408,15 @@ def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, cloc
         use_given = given and (t == 0 or keep)
         width = (3 if use_given or t > 0 or not shift else 4) * bound
         keys = [("refine", i, t) for i in range(len(tiles))]
+        # A tile's halo: what its failing points' chain of steps reads, around those points.
+        boxes = [everyone for everyone, _ in found]
         # Reported in the run's last iteration, as the rest of the refinement.
         out = runner.map("tile_refine", plan.iterations - 1, plan.iterations, _refine_task, [
-            (store, keys, boxes, i, None if whole else regions.widened(boxes[i], width),
-             use_given, t == 0, plan, sigma_n, shift) for i in range(len(tiles))])
+            (store, keys, boxes, i, None if whole else regions.widened(found[i][1], width),
+             width, use_given, t == 0, plan, sigma_n, shift) for i in range(len(tiles))])
         _tally(clock, [o[1] for o in out])
         _drop(store, keys)
-        boxes = [o[0] for o in out]
+        found = [o[0] for o in out]
     runner.map("tile_out", plan.iterations - 1, plan.iterations, _refined,
                [(store, i, iterations) for i in range(len(tiles))])
 
@@ -426,7 +428,7 @@ def _placed_out(store, i, n_jobs):
 
 def _refine_entry(store, i, given, n_jobs):
     """Tile ``i``'s first refining entry: its points as placed, the failing ones back at their
-    input positions (a task); the boxes of those positions."""
+    input positions (a task); the boxes of those positions (:func:`_refine_boxes`)."""
     placed = store.get(("placed", i))
     points = store.get(("points", i), ("xyz",) + (("given",) if given else ()))
     flagged = store.get(("flags", i))["flagged"]
@@ -437,7 +439,14 @@ def _refine_entry(store, i, given, n_jobs):
     if given:
         entry["given"] = points["given"]
     store.put(("refine", i, 0), entry)
-    return regions.boxes(xyz)
+    return _refine_boxes(xyz, flagged)
+
+
+def _refine_boxes(xyz, flagged):
+    """The boxes of a tile's points (what another tile's halo may meet) and of its failing
+    points (what its own halo is around; none where none fails)."""
+    return regions.boxes(xyz), (regions.boxes(xyz[flagged]) if flagged.any()
+                                else np.empty((0, 2, 3)))
 
 
 def _refined(store, i, last, n_jobs):
@@ -448,13 +457,17 @@ def _refined(store, i, last, n_jobs):
     store.drop(("refine", i, last))
 
 
-def _refine_task(store, keys, boxes, i, region, use_given, first, plan, sigma_n, shift,
-                 n_jobs):
-    """A tile's task of one refining iteration (:func:`pssd_fast.method.refine_step`): its own
-    points' next entry; the boxes of their positions and the stage times."""
+def _refine_task(store, keys, boxes, i, region, width, use_given, first, plan, sigma_n,
+                 shift, n_jobs):
+    """A tile's task of one refining iteration (:func:`pssd_fast.method.refine_step`) over its
+    points and the others' within ``width`` of its failing ones (in the boxes ``region``): its
+    own points' next entry; the boxes of their positions (:func:`_refine_boxes`) and the stage
+    times."""
     names = ("xyz", "normals", "flagged", "gid") + (("given",) if use_given else ())
-    items = gather(store, keys, i, boxes, region, names, "xyz")
     entry = store.get(keys[i])
+    # The halo: the points within the chain of steps' reach of the tile's failing points.
+    items = gather(store, keys, i, boxes, region, names, "xyz", None if region is None else (
+        entry["xyz"][entry["flagged"]], width))
     n_own = entry["gid"].shape[0]
     k, bound = plan.refine
     clock = Clock(None, 0, 1)
@@ -464,7 +477,7 @@ def _refine_task(store, keys, boxes, i, region, use_given, first, plan, sigma_n,
             items["given"] if use_given else None, clock, first, items["gid"], shift)
     entry.update(xyz=out[:n_own], normals=normals[:n_own], held=entry["held"] | held[:n_own])
     store.put(keys[i][:2] + (keys[i][2] + 1,), entry)
-    return regions.boxes(entry["xyz"]), clock.times
+    return _refine_boxes(entry["xyz"], entry["flagged"]), clock.times
 
 
 def collect(store, tiles, n, names=("xyz", "normals", "held", "likelihood", "feature")):

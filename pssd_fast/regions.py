@@ -6,6 +6,7 @@ widened by the halo's width.
 """
 import numpy as np
 
+from ._threads import kdtree
 from .graph import bounds
 from .kernels.boxes import inside_any
 
@@ -32,3 +33,14 @@ def within(points, region):
     inside_any(np.ascontiguousarray(points, dtype=np.float64),
                np.ascontiguousarray(region, dtype=np.float64), inside)
     return inside
+
+
+def near(points, centres, radius):
+    """The mask of ``points`` within ``radius`` of any of ``centres`` (a hair more: a halo may
+    hold more than it needs, never less)."""
+    if not centres.shape[0] or not points.shape[0]:
+        return np.zeros(points.shape[0], np.bool_)
+    found, _ = kdtree(np.ascontiguousarray(centres, dtype=np.float64)).query(
+        np.ascontiguousarray(points, dtype=np.float64), k=1,
+        distance_upper_bound=radius * (1.0 + 1e-9))
+    return np.isfinite(found)

@@ -92,17 +92,18 @@ class Files:
         shutil.rmtree(self._path(key), ignore_errors=True)
 
 
-def gather(store, keys, own, boxes, region, names, position):
+def gather(store, keys, own, boxes, region, names, position, near=None):
     """A task's items: those of its own entry ``keys[own]``, then, of every other entry whose
     ``boxes`` (``(p, 2, 3)`` each) meet the boxes ``region`` (None: the task covers every
-    tile), the rows whose ``position`` lies inside ``region``; the arrays ``names``
+    tile), the rows whose ``position`` lies inside ``region`` (with ``near``, ``(centres,
+    radius)``: within ``radius`` of one of ``centres`` instead); the arrays ``names``
     concatenated in that order (the own entry's arrays themselves where no other entry is
     read: tasks never change an array they read). Each entry's rows are in the order of the
     whole cloud (the tiles follow it), so the halo's rows are too."""
-    return gather_halo(store, keys, own, boxes, region, names, position)[0]
+    return gather_halo(store, keys, own, boxes, region, names, position, near)[0]
 
 
-def gather_halo(store, keys, own, boxes, region, names, position):
+def gather_halo(store, keys, own, boxes, region, names, position, near=None):
     """:func:`gather`, and the rows it took of each other entry (``[(i, rows)]``; rows None:
     all of them), which :func:`gather_again` takes of entries of the same rows."""
     parts = [store.get(keys[own], names)]
@@ -115,7 +116,8 @@ def gather_halo(store, keys, own, boxes, region, names, position):
         if region is None:
             rows, entry = None, store.get(key, names)
         else:
-            inside = regions.within(store.get(key, (position,))[position], region)
+            at = store.get(key, (position,))[position]
+            inside = regions.within(at, region) if near is None else regions.near(at, *near)
             rows = np.flatnonzero(inside)
             entry = store.rows(key, names, rows)
         parts.append(entry)

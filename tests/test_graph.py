@@ -362,3 +362,15 @@ def test_points_inside_any_box_match_a_loop(seed):
         inside_any(pts, bxs, out)
         np.testing.assert_array_equal(out, _inside_reference(pts, bxs))
     assert out[:2].all() and out.any() and not out.all()
+
+
+def test_points_near_centres_match_a_loop():
+    from pssd_fast import regions
+
+    rng = np.random.default_rng(5)
+    points, centres = rng.uniform(size=(500, 3)), rng.uniform(size=(7, 3))
+    want = np.array([min(np.linalg.norm(p - c) for c in centres) <= 0.2 for p in points])
+    np.testing.assert_array_equal(regions.near(points, centres, 0.2), want)
+    assert 0 < want.sum() < 500
+    assert not regions.near(points, centres[:0], 0.2).any()
+    assert regions.near(points[:0], centres, 0.2).shape == (0,)
