@@ -8,11 +8,13 @@ boxes of its own (:func:`pssd_fast.store.gather`), with their places in the whol
 order tied neighbours. The lists of the items it keeps are then the whole cloud's, and so are
 its results, bit for bit, whatever the tiles (:func:`pssd_fast.graph.nearest_within`).
 
-The rounds: the iterations on the cell means (a halo of four list bounds in the first, whose
-normals are shifted, three after); every point onto the last fits of its nearest means (one
-bound); where the plan says so, each point's own noise from its own fit (three bounds of the
-refinement's lists); the test of each cell (one bound); the failing points' own iterations (four
-bounds of their lists, then three). The cells themselves come first
+The rounds: the iterations on the cell means (in one tile a task an iteration; in several a
+round a step, each over a halo of one list bound, reading the step before's results from the
+tiles that own them: :func:`_exchanged`); every point onto the last fits of its nearest means
+(one bound); where the plan says so, each point's own noise from its own fit (three bounds of
+the refinement's lists); the test of each cell (one bound); the failing points' own iterations
+(the points within four bounds of their lists of the failing ones, then three). The cells
+themselves come first
 (:func:`group`, or :mod:`pssd_fast.tiled.ondisk` out of core): each tile holds whole cells,
 consecutive along their Morton curve, and its points grouped by cell.
 """
@@ -214,9 +216,9 @@ def _next_means(store, keys, i, items, fits, last, times):
     their next entry (positions and filtered normals; in the ``last`` iteration their fits,
     ``("fits", i)``), and the boxes of their new positions, held count, RMS sum, degree
     counts and the stage ``times``."""
-    n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
-    own = {name: items[name][:n_own] for name in ("mass", "gid")}
     entry = store.get(keys[i])
+    n_own = entry["gid"].shape[0]
+    own = {name: items[name][:n_own] for name in ("mass", "gid")}
     own.update({"xyz": fits.moved[:n_own], "hints": fits.filtered[:n_own]})
     if "normals" in entry:
         own["normals"] = entry["normals"]
