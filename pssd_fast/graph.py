@@ -6,6 +6,7 @@ import numpy as np
 from . import interop
 from ._threads import kdtree, threads
 from ._validation import as_points, check_k
+from .kernels.boxes import inside_any
 from .kernels.graph import keep_nearest, put_self_first, refresh_lists
 from .kernels.knn import grid_knn
 from .kernels.order import cell_coordinates, interleave, morton_codes
@@ -104,6 +105,15 @@ def cell_keys(points, low, edge, shift=None):
     code = np.empty(n, np.uint64)
     interleave(cells, shift, code)
     return code, cells
+
+
+def inside_boxes(points, boxes):
+    """The mask of ``points`` inside any of ``boxes`` ``(p, 2, 3)`` (low and high corners),
+    faces included."""
+    inside = np.empty(points.shape[0], np.bool_)
+    inside_any(np.ascontiguousarray(points, dtype=np.float64),
+               np.ascontiguousarray(boxes, dtype=np.float64), inside)
+    return inside
 
 
 def cell_order(code, cells):

@@ -7,8 +7,7 @@ widened by the halo's width.
 import numpy as np
 
 from ._threads import kdtree
-from .graph import bounds
-from .kernels.boxes import inside_any
+from .graph import bounds, inside_boxes
 
 #: A tile's halo is the items near the boxes of this many runs of its own.
 PIECES = 32
@@ -29,10 +28,7 @@ def widened(region, width):
 def within(points, region):
     """The mask of ``points`` inside any of the boxes ``region`` ``(p, 2, 3)``, faces
     included."""
-    inside = np.empty(points.shape[0], np.bool_)
-    inside_any(np.ascontiguousarray(points, dtype=np.float64),
-               np.ascontiguousarray(region, dtype=np.float64), inside)
-    return inside
+    return inside_boxes(points, region)
 
 
 def near(points, centres, radius):
