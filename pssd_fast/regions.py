@@ -7,7 +7,7 @@ widened by the halo's width.
 import numpy as np
 
 from ._threads import kdtree
-from .graph import bounds, inside_boxes
+from .graph import bounds
 
 #: A tile's halo is the items near the boxes of this many runs of its own.
 PIECES = 32
@@ -23,12 +23,6 @@ def boxes(points):
 def widened(region, width):
     """The boxes ``region`` grown by ``width`` on every side."""
     return region + np.array([-width, width])[None, :, None]
-
-
-def within(points, region):
-    """The mask of ``points`` inside any of the boxes ``region`` ``(p, 2, 3)``, faces
-    included."""
-    return inside_boxes(points, region)
 
 
 def near(points, centres, radius):

@@ -13,6 +13,7 @@ import numpy as np
 
 from . import atomic
 from . import regions
+from .graph import inside_boxes
 
 
 class Memory:
@@ -117,7 +118,7 @@ def gather_halo(store, keys, own, boxes, region, names, position, near=None):
             rows, entry = None, store.get(key, names)
         else:
             at = store.get(key, (position,))[position]
-            inside = regions.within(at, region) if near is None else regions.near(at, *near)
+            inside = inside_boxes(at, region) if near is None else regions.near(at, *near)
             rows = np.flatnonzero(inside)
             entry = store.rows(key, names, rows)
         parts.append(entry)

@@ -9,7 +9,7 @@ import numpy as np
 
 from . import core, regions
 from .denoise import METHODS, denoise
-from .graph import GRID_K, knn_graph
+from .graph import GRID_K, inside_boxes, knn_graph
 from .jit import cache
 from .stages import outlier_score
 
@@ -42,7 +42,7 @@ def warmup():
     denoise(points, iterations=1, preset="fast")
     outlier_score(points, k=10)
     # The halo test of tiled runs.
-    regions.within(points, regions.boxes(points))
+    inside_boxes(points, regions.boxes(points))
     # Lists as long as the baselines' at scan sizes come from the grid query.
     sphere = rng.normal(size=(GRID_K + 1, 3))
     knn_graph(sphere / np.linalg.norm(sphere, axis=1)[:, None], GRID_K, False)
