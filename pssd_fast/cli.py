@@ -651,7 +651,8 @@ def _denoise_on_disk(args, params, inp, out, say):
         total = stats["n_points"] + stats.get("classes", {}).get("untouched", 0)
         print(f"{inp} -> {out}: {total:,} points, method {args.method}, "
               f"{stats['n_iterations']} iterations, {stats['total_seconds']:.2f} s; "
-              f"{tiles['count']} tiles of at most {tiles['most_points']:,} points, out of core"
+              f"{tiles['count']} tile{'s' * (tiles['count'] != 1)} of at most "
+              f"{tiles['most_points']:,} points, out of core"
               f"{_copies(stats)}{_classes_done(stats)}", file=say)
 
 

@@ -955,7 +955,7 @@ def test_tile_points_on_npy_and_las_run_out_of_core_with_the_in_core_file(tmp_pa
     status, out, err = pssd("denoise", path, tmp_path / f"tiled{ext}", *fields,
                             "--tile-points", "1500", "--scheduler", "sync")
     assert status == 0, err
-    tiles = re.search(r"(\d+) tiles of at most ([\d,]+) points, out of core", out)
+    tiles = re.search(r"(\d+) tiles? of at most ([\d,]+) points, out of core", out)
     assert tiles and int(tiles[1]) >= 7 and int(tiles[2].replace(",", "")) <= 1500, out
     in_core, tiled = (io.read(tmp_path / f"{name}{ext}") for name in ("in_core", "tiled"))
     np.testing.assert_array_equal(tiled.points, in_core.points)
