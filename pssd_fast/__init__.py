@@ -27,14 +27,15 @@ from .stages import (
     MLSFit, estimate_normals, feature_intensity, filter_normals, mls_fit, outlier_score,
     sampling_likelihood,
 )
+from .stats import Stats
 from .warmup import warmup
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "METHODS", "DenoiseResult", "DenoiseWarning", "MLSFit", "NeighborGraph", "configure_threads",
-    "denoise", "estimate_normals", "feature_intensity", "filter_normals", "mls_fit",
-    "morton_order", "neighbors", "outlier_score", "sampling_likelihood", "warmup",
+    "METHODS", "DenoiseResult", "DenoiseWarning", "MLSFit", "NeighborGraph", "Stats",
+    "configure_threads", "denoise", "estimate_normals", "feature_intensity", "filter_normals",
+    "mls_fit", "morton_order", "neighbors", "outlier_score", "sampling_likelihood", "warmup",
 ]
 
 #: Subpackages imported on first access (PEP 562), not by ``import pssd_fast``.

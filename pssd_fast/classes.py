@@ -1,5 +1,6 @@
 """LiDAR classes kept apart: which classes a :func:`pssd_fast.denoise` call with
 ``classification=`` denoises, and the one result of their runs, each class on its own."""
+import dataclasses
 import numbers
 import time
 import warnings
@@ -181,15 +182,14 @@ def summary(runs, untouched, small, described, started):
     stats)``), the number of points of no run (``untouched``) and the classes too ``small``:
     the largest run's, with :data:`SUMMED` and the outliers summed over the runs and
     ``stats["classes"]`` added."""
-    stats = {**max(runs, key=lambda run: run[1])[2],
-             **{name: sum(run[2][name] for run in runs) for name in SUMMED}}
-    stats["outliers"] = _outliers([run[2]["outliers"] for run in runs])
-    stats["total_seconds"] = time.perf_counter() - started
-    stats["classes"] = {
-        "classes": described, "denoised": int(sum(run[1] for run in runs)),
-        "untouched": untouched, "too_small": [code for code, _ in small],
-        "runs": {} if described == "all" else {code: found for code, _, found in runs}}
-    return stats
+    largest = max(runs, key=lambda run: run[1])[2]
+    return dataclasses.replace(
+        largest, **{name: sum(run[2][name] for run in runs) for name in SUMMED},
+        outliers=_outliers([run[2]["outliers"] for run in runs]),
+        total_seconds=time.perf_counter() - started,
+        classes={"classes": described, "denoised": int(sum(run[1] for run in runs)),
+                 "untouched": untouched, "too_small": [code for code, _ in small],
+                 "runs": {} if described == "all" else {code: found for code, _, found in runs}})
 
 
 def given_normals(normals, n, chosen):

@@ -226,15 +226,14 @@ def _run(points, normals, runner, tile_points, store, **options):
     pts, dtype = as_points(points)
     check_precision(pts, dtype, stacklevel=5)
     n = pts.shape[0]
-    if k is None and preset == "paper":
-        # The caller chose no k: the message is about the cloud's size, not about k.
+    if k is None:
+        # The caller chose no k: the message is about the cloud's size, not about k (the
+        # plan resolves k).
         check_size(n)
-        k = PRESETS[preset]["k"]
-        if n < k + 1:
-            raise ValueError(f"the cloud has {n} points; preset {preset!r} uses k = {k} "
-                             f"neighbours and needs at least {k + 1}; pass a smaller k")
-    elif k is None:
-        check_size(n)
+        paper = PRESETS[preset]["k"] if preset == "paper" else None
+        if paper is not None and n < paper + 1:
+            raise ValueError(f"the cloud has {n} points; preset {preset!r} uses k = {paper} "
+                             f"neighbours and needs at least {paper + 1}; pass a smaller k")
     k = None if k is None else check_k(k, n)
     given = None if normals is None else as_normals(normals, n)
     if params["keep_normals"] and given is None:
@@ -271,7 +270,7 @@ def _run(points, normals, runner, tile_points, store, **options):
     given = None if given is None else given[order]
     request = Request(method, preset, pipeline, lam, params, orient, centre, report, started,
                       bool(extras))
-    more = {}
+    tiles = None
     with threads(n_jobs) as n_threads:
         plan, lists = planning.make(current, given, preset, pipeline, distinct=distinct,
                                     low=low - centre, k=k, iterations=iterations,
@@ -282,12 +281,12 @@ def _run(points, normals, runner, tile_points, store, **options):
         else:
             done, count, most = iterate(current, given, plan, request, lists), 1, distinct
         if runner is not None:
-            more["tiles"] = {"count": count, "most_points": most, "scheduler": runner.name,
+            tiles = {"count": count, "most_points": most, "scheduler": runner.name,
                              "threads": runner.threads}
     return result(Input(pts, dtype, order, groups), done, centre, kept,
                   None if score is None else score.astype(dtype, copy=False),
                   stats(request, plan, n, distinct, n_threads, done.records,
-                        int(done.held.sum()), outliers=outliers, **more))
+                        int(done.held.sum()), outliers=outliers, tiles=tiles))
 
 
 def _by_class(points, normals, classification, classes, options, runner, tile_points, store):

@@ -194,45 +194,6 @@ def _normals(points, lists, hints, shift_k):
     return nrm if shift_k is None else shifted(points, nrm, lists, planes, shift_k)
 
 
-class Iterated(NamedTuple):
-    """The cell means after the iterations, and the last iteration's fits: ``origins`` (where
-    the means were at its start), the last :class:`Fits` (``last``), the means ``held`` in
-    some iteration, and one record per iteration."""
-
-    points: np.ndarray
-    origins: np.ndarray
-    last: Fits
-    held: np.ndarray
-    records: list
-
-
-def iterate(cells, k, bound, iterations, sigma_n, given, keep_normals, report=None,
-            shift=True):
-    """The feature-aware iterations (:func:`iteration`) on the cell means; the last keeps its
-    fits. ``given``: the means' normals from the caller's (the first iteration's; every one's
-    with ``keep_normals``), else None: PCA normals, shifted in the first iteration."""
-    current = cells.points
-    mass = cells.counts.astype(np.float64)
-    hints = core.outward_hints(current)
-    held = np.zeros(current.shape[0], np.bool_)
-    records = []
-    for t in range(iterations):
-        clock = Clock(report, t, iterations)
-        own = given is not None and (t == 0 or keep_normals)
-        fits = iteration(current, mass, k, bound, sigma_n, given if own else hints, clock,
-                         None if own else t == 0, None, shift)
-        held |= fits.held
-        records.append(record(clock.times, fits))
-        origins, current, hints = current, fits.moved, fits.filtered
-    return Iterated(current, origins, fits, held, records)
-
-
-def record(times, fits):
-    """An iteration's record for ``stats``."""
-    return aware.step_record(times, fits.held.sum(), fits.rms.sum(), fits.rms.shape[0],
-                             np.bincount(fits.degree, minlength=7))
-
-
 def project(points, origins, fits, bound, ids=None):
     """Each point moved onto the fits of its :data:`BLEND` nearest means (``origins``, their
     positions at the last iteration's start, within ``bound``; ties ordered by ``ids`` where
@@ -247,11 +208,6 @@ def project(points, origins, fits, bound, ids=None):
     normals = fits.filtered[np.minimum(first, origins.shape[0] - 1)]
     normals[counts == 0] = np.nan
     return moved, normals, held
-
-
-def cell_sums(cells, values):
-    """The sum of ``values`` (one per point, in the points' order) over each cell's points."""
-    return np.add.reduceat(values[cells.order], cells.starts[:-1])
 
 
 def failing(means, sums, counts, sigma, bound, ids=None, own=None, first=None):
@@ -324,18 +280,3 @@ def refine_step(current, normals, flagged, k, bound, sigma_n, given, clock, firs
     out_normals = normals.copy()
     out_normals[rows] = filtered[rows]
     return out, out_normals, held & flagged
-
-
-def refine(start, normals, flagged, k, bound, sigma_n, given, keep_normals, clock, shift=True):
-    """The flagged points' own iterations (:func:`refine_step`, ``REFINE["iterations"]`` of
-    them) from ``start`` (the flagged points' input positions, every other point where the
-    surface put it). Returns every point's position and normal, and the flagged points held
-    in some iteration."""
-    held = np.zeros(start.shape[0], np.bool_)
-    current = start
-    for t in range(REFINE["iterations"]):
-        own = given if given is not None and (t == 0 or keep_normals) else None
-        current, normals, held_now = refine_step(current, normals, flagged, k, bound, sigma_n,
-                                                 own, clock, t == 0, None, shift)
-        held |= held_now
-    return current, normals, held

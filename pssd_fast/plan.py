@@ -126,8 +126,14 @@ def make(points, given, preset, pipeline, *, distinct, low, k=None, iterations=N
         k = min(k, distinct - 1)
         if lists is not None and k > probe["probe_k"]:
             lists = None  # too short to serve
+    elif k is None and preset == "paper":
+        k = setting["k"]  # the paper's, never cut to the cloud
+        if distinct < k + 1:
+            raise ValueError(f"the cloud has {distinct} distinct positions; preset 'paper' "
+                             f"uses k = {k} neighbours and needs at least {k + 1}; pass a "
+                             "smaller k")
     elif k is None:
-        k = setting["k"] if preset == "paper" else min(setting["k"], distinct - 1)
+        k = min(setting["k"], distinct - 1)
     rebuild = setting["rebuild_graph"] if rebuild_graph is None else rebuild_graph
     return Plan(pipeline, iterations, k, rebuild_graph=bool(rebuild), probe=probe), lists
 

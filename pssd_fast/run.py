@@ -14,6 +14,7 @@ from .graph import knn_graph, morton_order, refresh_graph, truncate_graph
 from .pipelines import STEPS
 from .pipelines.normals import estimated_normals
 from .progress import Clock
+from .stats import Iteration, Stats
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,26 +59,12 @@ class DenoiseResult:
         Rows of the input that the other arrays hold, in increasing order: every row, or with
         ``remove_outliers=True`` those scoring at most 1 (so ``points[kept]`` is what was
         denoised and ``outlier_score`` has one value per kept row).
-    stats : dict
-        ``"iterations"``: one dict per iteration with per-stage wall times in seconds
-        (``"times"``), the derived scales (``h``, ``mean_spacing``, ``region_radius``,
-        ``mean_residual``), fallback counts (``fit_degree`` counts of cubic, quadratic and
-        plane fits; ``degenerate_normals``; ``held_points``, points left in place because their
-        step was not finite or longer than its list's radius), region sizes and the mean step;
-        plus the run's settings (``"k"``; ``"pipeline"``: "default", "paper", "bilateral" or
-        "mls"; ``"plan"``: the one method the run followed and what it chose,
-        docs/ALGORITHM.md, "The plan": for the default method its
-        ``iterations``, ``k``, ``cell_edge``, ``bound``, the probe's ``noise`` and the
-        refinement's ``k`` and ``bound`` (None under "fast"); ``"auto_k"``: the default
-        method's probe time, or the baselines' noise probe behind a ``k`` chosen from the data,
-        else None; ``"noise"``: the noise it estimated, else None), ``"duplicates"`` (rows
-        merged into another at their position,
-        :mod:`pssd_fast.duplicates`), ``"held_points"`` (the points of ``held``) and
-        ``"total_seconds"``. With a ``classification``, the largest class's run's, with
-        ``n_points``, ``duplicates``, ``held_points`` and ``outliers`` summed over the runs and
-        the call's ``total_seconds``; ``"classes"`` holds the codes denoised (or ``"all"``),
-        the points ``"denoised"`` and ``"untouched"``, the classes ``"too_small"`` and each
-        run's ``stats`` (``"runs"``). JSON-serialisable.
+    stats : Stats
+        What the run chose and did (:class:`pssd_fast.Stats`): its settings, the plan, the
+        probe's noise, the points held, one :class:`pssd_fast.stats.Iteration` per iteration
+        (per-stage wall times, fallback counts, the derived scales) and the call's
+        ``total_seconds``; with a ``classification``, the classes run (``classes``). Read as
+        attributes or as a mapping (``stats["k"]``); ``stats.to_dict()`` for JSON.
     """
 
     points: np.ndarray
@@ -88,7 +75,7 @@ class DenoiseResult:
     held: np.ndarray
     outlier_score: Optional[np.ndarray]
     kept: np.ndarray
-    stats: dict = field(repr=False)
+    stats: Stats = field(repr=False)
 
     def __getattribute__(self, name):
         value = object.__getattribute__(self, name)
@@ -268,36 +255,37 @@ def result(rows, done, centre, kept, score, stats):
     )
 
 
-def stats(request, plan, n, distinct, n_threads, records, held, outliers=None, **more):
-    """A run's ``stats`` (see :class:`DenoiseResult`) for ``n`` points at ``distinct``
-    positions, ``held`` of them held in place; ``outliers``: what ``remove_outliers`` did, or
-    None; ``more``: the entries a tiled run adds (``tiles``)."""
+def stats(request, plan, n, distinct, n_threads, records, held, outliers=None, tiles=None):
+    """A run's :class:`~pssd_fast.stats.Stats` for ``n`` points at ``distinct`` positions,
+    ``held`` of them held in place; ``records``: one dict per iteration (the fields of an
+    :class:`~pssd_fast.stats.Iteration`); ``outliers``: what ``remove_outliers`` did, or
+    None; ``tiles``: a tiled run's tiles."""
     orient = request.orient
-    return {
-        "method": request.method,
-        "n_points": n,
-        "duplicates": n - distinct,
-        "k": plan.k,
-        "lam": request.lam,
-        "preset": request.preset,
-        "pipeline": request.pipeline,
-        "plan": plan.describe(),
-        "auto_k": plan.probe,
-        "noise": plan.noise.sigma if plan.noise is not None else (
+    return Stats(
+        method=request.method,
+        n_points=n,
+        duplicates=n - distinct,
+        k=plan.k,
+        lam=request.lam,
+        preset=request.preset,
+        pipeline=request.pipeline,
+        plan=plan.describe(),
+        auto_k=plan.probe,
+        noise=plan.noise.sigma if plan.noise is not None else (
             None if plan.probe is None else plan.probe["noise"]),
-        "rebuild_graph": plan.rebuild_graph,
-        "orient": orient if orient is None or isinstance(orient, str) else orient.tolist(),
-        "outliers": outliers,
-        "n_iterations": plan.iterations,
-        "held_points": held,
+        rebuild_graph=plan.rebuild_graph,
+        orient=orient if orient is None or isinstance(orient, str) else orient.tolist(),
+        outliers=outliers,
+        n_iterations=plan.iterations,
+        held_points=held,
         # None in the checked parameters is a choice left to the library.
-        "params": {name: "auto" if value is None else value
-                   for name, value in request.params.items()},
-        "n_jobs": n_threads,
-        "iterations": records,
-        **more,
-        "total_seconds": time.perf_counter() - request.started,
-    }
+        params={name: "auto" if value is None else value
+                for name, value in request.params.items()},
+        n_jobs=n_threads,
+        iterations=tuple(Iteration(**record) for record in records),
+        tiles=tiles,
+        total_seconds=time.perf_counter() - request.started,
+    )
 
 
 def check_distinct(distinct, n, k):

@@ -1,4 +1,5 @@
 """The public denoise() call: agreement with the reference, determinism, dtypes, errors."""
+import dataclasses
 import json
 import subprocess
 import sys
@@ -257,9 +258,7 @@ def test_stats_describe_the_default_run(noisy):
     assert set(stats["iterations"][-1]["times"]) == {
         "neighbors", "normals", "filter", "mls", "update", "project", "test",
         "refine_neighbors", "refine_normals", "refine_fit"} | own
-    import json
-
-    json.dumps(stats)
+    json.dumps(stats.to_dict())
 
 
 def test_stats_describe_the_run(noisy):
@@ -273,9 +272,26 @@ def test_stats_describe_the_run(noisy):
         assert record["region_size_mean"] > 1
     steps = [r["mean_step"] for r in stats["iterations"]]
     assert steps[0] > steps[-1]  # the noise is removed in the first passes
-    import json
+    json.dumps(stats.to_dict())
 
-    json.dumps(stats)
+
+def test_stats_are_typed_frozen_and_read_as_a_mapping(noisy):
+    """``stats`` is a frozen :class:`pssd_fast.Stats`: its fields as attributes and as a
+    mapping alike, no part it does not have (``tiles``, ``classes``), ``to_dict()`` plain
+    dicts and lists that JSON takes."""
+    stats = pssd_fast.denoise(noisy, preset="fast").stats
+    assert isinstance(stats, pssd_fast.Stats)
+    assert stats.k == stats["k"] and stats.iterations[-1].cells == stats["iterations"][-1]["cells"]
+    assert "tiles" not in stats and stats.get("classes") is None and stats.tiles is None
+    assert "h" not in stats.iterations[0]  # the paper's bandwidth: not this pipeline's
+    with pytest.raises(KeyError):
+        stats["h"]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        stats.k = 3
+    plain = stats.to_dict()
+    assert type(plain) is dict and type(plain["iterations"][0]) is dict
+    assert list(plain) == list(stats) and plain["iterations"][0] == dict(stats.iterations[0])
+    assert json.loads(json.dumps(plain))["k"] == stats.k
 
 
 def test_a_noisy_plane_gets_flatter():

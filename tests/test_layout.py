@@ -37,7 +37,8 @@ def test_kernels_import_nothing_from_the_python_layer():
 
 #: The package's layers, bottom first, as docs/architecture.md, "Layers", lists them: a module
 #: imports only from its own layer and the layers before it.
-LAYERS = (("kernels",), ("jit", "_threads", "_validation", "interop", "progress", "atomic"),
+LAYERS = (("kernels",),
+          ("jit", "_threads", "_validation", "interop", "progress", "atomic", "stats"),
           ("graph", "core", "duplicates", "io"), ("pipelines",),
           ("noise", "method", "plan", "parameters"),
           ("run", "executor", "regions", "store"), ("denoise", "classes", "stages", "warmup"),

@@ -6,12 +6,13 @@ import copy
 import dataclasses
 import json
 import math
+from typing import NamedTuple
 
 import numpy as np
 import pytest
 
 import pssd_fast
-from pssd_fast import datasets, method, noise
+from pssd_fast import core, datasets, method, noise
 from pssd_fast import plan as planning
 from pssd_fast.graph import morton_order
 from pssd_fast.progress import Clock
@@ -23,6 +24,54 @@ from .conftest import plane, sphere, wavy
 def _ordered(points):
     """``points`` in Morton order, as the method's steps take them."""
     return np.ascontiguousarray(points[morton_order(points)])
+
+
+class Iterated(NamedTuple):
+    """The means after the iterations (``points``), where they were at the last one's start
+    (``origins``), its :class:`pssd_fast.method.Fits` (``last``) and the means ``held`` in
+    some iteration."""
+
+    points: np.ndarray
+    origins: np.ndarray
+    last: method.Fits
+    held: np.ndarray
+
+
+def _iterate(cells, k, bound, iterations, sigma_n, given, keep_normals):
+    """The executor's iterations on the means of one tile, in one process: each
+    :func:`pssd_fast.method.iteration` from the last one's moved means and filtered normals.
+    ``given``: the means' normals from the caller's (the first iteration's; every one's with
+    ``keep_normals``)."""
+    current = cells.points
+    mass = cells.counts.astype(np.float64)
+    hints = core.outward_hints(current)
+    held = np.zeros(current.shape[0], np.bool_)
+    for t in range(iterations):
+        own = given is not None and (t == 0 or keep_normals)
+        fits = method.iteration(current, mass, k, bound, sigma_n, given if own else hints,
+                                Clock(None, t, iterations), None if own else t == 0)
+        held |= fits.held
+        origins, current, hints = current, fits.moved, fits.filtered
+    return Iterated(current, origins, fits, held)
+
+
+def _refine(start, normals, flagged, k, bound, sigma_n, given, keep_normals):
+    """The flagged points' own iterations (:func:`pssd_fast.method.refine_step`,
+    ``REFINE["iterations"]`` of them) from ``start``, as the executor's refinement runs them
+    in one tile."""
+    held = np.zeros(start.shape[0], np.bool_)
+    current = start
+    for t in range(method.REFINE["iterations"]):
+        own = given if given is not None and (t == 0 or keep_normals) else None
+        current, normals, held_now = method.refine_step(current, normals, flagged, k, bound,
+                                                        sigma_n, own, Clock(None, 0, 1), t == 0)
+        held |= held_now
+    return current, normals, held
+
+
+def _cell_sums(cells, values):
+    """The sum of ``values`` (one per point, in the points' order) over each cell's points."""
+    return np.add.reduceat(values[cells.order], cells.starts[:-1])
 
 
 @pytest.mark.parametrize("with_normals", [False, True])
@@ -110,9 +159,9 @@ def _two_point_cells(residuals):
 def _failing(cells, residual2, sigma, bound, own=None):
     """:func:`pssd_fast.method.failing` of the cells, ``residual2`` each point's squared
     step; ``own``: each point's own noise variance and what its own fit leaves, or None."""
-    return method.failing(cells.points, method.cell_sums(cells, residual2), cells.counts, sigma,
+    return method.failing(cells.points, _cell_sums(cells, residual2), cells.counts, sigma,
                           bound, None, None if own is None else tuple(
-                              method.cell_sums(cells, values) for values in own))
+                              _cell_sums(cells, values) for values in own))
 
 
 def test_failing_on_a_hand_made_case():
@@ -215,8 +264,7 @@ def iterated():
     """Two iterations on the cell means of a noisy height field (cells of 1.5 points)."""
     points = _ordered(wavy(700, noise=0.01, seed=7))
     cells = method.cells_of(points, None, 0.05, points.min(axis=0))
-    done = method.iterate(cells, 20, 0.3, 2, 0.05, None, False)
-    return points, cells, done
+    return points, cells, _iterate(cells, 20, 0.3, 2, 0.05, None, False)
 
 
 def test_iterate_matches_the_reference(iterated):
@@ -229,7 +277,7 @@ def test_iterate_matches_the_reference(iterated):
     # Signs may differ where a normal meets its hint at right angles; none here.
     np.testing.assert_allclose(done.last.filtered, normals, rtol=0, atol=1e-8)
     np.testing.assert_allclose(done.points, points, rtol=0, atol=1e-9)
-    assert len(done.records) == 2 and not done.held.any()
+    assert not done.held.any()
 
 
 def test_project_matches_the_reference(iterated):
@@ -275,7 +323,7 @@ def test_iterate_takes_the_given_normals(iterated):
     _, cells, _ = iterated
     given = _tilted(np.random.default_rng(2), len(cells.points), 0.2)
     for keep in (False, True):
-        done = method.iterate(cells, 20, 0.3, 2, 0.05, given, keep)
+        done = _iterate(cells, 20, 0.3, 2, 0.05, given, keep)
         points, origins, _, normals = reference.method_iterations(
             cells.points, cells.counts.astype(float), 20, 0.3, 2, given=given, keep=keep)
         np.testing.assert_allclose(done.origins, origins, rtol=0, atol=1e-9)
@@ -295,8 +343,7 @@ def test_refine_matches_the_reference(seed, given, keep):
     normals = _tilted(rng, len(points), 0.1)
     given = _tilted(rng, len(points), 0.3) if given else None
     flagged = rng.uniform(size=len(points)) < 0.3
-    placed, refined, held = method.refine(start, normals, flagged, 16, 0.12, 0.05, given, keep,
-                                          Clock(None, 0, 1))
+    placed, refined, held = _refine(start, normals, flagged, 16, 0.12, 0.05, given, keep)
     want, want_normals, want_held = reference.method_refine(
         start, normals, flagged, 16, 0.12, method.REFINE["iterations"], given=given, keep=keep)
     np.testing.assert_allclose(placed[flagged], want, rtol=0, atol=1e-9)
@@ -447,7 +494,7 @@ def test_stats_describe_one_method(part):
     assert 0 < last["refined"] < len(part.points) and 0 < last["cells"] <= len(part.points)
     assert {"neighbors", "normals", "filter", "mls", "update", "project", "own_noise", "test",
             "refine_neighbors", "refine_normals", "refine_fit"} == set(last["times"])
-    json.dumps(stats)
+    json.dumps(stats.to_dict())
     # "fast" is the same method without the refinement: the same plan otherwise, and the
     # same result for every point the default does not refine.
     fast = pssd_fast.denoise(part.points, preset="fast")

@@ -26,6 +26,7 @@ from .._validation import check_int, check_orient_estimated
 from ..parameters import BY_NAME, PARAMETERS
 from ..progress import Clock, reporter
 from ..run import Request, check_distinct, stats
+from ..stats import finished
 from ..store import Files, Memory
 from . import binning, ondisk, rows
 from .scheduler import LOCAL_SCHEDULERS, Runner, check_client
@@ -302,14 +303,12 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
         output.unlink(missing_ok=True)
     if classified is None:
         found = done[0][3]
-        found["total_seconds"] = time.perf_counter() - started
     else:
         found = lidar.summary(
             [(code, run["n_points"], run) for code, _, _, run in done],
             int(array.shape[0] - sum(run["n_points"] for *_, run in done)), small, runs,
             started)
-    found["iterations"][-1]["times"].update(clock.times)
-    return found
+    return finished(found, clock.times, started)
 
 
 class _FileRun(NamedTuple):

@@ -1,0 +1,165 @@
+"""What a run reports (``DenoiseResult.stats``): a frozen :class:`Stats` with one
+:class:`Iteration` per iteration, built once when the run ends.
+
+Both read as attributes (``stats.k``) and as the read-only mappings earlier versions returned
+(``stats["k"]``, ``stats.get("classes")``); ``to_dict()`` gives plain dicts and lists for
+JSON."""
+import dataclasses
+import time
+from collections.abc import Mapping
+from typing import Any, Optional, Tuple
+
+
+class _Fields(Mapping):
+    """A frozen dataclass read as a mapping of its fields; those in ``_OPTIONAL`` that are
+    None are left out (a run that has no such part)."""
+
+    _OPTIONAL: Tuple[str, ...] = ()
+
+    def _names(self):
+        return [f.name for f in dataclasses.fields(self)
+                if not (f.name in self._OPTIONAL and getattr(self, f.name) is None)]
+
+    def __getitem__(self, name):
+        if name not in self._names():
+            raise KeyError(name)
+        return getattr(self, name)
+
+    def __iter__(self):
+        return iter(self._names())
+
+    def __len__(self):
+        return len(self._names())
+
+    def to_dict(self):
+        """The fields as plain dicts and lists (JSON-serialisable)."""
+        return {name: _plain(self[name]) for name in self}
+
+
+def _plain(value):
+    """``value`` with every :class:`_Fields` inside it as a dict and tuples as lists."""
+    if isinstance(value, _Fields):
+        return value.to_dict()
+    if isinstance(value, Mapping):
+        return {key: _plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(item) for item in value]
+    return value
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Iteration(_Fields):
+    """One iteration's record. ``times``: wall seconds per stage; the others as the pipeline
+    reports them (None, and left out of the mapping, where it does not):
+
+    ``held_points`` (points left in place: a step not finite or longer than its list's
+    radius), ``mean_residual``, ``fit_degree`` (counts of each fit's degree), ``h`` (the MLS
+    bandwidth), ``mean_spacing`` and ``region_radius`` (the paper's scales),
+    ``region_size_mean`` and ``region_size_max`` (its grown regions), ``degenerate_normals``,
+    ``mean_step`` (paper and baselines); ``cells`` (the means iterated) and ``refined`` (the
+    points the test sent to the refinement) in the default method's last iteration.
+    """
+
+    times: dict
+    held_points: Optional[int] = None
+    mean_residual: Optional[float] = None
+    fit_degree: Optional[dict] = None
+    h: Optional[float] = None
+    mean_spacing: Optional[float] = None
+    region_radius: Optional[float] = None
+    region_size_mean: Optional[float] = None
+    region_size_max: Optional[int] = None
+    degenerate_normals: Optional[int] = None
+    mean_step: Optional[float] = None
+    cells: Optional[int] = None
+    refined: Optional[int] = None
+
+    _OPTIONAL = ("held_points", "mean_residual", "fit_degree", "h", "mean_spacing",
+                 "region_radius", "region_size_mean", "region_size_max", "degenerate_normals",
+                 "mean_step", "cells", "refined")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Stats(_Fields):
+    """A run's report (:class:`pssd_fast.DenoiseResult`'s ``stats``).
+
+    Attributes
+    ----------
+    method : str
+        "robust" (the default method and the paper's pipeline) or the baseline's name.
+    n_points, duplicates : int
+        Rows denoised, and those merged into another at their position
+        (:mod:`pssd_fast.duplicates`).
+    k : int
+        The neighbour count the run used (the default method: the means' lists).
+    lam : float or None
+        The paper's ``lambda`` (None where the pipeline has none).
+    preset, pipeline : str
+        The preset asked for, and the pipeline it ran ("default", "paper", "bilateral",
+        "mls").
+    plan : dict
+        What the run chose (docs/ALGORITHM.md, "The plan"): for the default method its
+        ``iterations``, ``k``, ``cell_edge``, ``bound``, the probe's ``noise`` and the
+        refinement's ``k`` and ``bound``.
+    auto_k : dict or None
+        The noise probe behind the run's sizes (its seconds; the baselines' also its ``k``),
+        or None where the caller gave ``k``.
+    noise : float or None
+        The noise ``sigma`` the probe read.
+    rebuild_graph : bool or None
+        Whether each iteration queried its lists anew (paper and baselines).
+    orient : str, list or None
+        The ``orient`` asked for.
+    outliers : dict or None
+        What ``remove_outliers`` did (its seconds and the rows removed).
+    n_iterations, held_points : int
+        Iterations, and points held in place (:attr:`pssd_fast.DenoiseResult.held`).
+    params : dict
+        The method's parameters as given ("auto": left to the library).
+    n_jobs : int
+        Threads the kernels ran on.
+    iterations : tuple of Iteration
+        One record per iteration.
+    tiles : dict or None
+        A tiled run's tiles (their count, most points, halo); not in the mapping otherwise.
+    total_seconds : float
+        Wall seconds of the call.
+    classes : dict or None
+        With a ``classification``: the codes denoised (or "all"), the points ``denoised`` and
+        ``untouched``, the classes ``too_small`` and each run's :class:`Stats` (``runs``);
+        the other fields are the largest class's run's, with ``n_points``, ``duplicates``,
+        ``held_points`` and ``outliers`` summed over the runs. Not in the mapping otherwise.
+    """
+
+    method: str
+    n_points: int
+    duplicates: int
+    k: int
+    lam: Optional[float]
+    preset: str
+    pipeline: str
+    plan: dict
+    auto_k: Optional[dict]
+    noise: Optional[float]
+    rebuild_graph: Optional[bool]
+    orient: Any
+    outliers: Optional[dict]
+    n_iterations: int
+    held_points: int
+    params: dict
+    n_jobs: int
+    iterations: Tuple[Iteration, ...]
+    tiles: Optional[dict] = None
+    total_seconds: float = 0.0
+    classes: Optional[dict] = None
+
+    _OPTIONAL = ("tiles", "classes")
+
+
+def finished(stats, times, started):
+    """``stats`` with the stages ``times`` added to its last iteration's (a file's write, after
+    the run) and the call's ``total_seconds`` counted from ``started``."""
+    last = stats.iterations[-1]
+    last = dataclasses.replace(last, times={**last.times, **times})
+    return dataclasses.replace(stats, iterations=stats.iterations[:-1] + (last,),
+                               total_seconds=time.perf_counter() - started)
