@@ -431,9 +431,8 @@ def _chosen(stats):
         return chosen
     if probe is None:
         return ""
-    return (f" chosen from the estimated noise {probe['noise']:.4g} (probe: "
-            f"{probe['probe_k']} neighbours, mean radius {probe['probe_radius']:.4g}, ratio "
-            f"{probe['ratio']:.3f})")
+    return (f" chosen from the probe's noise {probe['noise']:.4g} and spacing "
+            f"{probe['spacing']:.4g} (ratio {probe['ratio']:.3f})")
 
 
 def _check_output(path, force):

@@ -59,7 +59,7 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
         Neighbours including the point itself, 10 to ``n - 1``: under "default" and "fast" the
         list length on the cell means, else of every point's list. ``"auto"``: 25 ("paper");
         the default method's from the noise its probe measures (80 to 160,
-        ``stats["plan"]``); the baselines' from their own probe (``stats["auto_k"]``).
+        ``stats["plan"]``); the baselines' from the same probe (``stats["auto_k"]``).
     lam : float, optional
         ``lambda`` in [0, 1] (Section 4.2), the likelihood term's weight. Preset "paper" only
         (default 0.5).
@@ -272,14 +272,13 @@ def _run(points, normals, runner, tile_points, store, **options):
                       bool(extras))
     tiles = None
     with threads(n_jobs) as n_threads:
-        plan, lists = planning.make(current, given, preset, pipeline, distinct=distinct,
-                                    low=low - centre, k=k, iterations=iterations,
-                                    rebuild_graph=rebuild_graph)
+        plan = planning.make(current, preset, pipeline, distinct=distinct, low=low - centre,
+                             k=k, iterations=iterations, rebuild_graph=rebuild_graph)
         if pipeline == "default":
             done, (count, most) = _default(current, given, plan, request, runner, tile_points,
                                            store)
         else:
-            done, count, most = iterate(current, given, plan, request, lists), 1, distinct
+            done, count, most = iterate(current, given, plan, request), 1, distinct
         if runner is not None:
             tiles = {"count": count, "most_points": most, "scheduler": runner.name,
                              "threads": runner.threads}

@@ -374,16 +374,6 @@ def refresh_graph(graph, points):
     return ListScales(graph.indptr, graph.indices, radius, nearest)
 
 
-def truncate_graph(graph, points, k):
-    """The first ``k`` entries of each of ``graph``'s equal-length lists, as a
-    :class:`ListScales` for ``points``: the k nearest neighbours, without a new query."""
-    n = graph.indptr.shape[0] - 1
-    longest = graph.indices.shape[0] // n
-    lists = graph._replace(indptr=np.arange(0, n * k + 1, k, dtype=np.int64),
-                           indices=graph.indices.reshape(n, longest)[:, :k].copy().reshape(-1))
-    return refresh_graph(lists, points)
-
-
 def neighbors(points, k=25, *, n_jobs=None):
     """Build the k-nearest-neighbour graph of a point cloud.
 

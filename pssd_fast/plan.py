@@ -15,13 +15,12 @@ import numpy as np
 
 from . import method
 from .noise import Noise, probe
-from .pipelines import aware
 
 #: Presets: the pipeline of the robust method; for the default method whether it refines
 #: the points that fail its test ("fast" is the default method without that pass); for the
 #: paper's pipeline its ``k``, ``lam``, iterations and ``rebuild_graph``; and the baselines'
-#: (``"k": "probe"``: from their noise probe, :func:`pssd_fast.pipelines.aware.choose_k`; an
-#: integer: that ``k``, at most the distinct positions less one). Under "paper" the baselines
+#: (``"k": "probe"``: from the noise probe, :data:`BASELINE_K`; an integer: that ``k``, at most
+#: the distinct positions less one). Under "paper" the baselines
 #: take the paper's (its ``k`` exactly: a smaller cloud is refused).
 PRESETS = {
     "default": {"pipeline": "default", "refine": True,
@@ -30,6 +29,14 @@ PRESETS = {
              "baselines": {"iterations": 2, "k": 48, "rebuild_graph": False}},
     "paper": {"pipeline": "paper", "iterations": 2, "k": 25, "lam": 0.5, "rebuild_graph": True},
 }
+
+#: The baselines' ``k`` under "default", from the noise probe (:func:`pssd_fast.noise.probe`):
+#: linear in ``log(sigma / spacing)`` and ``log k`` between the anchors ``(sigma / spacing,
+#: k)``, held at the end values outside them, at least 10. Each anchor is what the probe reads
+#: on the generated CAD part (100,000 points) at 0.25%, 0.5% and 1% noise, and the smallest
+#: ``k`` of the grid tried there (48, 64, 96, 128, 160, 192) that beat both CGAL peers on both
+#: errors (docs/DECISIONS.md, "`k` from the data").
+BASELINE_K = ((0.837, 64), (1.687, 96), (3.236, 160))
 
 
 def iterating(preset):
@@ -94,16 +101,15 @@ class Plan:
                 {"k": self.refine[0], "bound": self.refine[1], "own_noise": self.own_noise}}
 
 
-def make(points, given, preset, pipeline, *, distinct, low, k=None, iterations=None,
+def make(points, preset, pipeline, *, distinct, low, k=None, iterations=None,
          rebuild_graph=None):
     """The :class:`Plan` of a run on ``points`` (distinct positions in Morton order, relative
-    to the run's centre; or what offers ``shape`` and ``[::step]`` as one, out of core), and
-    the lists of the baselines' noise probe that the first iteration can take over (or None).
+    to the run's centre; or what offers ``shape`` and ``[::step]`` as one, out of core).
 
     Parameters
     ----------
-    points, given
-        The positions and the caller's normals or None.
+    points
+        The positions.
     preset : str
         A key of :data:`PRESETS`.
     pipeline : str
@@ -113,19 +119,16 @@ def make(points, given, preset, pipeline, *, distinct, low, k=None, iterations=N
     low : (3,) ndarray
         The cloud's low corner, relative to the centre (the default method's grid).
     k, iterations, rebuild_graph
-        The caller's, or None (the preset's; ``k`` of the default method from its probe, of
-        the baselines under "default" from their own noise probe).
+        The caller's, or None (the preset's; ``k`` of the default method and of the baselines
+        under "default" from the noise probe).
     """
     if pipeline == "default":
-        return _default(points, PRESETS[preset], distinct, low, k, iterations), None
+        return _default(points, PRESETS[preset], distinct, low, k, iterations)
     setting = iterating(preset)
     iterations = setting["iterations"] if iterations is None else iterations
-    probe = lists = None
+    probed = None
     if k is None and setting["k"] == "probe":
-        k, probe, lists = aware.choose_k(points, given)
-        k = min(k, distinct - 1)
-        if lists is not None and k > probe["probe_k"]:
-            lists = None  # too short to serve
+        k, probed = _baseline_k(points, distinct)
     elif k is None and preset == "paper":
         k = setting["k"]  # the paper's, never cut to the cloud
         if distinct < k + 1:
@@ -135,7 +138,20 @@ def make(points, given, preset, pipeline, *, distinct, low, k=None, iterations=N
     elif k is None:
         k = min(setting["k"], distinct - 1)
     rebuild = setting["rebuild_graph"] if rebuild_graph is None else rebuild_graph
-    return Plan(pipeline, iterations, k, rebuild_graph=bool(rebuild), probe=probe), lists
+    return Plan(pipeline, iterations, k, rebuild_graph=bool(rebuild), probe=probed)
+
+
+def _baseline_k(points, distinct):
+    """The baselines' ``k`` from the noise probe (:data:`BASELINE_K`), and the probe's record
+    for ``stats["auto_k"]``."""
+    started = time.perf_counter()
+    found = probe(points)
+    ratio = found.sigma / found.spacing if found.spacing > 0.0 else 0.0
+    logs = np.log(np.array(BASELINE_K, dtype=float))
+    k = int(round(np.exp(np.interp(np.log(max(ratio, 1e-12)), logs[:, 0], logs[:, 1]))))
+    k = max(min(k, distinct - 1), min(10, distinct - 1))
+    return k, {"k": k, "noise": found.sigma, "spacing": found.spacing, "ratio": ratio,
+               "seconds": time.perf_counter() - started}
 
 
 def _default(points, setting, distinct, low, k, iterations):

@@ -10,7 +10,7 @@ import numpy as np
 from . import core
 from ._threads import threads
 from ._validation import MIN_K, check_k
-from .graph import knn_graph, morton_order, refresh_graph, truncate_graph
+from .graph import knn_graph, morton_order, refresh_graph
 from .pipelines import STEPS
 from .pipelines.normals import estimated_normals
 from .progress import Clock
@@ -169,14 +169,13 @@ class Iterated(NamedTuple):
     held: np.ndarray
 
 
-def iterate(current, given, plan, request, lists=None):
+def iterate(current, given, plan, request):
     """The ``plan.iterations`` of ``request``'s pipeline step on the points ``current``
     (Morton order, relative to ``request.centre``): an :class:`Iterated`. The paper's pipeline
     and the baselines.
 
     ``given``: the caller's normals in that order, or None. The plan gives ``k`` and
-    ``rebuild_graph``; ``lists``: the baselines' noise probe's lists, which the first
-    iteration cuts to ``k`` instead of querying (handed over: not kept past their use).
+    ``rebuild_graph``.
     """
     k, iterations, rebuild_graph = plan.k, plan.iterations, plan.rebuild_graph
     params, step, centre = request.params, request.step, request.centre
@@ -184,15 +183,11 @@ def iterate(current, given, plan, request, lists=None):
     out_normals = graph = extra = held = None
     for iteration in range(iterations):
         clock = Clock(request.report, iteration, iterations)
-        if lists is not None:
-            # The probe's lists, cut to k, are this iteration's: no second query.
-            graph = clock.run("neighbors", truncate_graph, lists, current, k)
-        elif graph is None or rebuild_graph:
+        if graph is None or rebuild_graph:
             graph = None  # the last lists go before the new ones are built, not after
             graph = clock.run("neighbors", knn_graph, current, k, False)
         else:
             graph = clock.run("neighbors", refresh_graph, graph, current)
-        lists = None  # its lists (4 bytes x 96 a point) are not kept past their use
         if given is not None:
             nrm, degenerate = clock.run("normals", _given_normals, given)
         else:

@@ -878,28 +878,18 @@ def test_float32_with_large_offsets_is_as_accurate_as_float64(preset):
     assert surface_error(got) <= 1.01 * reference_error + 1e-5
 
 
-def test_the_probe_graph_serves_the_first_iteration(monkeypatch):
-    """The baselines' k chosen at most the probe's k: one kNN query (the probe's) for one
-    iteration, and the same result as querying k neighbours anew."""
-    run_module = sys.modules["pssd_fast.run"]
+def test_the_baselines_k_comes_from_the_probe_and_nothing_else():
+    """The baselines' k chosen from the probe gives the same points as that k given (the probe
+    reads, the run does not depend on it otherwise); its record holds the probe's noise and
+    spacing, and a given k runs no probe."""
     points = wavy(3000, noise=0.002, seed=5)
-    calls = []
-    real = run_module.knn_graph
-
-    def counted(*args):
-        calls.append(args[1])
-        return real(*args)
-
-    monkeypatch.setattr(run_module, "knn_graph", counted)
-    monkeypatch.setattr("pssd_fast.pipelines.aware.knn_graph", counted)
     auto = pssd_fast.denoise(points, method="mls", iterations=1)
-    k = auto.stats["k"]
-    assert k <= auto.stats["auto_k"]["probe_k"] and calls == [auto.stats["auto_k"]["probe_k"]]
-    assert auto.stats["noise"] == auto.stats["auto_k"]["noise"] > 0
-    calls.clear()
-    fresh = pssd_fast.denoise(points, method="mls", iterations=1, k=k)
-    assert calls == [k] and fresh.stats["noise"] is None
-    np.testing.assert_allclose(auto.points, fresh.points, rtol=0, atol=1e-12)
+    found = auto.stats["auto_k"]
+    assert found["k"] == auto.stats["k"] and auto.stats["noise"] == found["noise"] > 0
+    assert found["ratio"] == pytest.approx(found["noise"] / found["spacing"], rel=1e-12)
+    fresh = pssd_fast.denoise(points, method="mls", iterations=1, k=auto.stats["k"])
+    assert fresh.stats["auto_k"] is None and fresh.stats["noise"] is None
+    np.testing.assert_array_equal(auto.points, fresh.points)
 
 
 def test_progress_lines_tell_the_elapsed_and_the_time_left(capsys):

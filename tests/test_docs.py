@@ -112,12 +112,10 @@ def test_the_readme_table_of_automatic_choices_holds_the_code_s_thresholds():
     import ast
 
     from pssd_fast import method, noise, plan
-    from pssd_fast.pipelines.aware import AUTO_K
-
     names = {"CELL": method.CELL, "RADIUS": method.RADIUS, "LIST": method.LIST,
              "ITERATIONS": method.ITERATIONS, "TEST": method.TEST, "REFINE": method.REFINE,
              "BLEND": method.BLEND,
-             "PROBE": noise.PROBE, "PRESETS": plan.PRESETS, "AUTO_K": AUTO_K}
+             "PROBE": noise.PROBE, "PRESETS": plan.PRESETS}
     rows = [[cell.strip().strip("`") for cell in line.strip("|").split("|")]
             for line in _readme_section("### Automatic choices").splitlines()
             if line.startswith("| ") and "constant |" not in line]

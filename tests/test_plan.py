@@ -9,7 +9,6 @@ import pytest
 import pssd_fast
 from pssd_fast import datasets, method, noise, plan
 from pssd_fast.graph import morton_order
-from pssd_fast.pipelines import aware
 
 
 @pytest.fixture(scope="module")
@@ -25,17 +24,16 @@ def quiet():
 
 def _make(quiet, preset, pipeline, **options):
     points, low = quiet
-    return plan.make(points, None, preset, pipeline, distinct=len(points), low=low, **options)
+    return plan.make(points, preset, pipeline, distinct=len(points), low=low, **options)
 
 
 @pytest.mark.parametrize("preset", ["default", "fast"])
 def test_the_default_method_s_plan(quiet, preset):
     """The plan holds the probe's reading and what it sized from it (the sizes themselves are
     checked against the reference end to end, tests/test_method.py): the cells, the lists on
-    the means and their reach, the refinement's lists (none under "fast"); no lists handed
-    over, no graph rebuilt; ``stats["plan"]`` says the same."""
-    found, lists = _make(quiet, preset, "default")
-    assert lists is None
+    the means and their reach, the refinement's lists (none under "fast"); no graph rebuilt;
+    ``stats["plan"]`` says the same."""
+    found = _make(quiet, preset, "default")
     probe = noise.probe(quiet[0])
     assert found.noise == probe
     assert (found.pipeline, found.iterations) == ("default", method.ITERATIONS)
@@ -66,12 +64,12 @@ def test_own_lists_span_the_noise():
 
 
 def test_the_callers_choices_override_the_preset_s(quiet):
-    found, _ = _make(quiet, "default", "default", k=30, iterations=3)
+    found = _make(quiet, "default", "default", k=30, iterations=3)
     assert found.k == 30 and found.iterations == 3
     assert found.bound == method.list_bound(30, found.noise.spacing, found.edge)
     # The list length is capped by the distinct positions.
     points, low = quiet
-    few, _ = plan.make(points, None, "default", "default", distinct=25, low=low)
+    few = plan.make(points, "default", "default", distinct=25, low=low)
     assert few.k == 24
 
 
@@ -82,31 +80,46 @@ def test_the_callers_choices_override_the_preset_s(quiet):
 ])
 def test_the_paper_s_pipeline_and_the_baselines_iterate_on_the_points(quiet, preset, pipeline,
                                                                       k, iterations, rebuild):
-    """Their k (the preset's, else from the baselines' own noise probe, whose lists serve the
-    first iteration where they are long enough; no probe runs where the preset gives k),
-    iterations and rebuild_graph."""
-    found, lists = _make(quiet, preset, pipeline)
+    """Their k (the preset's, else from the noise probe's sigma over spacing through
+    ``BASELINE_K``; no probe runs where the preset gives k), iterations and rebuild_graph."""
+    found = _make(quiet, preset, pipeline)
     assert (found.pipeline, found.iterations, found.rebuild_graph) == (pipeline, iterations,
                                                                       rebuild)
     assert found.noise is None and found.edge is None and found.refine is None
     if k is not None:
-        assert found.k == k
-    if k is not None:
-        assert found.probe is None and lists is None
+        assert found.k == k and found.probe is None
     else:
-        want, probe, _ = aware.choose_k(quiet[0], None)
-        assert found.k == want
-        assert found.probe["noise"] == probe["noise"] and found.probe["k"] == want
-        assert (lists is not None) == (found.k <= probe["probe_k"])
+        read = noise.probe(quiet[0])
+        assert found.probe["noise"] == read.sigma and found.probe["spacing"] == read.spacing
+        assert found.probe["ratio"] == read.sigma / read.spacing < plan.BASELINE_K[0][0]
+        assert found.k == found.probe["k"] == plan.BASELINE_K[0][1]  # held at the first anchor
     assert found.describe() == {"method": pipeline, "k": found.k, "iterations": iterations,
                                 "rebuild_graph": rebuild}
-    given, _ = _make(quiet, preset, pipeline, k=20, iterations=1, rebuild_graph=not rebuild)
+    given = _make(quiet, preset, pipeline, k=20, iterations=1, rebuild_graph=not rebuild)
     assert (given.k, given.iterations, given.rebuild_graph, given.probe) == (
         20, 1, not rebuild, None)
 
 
+def test_the_baselines_k_follows_the_noise_over_the_spacing(monkeypatch, quiet):
+    """Each anchor's ratio gives its ``k``; between them ``k`` grows with the ratio; outside
+    them it is held; never above the distinct positions less one."""
+    ratios = []
+    monkeypatch.setattr(plan, "probe", lambda points: noise.Noise(ratios[-1], 1.0, 1, {}))
+
+    def k_at(ratio, distinct=len(quiet[0])):
+        ratios.append(ratio)
+        return plan.make(quiet[0], "default", "mls", distinct=distinct, low=quiet[1]).k
+
+    for ratio, k in plan.BASELINE_K:
+        assert k_at(ratio) == k
+    between = [k_at(r) for r in np.geomspace(0.5, 5.0, 12)]
+    assert between == sorted(between) and between[0] == 64 and between[-1] == 160
+    assert len(set(between)) > 4
+    assert k_at(3.0, distinct=50) == 49 and k_at(0.0) == 64
+
+
 def test_a_plan_is_frozen(quiet):
-    found, _ = _make(quiet, "default", "default")
+    found = _make(quiet, "default", "default")
     for name, value in (("k", 3), ("bound", 1.0), ("refine", None), ("noise", None)):
         with pytest.raises(dataclasses.FrozenInstanceError):
             setattr(found, name, value)

@@ -371,9 +371,8 @@ def _file_run(setting, keep, folder, started):
     n = check_distinct(cloud.shape[0], cloud.rows, None)
     check_orient_estimated(settings["orient"], cloud.normals is not None,
                            f"the normals of {setting.array.path}", "drop orient")
-    plan, _ = planning.make(cloud, cloud.normals, settings["preset"], "default",
-                            distinct=n, low=cloud.corner, k=settings["k"],
-                            iterations=settings["iterations"])
+    plan = planning.make(cloud, settings["preset"], "default", distinct=n, low=cloud.corner,
+                         k=settings["k"], iterations=settings["iterations"])
     request = Request("robust", settings["preset"], "default", None, settings["params"],
                       settings["orient"], cloud.centre, report, started, settings["extras"])
     store = Files(folder)
