@@ -137,7 +137,7 @@ def run(plan, request, tiles, store, runner=None):
             _tally(clock, runner.map("tile_noise", plan.iterations - 1, plan.iterations, _noise, [
                 (store, [("own", j) for j in range(len(tiles))],
                  [t.point_boxes for t in tiles], i, None if whole else regions.widened(
-                     tiles[i].point_boxes, 3 * plan.refine[1]), plan, sigma_n)
+                     tiles[i].point_boxes, 3 * plan.refine.bound), plan, sigma_n)
                 for i in range(len(tiles))]))
             _drop(store, [("own", i) for i in range(len(tiles))])
         keys = [("test", i) for i in range(len(tiles))]
@@ -371,7 +371,8 @@ def _noise(store, keys, boxes, i, region, plan, sigma_n, n_jobs):
     clock = Clock(None, 0, 1)
     with threads(n_jobs):
         noise2, spread2 = clock.run("own_noise", method.own_noise, items["xyz"],
-                                    items["hints"], *plan.refine, sigma_n, items["gid"])
+                                    items["hints"], plan.refine.k, plan.refine.bound, sigma_n,
+                                    items["gid"])
     cell = store.get(("points", i), ("cell",))["cell"]
     entry = store.get(("test", i))
     local, m = cell - entry["gid"][0], entry["gid"].shape[0]
@@ -400,12 +401,12 @@ def _test(store, keys, boxes, i, region, plan, n_jobs):
 def _refine(plan, tiles, store, runner, sigma_n, keep, whole, given, shift, clock):
     """The failing points' own iterations, tile by tile (``("refine", i, t)`` entries; the
     last becomes ``("out", i)``), their stages timed on ``clock``."""
-    bound = plan.refine[1]
+    bound = plan.refine.bound
     # Tasks, as every step that reads a tile's points: the calling process holds none.
     found = runner.map("tile_out", plan.iterations - 1, plan.iterations, _refine_entry,
                        [(store, i, given) for i in range(len(tiles))])
     _drop(store, [("flags", i) for i in range(len(tiles))])
-    iterations = method.REFINE["iterations"]
+    iterations = plan.refine.iterations
     for t in range(iterations):
         use_given = given and (t == 0 or keep)
         width = (3 if use_given or t > 0 or not shift else 4) * bound
@@ -471,7 +472,7 @@ def _refine_task(store, keys, boxes, i, region, width, use_given, first, plan, s
     items = gather(store, keys, i, boxes, region, names, "xyz", None if region is None else (
         entry["xyz"][entry["flagged"]], width))
     n_own = entry["gid"].shape[0]
-    k, bound = plan.refine
+    k, bound = plan.refine.k, plan.refine.bound
     clock = Clock(None, 0, 1)
     with threads(n_jobs):
         out, normals, held = method.refine_step(

@@ -9,7 +9,7 @@ over lists of ``k`` nearest neighbours.
 """
 import time
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import numpy as np
 
@@ -45,6 +45,15 @@ def iterating(preset):
     return PRESETS[preset] if preset == "paper" else PRESETS[preset]["baselines"]
 
 
+class Refine(NamedTuple):
+    """The failing points' own iterations: ``k`` points within ``bound`` of each, ``iterations``
+    of them (the default method's :data:`pssd_fast.method.REFINE`)."""
+
+    k: int
+    bound: float
+    iterations: int
+
+
 @dataclass(frozen=True)
 class Plan:
     """What a run does. Frozen: built by :func:`make` before the first step, never changed.
@@ -66,7 +75,7 @@ class Plan:
     low : (3,) ndarray or None
         The grid's corner: the cloud's low corner (default method).
     refine : tuple or None
-        ``(k, bound)`` of the failing points' own lists; None: no refinement ("fast").
+        The failing points' own iterations (:class:`Refine`); None: no refinement ("fast").
     own_noise : bool
         Whether the test reads each point's noise from its own fit over those lists (they span
         at least ``TEST["span"]`` noise widths), else the probe's ``sigma``.
@@ -85,7 +94,7 @@ class Plan:
     edge: Optional[float] = None
     bound: Optional[float] = None
     low: Optional[np.ndarray] = field(default=None, compare=False)
-    refine: Optional[tuple] = None
+    refine: Optional["Refine"] = None
     own_noise: bool = False
     rebuild_graph: bool = False
     probe: Optional[dict] = None
@@ -98,7 +107,8 @@ class Plan:
         return {"method": "default", "iterations": self.iterations, "k": self.k,
                 "cell_edge": self.edge, "bound": self.bound, "noise": self.noise.record(),
                 "refine": None if self.refine is None else
-                {"k": self.refine[0], "bound": self.refine[1], "own_noise": self.own_noise}}
+                {"k": self.refine.k, "bound": self.refine.bound,
+                 "iterations": self.refine.iterations, "own_noise": self.own_noise}}
 
 
 def make(points, preset, pipeline, *, distinct, low, k=None, iterations=None,
@@ -169,7 +179,8 @@ def _default(points, setting, distinct, low, k, iterations):
     if setting["refine"]:
         k_r = min(method.list_length(found.sigma, found.spacing, 0.0, method.REFINE["radius"],
                                      method.REFINE["k"]), distinct - 1)
-        refine = (k_r, method.list_bound(k_r, found.spacing, 0.0))
+        refine = Refine(k_r, method.list_bound(k_r, found.spacing, 0.0),
+                        method.REFINE["iterations"])
         own = method.own_lists_span(k_r, found.spacing, found.sigma)
     return Plan("default", method.ITERATIONS if iterations is None else iterations, k,
                 noise=found, edge=edge, bound=bound, low=np.asarray(low, np.float64),

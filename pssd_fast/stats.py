@@ -100,7 +100,7 @@ class Stats(_Fields):
     plan : dict
         What the run chose (docs/ALGORITHM.md, "The plan"): for the default method its
         ``iterations``, ``k``, ``cell_edge``, ``bound``, the probe's ``noise`` and the
-        refinement's ``k`` and ``bound``.
+        refinement's ``k``, ``bound``, ``iterations`` and ``own_noise``.
     auto_k : dict or None
         The noise probe behind the run's sizes (its seconds; the baselines' also its ``k``),
         or None where the caller gave ``k``.

@@ -429,7 +429,7 @@ def test_the_plan_is_made_once_before_the_first_step_and_frozen(monkeypatch, par
 
     def make(*args, **kwargs):
         found = real_make(*args, **kwargs)
-        steps.append(("plan", found[0], copy.deepcopy(found[0].describe())))
+        steps.append(("plan", found, copy.deepcopy(found.describe())))
         return found
 
     def cells_of(*args):
@@ -488,7 +488,7 @@ def test_stats_describe_one_method(part):
     k_r = method.list_length(sigma, spacing, 0.0, method.REFINE["radius"], method.REFINE["k"])
     own = math.sqrt(k_r / math.pi) * spacing >= method.TEST["span"] * sigma
     assert plan["refine"] == {"k": k_r, "bound": method.list_bound(k_r, spacing, 0.0),
-                              "own_noise": own}
+                              "iterations": method.REFINE["iterations"], "own_noise": own}
     assert own  # 0.25% noise: the own lists span the noise
     last = stats["iterations"][-1]
     assert 0 < last["refined"] < len(part.points) and 0 < last["cells"] <= len(part.points)

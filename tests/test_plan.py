@@ -44,14 +44,14 @@ def test_the_default_method_s_plan(quiet, preset):
     if preset == "fast":
         assert found.refine is None
     else:
-        k_r, bound_r = found.refine
+        k_r, bound_r, iterations_r = found.refine
         assert k_r >= method.REFINE["k"] and bound_r > 0.0
+        assert iterations_r == method.REFINE["iterations"]
     assert not found.rebuild_graph and set(found.probe) == {"seconds"}
     assert found.describe() == {
         "method": "default", "iterations": found.iterations, "k": found.k,
         "cell_edge": found.edge, "bound": found.bound, "noise": probe.record(),
-        "refine": None if found.refine is None else {"k": found.refine[0],
-                                                     "bound": found.refine[1],
+        "refine": None if found.refine is None else {**found.refine._asdict(),
                                                      "own_noise": found.own_noise}}
 
 
