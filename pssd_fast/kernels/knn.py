@@ -27,6 +27,35 @@ def _column_range(cell_keys, key_lo, key_hi):
     return lo, hi
 
 
+@helper
+def _take_nearest(cand, dist2, count, kth, idx, dist, chosen, chosen_d2):
+    """The ``k = len(idx)`` nearest of the ``count`` candidates ``cand`` (squared distances
+    ``dist2``, ``kth`` the k-th smallest) into ``idx`` and ``dist``, nearest first:
+    ``chosen`` and ``chosen_d2`` are scratch of length ``k``."""
+    k = idx.shape[0]
+    # The k winners in gathering order: all below the k-th distance, then its ties.
+    taken = 0
+    for t in range(count):
+        if dist2[t] < kth:
+            idx[taken] = cand[t]
+            dist[taken] = dist2[t]
+            taken += 1
+    for t in range(count):
+        if taken == k:
+            break
+        if dist2[t] == kth:
+            idx[taken] = cand[t]
+            dist[taken] = dist2[t]
+            taken += 1
+    # Quicksort is deterministic too: ties land in the same order on every run.
+    order = np.argsort(dist)
+    chosen[:] = idx
+    chosen_d2[:] = dist
+    for t in range(k):
+        idx[t] = chosen[order[t]]
+        dist[t] = np.sqrt(chosen_d2[order[t]])
+
+
 @parallel_kernel
 def grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, members, k, start,
              out_idx, out_dist):
@@ -148,24 +177,4 @@ def grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, member
                     kth = np.inf
                     break
                 reach *= 2  # doubling: a far outlier needs few rounds
-            # The k winners in gathering order: all below the k-th distance, then its ties.
-            taken = 0
-            for t in range(count):
-                if dist2[t] < kth:
-                    out_idx[r, taken] = cand[t]
-                    out_dist[r, taken] = dist2[t]
-                    taken += 1
-            for t in range(count):
-                if taken == k:
-                    break
-                if dist2[t] == kth:
-                    out_idx[r, taken] = cand[t]
-                    out_dist[r, taken] = dist2[t]
-                    taken += 1
-            # Quicksort is deterministic too: ties land in the same order on every run.
-            order = np.argsort(out_dist[r])
-            chosen[:] = out_idx[r]
-            chosen_d2[:] = out_dist[r]
-            for t in range(k):
-                out_idx[r, t] = chosen[order[t]]
-                out_dist[r, t] = np.sqrt(chosen_d2[order[t]])
+            _take_nearest(cand, dist2, count, kth, out_idx[r], out_dist[r], chosen, chosen_d2)

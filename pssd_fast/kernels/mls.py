@@ -79,6 +79,21 @@ def _residuals(phi, b, m, zs, count, out):
 
 
 @helper
+def _mean_curvature(b, inv_r):
+    """Mean curvature of the graph z = g(x / r, y / r) of coefficients ``b`` at the origin,
+    from its derivatives (world units), signed positive where the surface bends away from n
+    (convex for outward n)."""
+    gx = b[2] * inv_r
+    gy = b[1] * inv_r
+    gxx = 2.0 * b[5] * inv_r * inv_r
+    gyy = 2.0 * b[4] * inv_r * inv_r
+    gxy = b[3] * inv_r * inv_r
+    slope2 = 1.0 + gx * gx + gy * gy
+    return -((1.0 + gy * gy) * gxx - 2.0 * gx * gy * gxy + (1.0 + gx * gx) * gyy) / (
+        2.0 * slope2 * math.sqrt(slope2))
+
+
+@helper
 def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov, w, v,
                a, b, phi, proj, resid, degree, curvature):
     px, py, pz = points[i, 0], points[i, 1], points[i, 2]
@@ -161,16 +176,7 @@ def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov
     for p in range(m, 10):
         b[p] = 0.0
 
-    # Mean curvature of the graph z = g(x / r, y / r) at the origin, from its derivatives
-    # (world units), signed positive where the surface bends away from n (convex for outward n).
-    gx = b[2] * inv_r
-    gy = b[1] * inv_r
-    gxx = 2.0 * b[5] * inv_r * inv_r
-    gyy = 2.0 * b[4] * inv_r * inv_r
-    gxy = b[3] * inv_r * inv_r
-    slope2 = 1.0 + gx * gx + gy * gy
-    curvature[i] = -((1.0 + gy * gy) * gxx - 2.0 * gx * gy * gxy + (1.0 + gx * gx) * gyy) / (
-        2.0 * slope2 * math.sqrt(slope2))
+    curvature[i] = _mean_curvature(b, inv_r)
 
     # Projection q_i = o_i + g(0, 0) n and the weighted mean residual d_i.
     proj[i, 0] = px + ox + b[0] * nx
