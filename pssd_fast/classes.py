@@ -180,11 +180,16 @@ def merge(pts, dtype, given, done, small, described, started):
 def summary(runs, untouched, small, described, started):
     """The ``stats`` of a classes call from those of its ``runs`` (``(code, points,
     stats)``), the number of points of no run (``untouched``) and the classes too ``small``:
-    the largest run's, with :data:`SUMMED` and the outliers summed over the runs and
-    ``stats["classes"]`` added."""
+    the largest run's, with :data:`SUMMED`, the outliers and the tiles (their count; their most
+    points the largest) over the runs and ``stats["classes"]`` added."""
     largest = max(runs, key=lambda run: run[1])[2]
+    tiles = largest.tiles
+    if tiles is not None:
+        # Every class's tiles, not the largest's alone.
+        tiles = {**tiles, "count": sum(run[2].tiles["count"] for run in runs),
+                 "most_points": max(run[2].tiles["most_points"] for run in runs)}
     return dataclasses.replace(
-        largest, **{name: sum(run[2][name] for run in runs) for name in SUMMED},
+        largest, **{name: sum(run[2][name] for run in runs) for name in SUMMED}, tiles=tiles,
         outliers=_outliers([run[2]["outliers"] for run in runs]),
         total_seconds=time.perf_counter() - started,
         classes={"classes": described, "denoised": int(sum(run[1] for run in runs)),

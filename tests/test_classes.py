@@ -342,7 +342,12 @@ def test_tiled_runs_keep_classes_apart(survey):
         classes = got[case].stats["classes"]
         assert {**classes, "runs": sorted(classes["runs"])} == {
             **want[case].stats["classes"], "runs": [2, 6]}
+        runs = got[case].stats["classes"]["runs"].values()
         assert got[case].stats["classes"]["runs"][2]["tiles"]["count"] >= 3
+        # The call's tiles are every class's.
+        assert got[case].stats["tiles"]["count"] == sum(r["tiles"]["count"] for r in runs)
+        assert got[case].stats["tiles"]["most_points"] == max(
+            r["tiles"]["most_points"] for r in runs)
     assert got["default"].stats["classes"]["too_small"] == [17]
     assert np.isnan(got["named"].normals[labels == 5]).all()
 

@@ -195,6 +195,7 @@ def test_progress_hears_of_every_tile(noisy):
 @pytest.mark.parametrize("kwargs, error, match", [
     ({"tile_points": 0}, ValueError, "tile_points"),
     ({"client": 3}, TypeError, "client"),
+    ({"client": "bogus"}, ValueError, "neither a local scheduler .* nor a scheduler's address"),
     ({"sigma_n": -1.0}, ValueError, "sigma_n must be positive"),
     ({"iterations": 0}, ValueError, "iterations must be at least 1"),
     ({"preset": "fastest"}, ValueError, "unknown preset 'fastest'"),
@@ -519,11 +520,12 @@ NEEDS_EVERY_POINT = "denoise_file runs the default method .* need them all"
 @pytest.mark.parametrize("kwargs, error, match", [
     ({"tile_points": 0}, ValueError, "tile_points"),
     ({"client": 3}, TypeError, "client"),
+    ({"client": "bogus"}, ValueError, "neither a local scheduler .* nor a scheduler's address"),
     ({"iterations": 0}, ValueError, "iterations"),
     ({"sigma": 1.0}, TypeError, "unknown parameter"),
     ({"fields": ["colour"]}, ValueError, "unknown field"),
-    ({"preset": "paper"}, ValueError, NEEDS_EVERY_POINT),
-    ({"method": "mls"}, ValueError, NEEDS_EVERY_POINT),
+    ({"preset": "paper"}, ValueError, "point; preset='paper' need them all"),
+    ({"method": "mls"}, ValueError, "point; method='mls' need them all"),
     ({"method": "bilateral"}, ValueError, NEEDS_EVERY_POINT),
     ({"remove_outliers": True}, ValueError, "remove_outliers need them all"),
     ({"classes": [2]}, ValueError, "classes and classification go together"),

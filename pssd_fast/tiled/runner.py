@@ -399,8 +399,10 @@ def _file_settings(options, classified):
     refused = [name for name in ("remove_outliers",) if options.get(name)]
     method = options.get("method", "robust")
     preset = options.get("preset", "default")
-    if method != "robust" or preset == "paper":
-        refused.append(f"method={method!r}, preset={preset!r}")
+    if method != "robust":
+        refused.append(f"method={method!r}")
+    if preset == "paper":
+        refused.append("preset='paper'")
     if refused:
         raise ValueError(f"denoise_file runs the default method (presets 'default' and "
                          f"'fast') and never holds every point; {', '.join(refused)} need "
