@@ -474,11 +474,22 @@ def _refine_task(store, keys, boxes, i, region, width, use_given, first, plan, s
     n_own = entry["gid"].shape[0]
     k, bound = plan.refine.k, plan.refine.bound
     clock = Clock(None, 0, 1)
-    with threads(n_jobs):
-        out, normals, held = method.refine_step(
-            items["xyz"], items["normals"], items["flagged"], k, bound, sigma_n,
-            items["given"] if use_given else None, clock, first, items["gid"], shift)
-    entry.update(xyz=out[:n_own], normals=normals[:n_own], held=entry["held"] | held[:n_own])
+    # Only the failing points and those within a list's bound of one: the others are in no
+    # list and have none, so they change nothing; a step's cost follows the points that fail.
+    flagged = items["flagged"]
+    if entry["flagged"].any():
+        rows = np.flatnonzero(regions.near(items["xyz"], items["xyz"][flagged], bound))
+        at = {name: items[name][rows] for name in names}
+        with threads(n_jobs):
+            out, normals, held = method.refine_step(
+                at["xyz"], at["normals"], at["flagged"], k, bound, sigma_n,
+                at["given"] if use_given else None, clock, first, at["gid"], shift)
+        own = rows < n_own  # the rows are sorted: the own ones come first
+        xyz, nrm = entry["xyz"].copy(), entry["normals"].copy()
+        xyz[rows[own]], nrm[rows[own]] = out[own], normals[own]
+        held_own = entry["held"].copy()
+        held_own[rows[own]] |= held[own]
+        entry.update(xyz=xyz, normals=nrm, held=held_own)
     store.put(keys[i][:2] + (keys[i][2] + 1,), entry)
     return _refine_boxes(entry["xyz"], entry["flagged"]), clock.times
 
