@@ -6,7 +6,7 @@ import numpy as np
 from . import interop
 from ._threads import kdtree, threads
 from ._validation import as_points, check_k
-from .kernels.boxes import inside_any
+from .kernels.boxes import inside_any, near_any
 from .kernels.graph import keep_nearest, put_self_first, refresh_lists
 from .kernels.knn import grid_knn
 from .kernels.order import cell_coordinates, interleave, morton_codes
@@ -114,6 +114,42 @@ def inside_boxes(points, boxes):
     inside_any(np.ascontiguousarray(points, dtype=np.float64),
                np.ascontiguousarray(boxes, dtype=np.float64), inside)
     return inside
+
+
+def near_centres(points, centres, radius):
+    """The mask of ``points`` within ``radius`` of any of ``centres`` (distances at most
+    ``radius``): the centres hashed into a grid of cells at least ``radius`` wide, and each
+    point tested against those of its cell and its neighbours."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    out = np.zeros(points.shape[0], np.bool_)
+    if not centres.shape[0] or not points.shape[0]:
+        return out
+    centres = np.ascontiguousarray(centres, dtype=np.float64)
+    # A hair wider than the radius, so that rounding never puts a centre two cells away;
+    # at most 2^20 cells an axis, so that the keys fit.
+    span = float((centres.max(axis=0) - centres.min(axis=0)).max())
+    cell = max(radius * (1.0 + 1e-6), span / 2.0 ** 20) or 1.0
+    inv_cell = 1.0 / cell
+    # Empty layers of cells around the centres', where their neighbours are (two below, so
+    # that rounding never puts a centre in the first).
+    low = centres.min(axis=0) - 2.0 * cell
+    at = np.floor((centres - low) * inv_cell).astype(np.int64)
+    dims = at.max(axis=0) + 3
+
+    def keyed(cells):
+        return (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+
+    key = keyed(at)
+    order = np.argsort(key, kind="stable")
+    keys, starts = np.unique(key[order], return_index=True)
+    occupied = np.stack([keys // (dims[1] * dims[2]), keys // dims[2] % dims[1],
+                         keys % dims[2]], axis=1)
+    steps = np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    reached = np.unique(keyed((occupied[:, None, :] + steps[None]).reshape(-1, 3)))
+    near_any(points, centres[order], low, inv_cell, dims, keys,
+             np.append(starts, centres.shape[0]).astype(np.int64), reached, radius * radius,
+             out)
+    return out
 
 
 def cell_order(code, cells):

@@ -6,8 +6,7 @@ widened by the halo's width.
 """
 import numpy as np
 
-from ._threads import kdtree
-from .graph import bounds, inside_boxes
+from .graph import bounds, near_centres
 
 #: A tile's halo is the items near the boxes of this many runs of its own.
 PIECES = 32
@@ -27,15 +26,5 @@ def widened(region, width):
 
 def near(points, centres, radius):
     """The mask of ``points`` within ``radius`` of any of ``centres`` (a hair more: a halo may
-    hold more than it needs, never less). Only the points inside the centres' boxes, widened,
-    are looked up."""
-    mask = np.zeros(points.shape[0], np.bool_)
-    if not centres.shape[0] or not points.shape[0]:
-        return mask
-    centres = np.ascontiguousarray(centres, dtype=np.float64)
-    reach = radius * (1.0 + 1e-9)
-    rows = np.flatnonzero(inside_boxes(points, widened(boxes(centres), reach)))
-    found, _ = kdtree(centres).query(np.ascontiguousarray(points[rows], dtype=np.float64), k=1,
-                                     distance_upper_bound=reach)
-    mask[rows] = np.isfinite(found)
-    return mask
+    hold more than it needs, never less)."""
+    return near_centres(points, centres, radius * (1.0 + 1e-9))

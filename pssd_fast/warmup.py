@@ -41,8 +41,9 @@ def warmup():
     denoise(points, iterations=1, orient="outward")
     denoise(points, iterations=1, preset="fast")
     outlier_score(points, k=10)
-    # The halo test of tiled runs.
+    # The halo tests of tiled runs and of the refinement.
     inside_boxes(points, regions.boxes(points))
+    regions.near(points, points[:3], 0.5)
     # Lists as long as the baselines' at scan sizes come from the grid query.
     sphere = rng.normal(size=(GRID_K + 1, 3))
     knn_graph(sphere / np.linalg.norm(sphere, axis=1)[:, None], GRID_K, False)

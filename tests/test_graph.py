@@ -364,10 +364,59 @@ def test_points_inside_any_box_match_a_loop(seed):
     assert out[:2].all() and out.any() and not out.all()
 
 
-def test_points_near_centres_match_a_loop():
-    from pssd_fast import regions
+def _near_reference(points, centres, radius):
+    """Plain loops: whether each point's squared distance to some centre is at most
+    ``radius ** 2``."""
+    out = []
+    for p in points:
+        out.append(any((c[0] - p[0]) ** 2 + (c[1] - p[1]) ** 2 + (c[2] - p[2]) ** 2
+                       <= radius * radius for c in centres))
+    return np.array(out, np.bool_)
+
+
+@pytest.mark.parametrize("case", ["random", "clustered", "one centre", "coincident",
+                                  "radius 0", "spread", "far points", "empty"])
+def test_points_near_centres_match_a_loop(case):
+    """The grid of the centres (graph.near_centres, kernels.boxes.near_any) against loops, on
+    random and degenerate inputs; points at exactly the radius are near."""
+    from pssd_fast.graph import near_centres
 
     rng = np.random.default_rng(5)
+    points, centres, radius = rng.uniform(size=(800, 3)), rng.uniform(size=(40, 3)), 0.07
+    if case == "clustered":
+        centres = 0.5 + rng.normal(0.0, 0.01, (40, 3))
+    elif case == "one centre":
+        centres = centres[:1]
+    elif case == "coincident":
+        centres = np.repeat(centres[:1], 9, axis=0)
+        points[:5] = centres[0]
+    elif case == "radius 0":
+        radius = 0.0
+        points[:5] = centres[3]
+    elif case == "spread":  # 2^20 cells an axis would not reach: wider cells
+        centres = centres * [1e9, 1.0, 1.0]
+        points[:100] = centres[rng.integers(0, 40, 100)] + 0.01
+    elif case == "far points":
+        points[:10] = [1e300, 0.0, 0.0]
+        points[10:20] = -1e12
+    elif case == "empty":
+        np.testing.assert_array_equal(near_centres(points, centres[:0], radius), False)
+        assert near_centres(points[:0], centres, radius).shape == (0,)
+        return
+    # Points at exactly the radius along an axis (binary fractions: no rounding).
+    centres[0], radius = [0.5, 0.25, 0.75], radius and 0.0625
+    points[50:53] = centres[0] + np.eye(3) * radius
+    want = _near_reference(points, centres, radius)
+    np.testing.assert_array_equal(near_centres(points, centres, radius), want)
+    assert want[50:53].all()
+    if case in ("random", "far points", "spread"):
+        assert not want.all()
+
+
+def test_regions_near_holds_a_hair_more():
+    from pssd_fast import regions
+
+    rng = np.random.default_rng(6)
     points, centres = rng.uniform(size=(500, 3)), rng.uniform(size=(7, 3))
     want = np.array([min(np.linalg.norm(p - c) for c in centres) <= 0.2 for p in points])
     np.testing.assert_array_equal(regions.near(points, centres, 0.2), want)

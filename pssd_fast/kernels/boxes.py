@@ -1,8 +1,11 @@
-"""Which points lie in a tile's halo: inside any of a few boxes (:mod:`pssd_fast.regions`)."""
+"""Which points lie in a tile's halo (:mod:`pssd_fast.regions`): inside any of a few boxes, or
+within a distance of any of a set of centres."""
+import math
+
 import numpy as np
 from numba import prange
 
-from .config import CHUNK, parallel_kernel
+from .config import CHUNK, helper, parallel_kernel
 
 
 @parallel_kernel
@@ -28,3 +31,79 @@ def inside_any(points, boxes, out):
                     hit = True
                     break
             out[i] = np.bool_(hit)
+
+
+@helper
+def _cell_index(keys, key):
+    """The index of ``key`` in the ascending ``keys``, or -1."""
+    lo, hi = 0, keys.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo if lo < keys.shape[0] and keys[lo] == key else -1
+
+
+@parallel_kernel
+def near_any(points, centres, low, inv_cell, dims, keys, starts, reached, radius2, out):
+    """Whether each point lies within ``sqrt(radius2)`` of any of ``centres``.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    centres : (m, 3) float64
+        Grouped by the key of their cell of a grid of edge ``1 / inv_cell`` (at least the
+        radius) from ``low``: cell ``(x, y, z)`` has key ``(x * dims[1] + y) * dims[2] + z``.
+    low : (3,) float64
+    inv_cell : float
+    dims : (3,) int64
+        Cells per axis; every centre's cell and its neighbours lie within them.
+    keys : (c,) int64
+        The distinct keys of the centres' cells, ascending.
+    starts : (c + 1,) int64
+        ``centres[starts[t]:starts[t + 1]]`` lie in cell ``keys[t]``.
+    reached : (r,) int64
+        The keys of the centres' cells and of their neighbours, ascending: a point in no such
+        cell is near no centre.
+    radius2 : float
+        The squared distance, included.
+    out : (n,) bool
+        Output.
+    """
+    n = points.shape[0]
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            x, y, z = points[i, 0], points[i, 1], points[i, 2]
+            fx = (x - low[0]) * inv_cell
+            fy = (y - low[1]) * inv_cell
+            fz = (z - low[2]) * inv_cell
+            hit = False
+            # Outside the grid (or not finite), or in a cell no centre reaches: near none.
+            if 0.0 <= fx < nx and 0.0 <= fy < ny and 0.0 <= fz < nz:
+                cx, cy, cz = int(math.floor(fx)), int(math.floor(fy)), int(math.floor(fz))
+                if _cell_index(reached, (cx * ny + cy) * nz + cz) >= 0:
+                    hit = _near_in_cells(centres, keys, starts, cx, cy, cz, ny, nz, x, y, z,
+                                         radius2)
+            out[i] = np.bool_(hit)
+
+
+@helper
+def _near_in_cells(centres, keys, starts, cx, cy, cz, ny, nz, x, y, z, radius2):
+    """Whether a centre of cell ``(cx, cy, cz)`` or of a neighbour lies within the radius of
+    ``(x, y, z)``."""
+    for gx in range(cx - 1, cx + 2):
+        for gy in range(cy - 1, cy + 2):
+            for gz in range(cz - 1, cz + 2):
+                t = _cell_index(keys, (gx * ny + gy) * nz + gz)
+                if t < 0:
+                    continue
+                for j in range(starts[t], starts[t + 1]):
+                    dx = centres[j, 0] - x
+                    dy = centres[j, 1] - y
+                    dz = centres[j, 2] - z
+                    if dx * dx + dy * dy + dz * dz <= radius2:
+                        return True
+    return False
