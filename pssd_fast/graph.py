@@ -200,6 +200,9 @@ _NO_IDS = np.empty(0, np.int64)
 #: From this list length on, lists come from the grid query (:mod:`pssd_fast.kernels.knn`)
 #: instead of pykdtree, whose cost grows about as ``k^2`` (docs/DECISIONS.md, "Long lists").
 GRID_K = 128
+#: The sample points whose lists set the grid's cell in a bounded query (:func:`_grid_cell`):
+#: its cost, not its lists, depends on them.
+GRID_LOOKED = 1000
 
 
 def knn_graph(points, k, keep_distances=True):
@@ -266,7 +269,7 @@ def _nearest_blocks(data, queries, k, bound, ids, count=None):
     # Long lists of the data's own points come from the grid query (pykdtree's cost grows as
     # k^2); it finds the same points at the same distances.
     grid = queries is data and q >= GRID_K
-    query = _grid_query(data, q) if grid else None
+    query = _grid_query(data, q, GRID_LOOKED) if grid else None
     tree = None if grid else kdtree(data)
     ids = _NO_IDS if ids is None else np.ascontiguousarray(ids, np.int64)
     chunk = max(1, QUERY_ENTRIES // (k + 1))
@@ -349,12 +352,13 @@ def _tree_query(points, k):
     return query
 
 
-def _grid_query(points, k):
-    """Like :func:`_tree_query`, over a grid of cells about the k-th neighbour distance."""
+def _grid_query(points, k, looked=None):
+    """Like :func:`_tree_query`, over a grid of cells about the k-th neighbour distance
+    (``looked``: :func:`_grid_cell`'s)."""
     n = points.shape[0]
     low, high = bounds(points)
     extent = high - low
-    cell = _grid_cell(points, k, extent)
+    cell = _grid_cell(points, k, extent, looked)
     dims = (extent / cell).astype(np.int64) + 1
     # Keys must fit 63 bits: a far outlier on every axis widens the cells instead.
     while float(np.prod(dims.astype(np.float64))) > 2.0**62:
@@ -378,12 +382,16 @@ def _grid_query(points, k):
     return query
 
 
-def _grid_cell(points, k, extent):
+def _grid_cell(points, k, extent, looked=None):
     """Cell edge: 1.1 times the 90th percentile of the k-th neighbour distance, estimated on an
     evenly spread sample, so that nearly every query finds its list among the 27 cells around it.
 
     The sample's distances are scaled by ``sqrt(sample / n)``, as on a surface (a
-    two-dimensional density). Any edge gives exact lists; a poor one only costs time.
+    two-dimensional density). Any edge gives exact lists; a poor one only costs time. With
+    ``looked``, about that many of the sample's points are looked up, not all of them: the
+    lists of a bounded query are ordered by index whatever the edge, so an edge from fewer
+    lookups changes no bit there (:func:`knn_graph`'s tied lists keep the order of the full
+    sample's edge).
     """
     n = points.shape[0]
     step = max(1, n // 20000)
@@ -391,7 +399,8 @@ def _grid_cell(points, k, extent):
     m = sample.shape[0]
     cell = 0.0
     if m > k:
-        dists, _ = kdtree(sample).query(sample, k=k)
+        at = sample if looked is None else sample[::max(1, m // looked)]
+        dists, _ = kdtree(sample).query(at, k=k)
         cell = 1.1 * float(np.quantile(dists[:, -1], 0.9)) * np.sqrt(m / n)
     longest = float(extent.max())
     if not cell > 0.0:
