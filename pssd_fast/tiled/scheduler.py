@@ -36,6 +36,7 @@ class Runner:
         self.n_jobs = n_jobs
         self.report = report
         self.own = None
+        self.pool = None
         self.name = "threads" if client is None else (
             client if client in LOCAL_SCHEDULERS else "distributed")
         self.threads = None
@@ -49,11 +50,22 @@ class Runner:
             import distributed
 
             self.own = self.client = distributed.Client(self.client)
+        if self.name == "processes":
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            # One pool for the whole run: Dask would start (and import the library in) fresh
+            # processes for every round. Spawned: a fork of a process whose numba threads
+            # already ran can crash.
+            self.pool = ProcessPoolExecutor(self.n_jobs,
+                                            mp_context=multiprocessing.get_context("spawn"))
         return self
 
     def __exit__(self, *exc):
         if self.own is not None:
             self.own.close()
+        if self.pool is not None:
+            self.pool.shutdown(cancel_futures=True)
 
     def _record(self, at_once, per_task):
         """Keep the most tasks at once and the most threads a task took."""
@@ -101,9 +113,9 @@ class Runner:
         per_task = max(1, self.n_jobs // at_once)
         self._record(at_once, per_task)
         tasks = [dask.delayed(func, pure=False)(*args, per_task) for args in argsets]
-        # Fresh processes: a fork of a process whose numba threads already ran can crash.
-        with Tiles(), dask.config.set({"multiprocessing.context": "spawn"}):
-            return list(dask.compute(*tasks, scheduler=self.name, num_workers=at_once))
+        pool = {} if self.pool is None else {"pool": self.pool}
+        with Tiles():
+            return list(dask.compute(*tasks, scheduler=self.name, num_workers=at_once, **pool))
 
 
 def _worker_threads(dask_worker=None):
