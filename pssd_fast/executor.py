@@ -476,9 +476,9 @@ def _refine_task(store, keys, boxes, i, region, width, use_given, first, plan, s
     clock = Clock(None, 0, 1)
     # Only the failing points and those within a list's bound of one: the others are in no
     # list and have none, so they change nothing; a step's cost follows the points that fail.
-    flagged = items["flagged"]
     if entry["flagged"].any():
-        rows = np.flatnonzero(regions.near(items["xyz"], items["xyz"][flagged], bound))
+        rows = np.flatnonzero(regions.near(items["xyz"], items["xyz"][items["flagged"]],
+                                           bound))
         at = {name: items[name][rows] for name in names}
         with threads(n_jobs):
             out, normals, held = method.refine_step(

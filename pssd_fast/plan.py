@@ -20,8 +20,8 @@ from .noise import Noise, probe
 #: the points that fail its test ("fast" is the default method without that pass); for the
 #: paper's pipeline its ``k``, ``lam``, iterations and ``rebuild_graph``; and the baselines'
 #: (``"k": "probe"``: from the noise probe, :data:`BASELINE_K`; an integer: that ``k``, at most
-#: the distinct positions less one). Under "paper" the baselines
-#: take the paper's (its ``k`` exactly: a smaller cloud is refused).
+#: the distinct positions less one). Under "paper" the baselines take the paper's (its ``k``
+#: exactly: a smaller cloud is refused).
 PRESETS = {
     "default": {"pipeline": "default", "refine": True,
                 "baselines": {"iterations": 4, "k": "probe", "rebuild_graph": True}},
@@ -74,8 +74,8 @@ class Plan:
         How far the lists on the cell means reach (default method).
     low : (3,) ndarray or None
         The grid's corner: the cloud's low corner (default method).
-    refine : tuple or None
-        The failing points' own iterations (:class:`Refine`); None: no refinement ("fast").
+    refine : Refine or None
+        The failing points' own iterations; None: no refinement ("fast").
     own_noise : bool
         Whether the test reads each point's noise from its own fit over those lists (they span
         at least ``TEST["span"]`` noise widths), else the probe's ``sigma``.
@@ -94,7 +94,7 @@ class Plan:
     edge: Optional[float] = None
     bound: Optional[float] = None
     low: Optional[np.ndarray] = field(default=None, compare=False)
-    refine: Optional["Refine"] = None
+    refine: Optional[Refine] = None
     own_noise: bool = False
     rebuild_graph: bool = False
     probe: Optional[dict] = None
