@@ -871,7 +871,7 @@ def test_orient_and_removal_errors(tmp_path, ply_with_extras):
 def test_verbose_tells_the_plan(tmp_path):
     """The default method's list length, bound and probe, and the refinement's lists; the
     stages of each iteration, the points' own after the last."""
-    thick = datasets.cad_part(n_points=20000, noise=0.03, seed=3)
+    thick = datasets.cad_part(n_points=6000, noise=0.03, seed=3)
     path = tmp_path / "thick.xyz"
     np.savetxt(path, thick.points)
     status, stdout, err = pssd("denoise", path, tmp_path / "out.xyz", "--verbose")

@@ -42,10 +42,16 @@ def test_results_compare_by_identity(noisy):
     assert len({first, again}) == 2
 
 
-def test_two_iterations_chain_the_reference(noisy):
+@pytest.fixture(scope="module")
+def first_given(noisy):
+    """The reference's first iteration from normals given as +z, and those normals."""
     given = np.tile([0.0, 0.0, 1.0], (len(noisy), 1))
+    return given, reference.robust_iteration(noisy, given, 20, lam=0.3)
+
+
+def test_two_iterations_chain_the_reference(noisy, first_given):
+    given, (first, filtered, _, _) = first_given
     result = pssd_fast.denoise(noisy, given, iterations=2, k=20, lam=0.3, preset="paper")
-    first, filtered, _, _ = reference.robust_iteration(noisy, given, 20, lam=0.3)
     # The second pass re-estimates normals by PCA, oriented like the first pass's normals.
     lists, _ = reference.knn_lists(first, 20)
     pca = reference.pca_normals(first, lists)
@@ -55,11 +61,10 @@ def test_two_iterations_chain_the_reference(noisy):
     assert (result.normals[:, 2] > 0).all()  # the caller's orientation is kept
 
 
-def test_two_iterations_on_one_graph_chain_the_reference(noisy):
-    given = np.tile([0.0, 0.0, 1.0], (len(noisy), 1))
+def test_two_iterations_on_one_graph_chain_the_reference(noisy, first_given):
+    given, (first, filtered, _, _) = first_given
     result = pssd_fast.denoise(noisy, given, iterations=2, k=20, lam=0.3, preset="paper",
                                rebuild_graph=False)
-    first, filtered, _, _ = reference.robust_iteration(noisy, given, 20, lam=0.3)
     # The second pass keeps the first pass's neighbours, re-sorted by the new distances.
     lists, _ = reference.resort_lists(first, reference.knn_lists(noisy, 20)[0])
     pca = reference.pca_normals(first, lists)

@@ -31,7 +31,7 @@ def real(request):
 def test_tiles_in_memory_give_the_in_core_result(real):
     _, cloud, whole = real
     n = cloud.points.shape[0]
-    tiles = tiled.denoise(cloud.points, cloud.normals, tile_points=n // 6, client="sync")
+    tiles = tiled.denoise(cloud.points, cloud.normals, tile_points=n // 3, client="sync")
     assert tiles.stats["tiles"]["count"] >= 2
     for field in ("points", "normals", "displacement", "held"):
         np.testing.assert_array_equal(getattr(tiles, field), getattr(whole, field),
@@ -56,7 +56,7 @@ def test_a_file_tiled_on_disk_gives_the_in_core_file(real, tmp_path):
         source, out = tmp_path / "view.npy", tmp_path / "tiled.npy"
         np.save(source, cloud.points)
         want = whole.points
-    stats = tiled.denoise_file(source, out, tile_points=n // 8, client="sync")
+    stats = tiled.denoise_file(source, out, tile_points=n // 4, client="sync")
     assert stats["tiles"]["count"] >= 2
     assert _plans(stats) == _plans(whole.stats) != []
     np.testing.assert_array_equal(io.read(out).points if out.suffix == ".laz" else np.load(out),
