@@ -11,14 +11,12 @@ from typing import Any, Optional, Tuple
 
 
 class _Fields(Mapping):
-    """A frozen dataclass read as a mapping of its fields; those in ``_OPTIONAL`` that are
-    None are left out (a run that has no such part)."""
-
-    _OPTIONAL: Tuple[str, ...] = ()
+    """A frozen dataclass read as a mapping of its fields; a field whose default is None and
+    which is None is left out (a run that has no such part)."""
 
     def _names(self):
         return [f.name for f in dataclasses.fields(self)
-                if not (f.name in self._OPTIONAL and getattr(self, f.name) is None)]
+                if not (f.default is None and getattr(self, f.name) is None)]
 
     def __getitem__(self, name):
         if name not in self._names():
@@ -73,10 +71,6 @@ class Iteration(_Fields):
     mean_step: Optional[float] = None
     cells: Optional[int] = None
     refined: Optional[int] = None
-
-    _OPTIONAL = ("held_points", "mean_residual", "fit_degree", "h", "mean_spacing",
-                 "region_radius", "region_size_mean", "region_size_max", "degenerate_normals",
-                 "mean_step", "cells", "refined")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -152,8 +146,6 @@ class Stats(_Fields):
     tiles: Optional[dict] = None
     total_seconds: float = 0.0
     classes: Optional[dict] = None
-
-    _OPTIONAL = ("tiles", "classes")
 
 
 def finished(stats, times, started):
