@@ -4,6 +4,7 @@ Every failure prints one line, ``pssd: error: ...``, and exits with status 1 (2 
 command line); no traceback reaches the user.
 """
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -75,6 +76,11 @@ def main(argv=None):
         with warnings.catch_warnings():
             warnings.showwarning = _note
             return args.run(args) or 0
+    except BrokenPipeError:
+        # The reader of stdout went away (``pssd info f | head -1``): nothing left to say, and
+        # nothing more written to the closed pipe when Python flushes stdout at exit.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except KeyboardInterrupt:
         print("pssd: interrupted", file=sys.stderr)
         return 130

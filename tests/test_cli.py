@@ -3,6 +3,7 @@ script calls, and in a subprocess where the process itself is the subject (stdin
 signals)."""
 import gzip
 import inspect
+import os
 import re
 import subprocess
 import sys
@@ -682,6 +683,23 @@ def test_stdin_to_stdout_in_a_subprocess(small):
     lines = done.stdout.decode().splitlines()
     assert lines[0] == "# x y z" and len(lines) == len(small) + 1
     assert "- -> -: 800 points" in done.stderr.decode()
+
+
+def test_a_reader_that_stops_early_is_no_error(tmp_path, small):
+    """``pssd info f | head -1``: output into a pipe whose reader has gone is no error; the
+    command stops quietly with status 0, not with 'Broken pipe'."""
+    path = tmp_path / "small.xyz"
+    np.savetxt(path, small)
+    read, write = os.pipe()
+    os.close(read)  # the reader has gone before the first line
+    try:
+        done = subprocess.run([sys.executable, "-m", "pssd_fast.cli", "info", str(path)],
+                              stdout=write, stderr=subprocess.PIPE, timeout=600)
+    finally:
+        os.close(write)
+    err = done.stderr.decode()
+    assert done.returncode == 0, err
+    assert "Broken pipe" not in err and "Traceback" not in err
 
 
 def test_stdin_csv_to_stdout_ply_in_process(small, monkeypatch, capsys):

@@ -514,7 +514,7 @@ def test_an_existing_output_is_kept_unless_overwritten(tmp_path):
 
 
 #: What denoise_file refuses on purpose: it never holds every point, which these need.
-NEEDS_EVERY_POINT = "denoise_file runs the default method .* need them all"
+NEEDS_EVERY_POINT = "denoise_file runs the default method .* needs? them all"
 
 
 @pytest.mark.parametrize("kwargs, error, match", [
@@ -524,10 +524,10 @@ NEEDS_EVERY_POINT = "denoise_file runs the default method .* need them all"
     ({"iterations": 0}, ValueError, "iterations"),
     ({"sigma": 1.0}, TypeError, "unknown parameter"),
     ({"fields": ["colour"]}, ValueError, "unknown field"),
-    ({"preset": "paper"}, ValueError, "point; preset='paper' need them all"),
-    ({"method": "mls"}, ValueError, "point; method='mls' need them all"),
+    ({"preset": "paper"}, ValueError, "point; preset='paper' needs them all"),
+    ({"method": "mls"}, ValueError, "point; method='mls' needs them all"),
     ({"method": "bilateral"}, ValueError, NEEDS_EVERY_POINT),
-    ({"remove_outliers": True}, ValueError, "remove_outliers need them all"),
+    ({"remove_outliers": True}, ValueError, "remove_outliers needs them all"),
     ({"classes": [2]}, ValueError, "classes and classification go together"),
     ({"classification": np.full(50, 2, np.uint8), "classes": "some"}, ValueError,
      "class codes, 'each' or 'all'"),

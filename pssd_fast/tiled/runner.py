@@ -185,9 +185,9 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
 
     Returns
     -------
-    dict
-        The run's ``stats``, as :func:`pssd_fast.denoise` gives them (with classes,
-        ``stats["classes"]`` says what ran).
+    Stats
+        The run's :class:`pssd_fast.Stats`, as :func:`pssd_fast.denoise` gives them (with
+        classes, ``stats["classes"]`` says what ran; ``stats.to_dict()`` for JSON).
 
     Raises
     ------
@@ -405,9 +405,10 @@ def _file_settings(options, classified):
         refused.append("preset='paper'")
     if refused:
         raise ValueError(f"denoise_file runs the default method (presets 'default' and "
-                         f"'fast') and never holds every point; {', '.join(refused)} need "
-                         f"them all: read the file with pssd_fast.io.read, then "
-                         f"pssd_fast.denoise or tiled.denoise")
+                         f"'fast') and never holds every point; {' and '.join(refused)} "
+                         f"need{'s' * (len(refused) == 1)} "
+                         f"them all: read the file with pssd_fast.io.read, then pass its "
+                         f"points (cloud.points) to pssd_fast.denoise or tiled.denoise")
     lidar.check_classes(classified or options.get("classification"), options.get("classes"))
     # denoise's own checks, on a cloud it does not run: what it would refuse, this refuses.
     # (The classes are denoise's, not the method's parameters.)
