@@ -164,7 +164,7 @@ def _parser():
                           "'pssd_fast[dask]'), with the same result; presets default and fast, "
                           "where they work on cell means; a classified input keeps its "
                           "classes apart as without it (see --classes)")
-    den.add_argument("--scheduler", default=None, metavar="WHERE",
+    den.add_argument("--scheduler", default=None, metavar="WHERE", type=_scheduler,
                      help="where the tiles run: threads (default), processes, sync, or a Dask "
                           "scheduler's address")
     den.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
@@ -393,6 +393,16 @@ def _common_options(args):
             "duplicate_tolerance": args.duplicate_tolerance}
 
 
+def _scheduler(value):
+    """``--scheduler``: a local scheduler's name or a scheduler's address."""
+    from .tiled.scheduler import check_client
+
+    try:
+        return check_client(value, "")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _run_denoise(points, normals, args, method_params, say=None, **options):
     from .denoise import denoise
 
@@ -410,17 +420,21 @@ def _run_denoise(points, normals, args, method_params, say=None, **options):
         progress.close()
     seconds = time.perf_counter() - started
     if args.verbose:
-        chosen = _chosen(result.stats)
-        threads = result.stats["n_jobs"]
-        print(f"k = {result.stats['k']}{chosen}; {threads} thread{'s' * (threads != 1)}",
-              file=say or sys.stdout)
-        for i, record in enumerate(result.stats["iterations"], 1):
-            times = ", ".join(f"{s} {t:.3f}" for s, t in record["times"].items())
-            print(f"iteration {i}: {times} (s)", file=say or sys.stdout)
-        if result.stats["outliers"] is not None:
-            print(f"outlier score: {result.stats['outliers']['seconds']:.3f} s",
-                  file=say or sys.stdout)
+        _details(result.stats, say or sys.stdout)
     return result, seconds
+
+
+def _details(stats, say):
+    """What ``--verbose`` adds: the sizes the run chose, its threads and each iteration's
+    stage times."""
+    threads = stats["n_jobs"]
+    print(f"k = {stats['k']}{_chosen(stats)}; {threads} thread{'s' * (threads != 1)}",
+          file=say)
+    for i, record in enumerate(stats["iterations"], 1):
+        times = ", ".join(f"{s} {t:.3f}" for s, t in record["times"].items())
+        print(f"iteration {i}: {times} (s)", file=say)
+    if stats["outliers"] is not None:
+        print(f"outlier score: {stats['outliers']['seconds']:.3f} s", file=say)
 
 
 def _chosen(stats):
@@ -659,6 +673,8 @@ def _denoise_on_disk(args, params, inp, out, say):
               f"{tiles['count']} tile{'s' * (tiles['count'] != 1)} of at most "
               f"{tiles['most_points']:,} points, out of core"
               f"{_copies(stats)}{_classes_done(stats)}", file=say)
+    if args.verbose:
+        _details(stats, say)
 
 
 def _copies(stats):

@@ -6,6 +6,8 @@ these objects directly for their ``points``:
 - an Open3D ``open3d.geometry.PointCloud`` or ``open3d.t.geometry.PointCloud`` (its
   ``points``, or ``point.positions`` copied to the CPU);
 - a trimesh ``trimesh.PointCloud`` (its ``vertices``);
+- a :class:`pssd_fast.io.PointCloud`, as :func:`pssd_fast.io.read` returns it (its
+  ``points``);
 - a numpy structured array with fields ``X``, ``Y``, ``Z`` (PDAL's arrays) or ``x``, ``y``,
   ``z`` (floating point; laspy's ``points.array`` holds unscaled integers, so pass
   ``las.xyz`` instead). Its ``Classification`` field is the caller's to pass as
@@ -48,7 +50,7 @@ def as_arrays(cloud):
     Parameters
     ----------
     cloud : open3d.geometry.PointCloud, open3d.t.geometry.PointCloud, trimesh.PointCloud, \
-structured ndarray or (n, 3) ndarray
+pssd_fast.io.PointCloud, structured ndarray or (n, 3) ndarray
         A structured array needs floating-point fields ``X``, ``Y``, ``Z`` or ``x``, ``y``,
         ``z``; its normals are the fields ``NormalX``, ``NormalY``, ``NormalZ`` or ``nx``,
         ``ny``, ``nz`` where it has them. A trimesh ``PointCloud`` holds no normals; those in
@@ -87,6 +89,8 @@ structured ndarray or (n, 3) ndarray
             return np.empty((0, 3)), None
         normals = attributes.normals.cpu().numpy().copy() if "normals" in attributes else None
         return attributes.positions.cpu().numpy().copy(), normals
+    if kind == "pssd_fast":
+        return cloud.points.copy(), None if cloud.normals is None else cloud.normals.copy()
     if kind == "trimesh":
         points = np.array(cloud.vertices, dtype=np.float64)
         normals = cloud.metadata.get("vertex_normals")
@@ -247,9 +251,12 @@ def to_structured(result, like, *, add_normals=False):
 
 
 def _kind(cloud):
-    """``"open3d"``, ``"open3d.t"`` or ``"trimesh"`` for a point cloud of those libraries,
-    else None. A library is looked up only where it is imported: an object of its type
-    cannot exist otherwise."""
+    """``"open3d"``, ``"open3d.t"``, ``"trimesh"`` or ``"pssd_fast"`` for a point cloud of
+    those libraries (this one's: :class:`pssd_fast.io.PointCloud`), else None. A library is
+    looked up only where it is imported: an object of its type cannot exist otherwise."""
+    ours = sys.modules.get("pssd_fast.io._common")
+    if ours is not None and isinstance(cloud, ours.PointCloud):
+        return "pssd_fast"
     o3d = sys.modules.get("open3d")
     if o3d is not None:
         if isinstance(cloud, o3d.geometry.PointCloud):

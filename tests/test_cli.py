@@ -944,14 +944,17 @@ def test_duplicate_tolerance_reaches_the_library(tmp_path):
 
 
 def test_duplicate_tolerance_reaches_tiled_runs(tmp_path):
-    """Out of core (``--tile-points`` on ``.npy``), the in-core result."""
+    """Out of core (``--tile-points`` on ``.npy``), the in-core result; ``--verbose`` tells
+    the plan and the stage times there as in core."""
     pytest.importorskip("dask")
     want = _near_copies(tmp_path)
     status, out, err = pssd("denoise", tmp_path / "in.npy", tmp_path / "tiled.npy",
                             "--iterations", "1", "--duplicate-tolerance", "1e-6",
-                            "--tile-points", "1000", "--scheduler", "sync")
+                            "--tile-points", "1000", "--scheduler", "sync", "--verbose")
     assert status == 0, err
     assert "out of core" in out
+    assert f"k = {want.stats['k']} cell means within" in out
+    assert re.search(r"^iteration 1: neighbors [\d.]+, .*, write [\d.]+ \(s\)$", out, re.M), out
     np.testing.assert_array_equal(np.load(tmp_path / "tiled.npy"), want.points)
 
 
@@ -1020,6 +1023,16 @@ def test_scheduler_needs_tile_points(tmp_path, small):
     np.savetxt(path, small)
     status, _, err = pssd("denoise", path, tmp_path / "out.xyz", "--scheduler", "threads")
     assert status == 1 and "--scheduler runs the tiles of --tile-points" in err
+
+
+def test_an_unknown_scheduler_is_named_as_the_option(tmp_path, small):
+    path = tmp_path / "small.xyz"
+    np.savetxt(path, small)
+    status, _, err = pssd("denoise", path, tmp_path / "out.xyz", "--tile-points", "1000",
+                          "--scheduler", "bogus")
+    assert status == 2 and ("argument --scheduler: 'bogus' is neither a local scheduler "
+                            "(threads, processes, sync) nor a scheduler's address") in err
+    assert not (tmp_path / "out.xyz").exists()
 
 
 def test_the_survey_is_as_docs_cli_md_gives_it(tmp_path):

@@ -54,6 +54,16 @@ def test_a_structured_array_is_denoised_as_its_coordinates(part, expected, names
     np.testing.assert_array_equal(cloud[names[0]], part[:, 0])  # the input is untouched
 
 
+def test_a_cloud_read_from_a_file_is_denoised_as_its_coordinates(part, expected, tmp_path):
+    from pssd_fast import io
+    path = io.write(tmp_path / "scan.npy", part)
+    cloud = io.read(path)
+    result = pssd_fast.denoise(cloud, **FAST)
+    assert same(result.points, expected.points) and same(result.normals, expected.normals)
+    points, normals = interop.as_arrays(io.PointCloud(part, -part))
+    assert same(points, part) and same(normals, -part)
+
+
 def test_float32_fields_give_a_float32_result(part):
     cloud = records(part, kind="f4")
     result = pssd_fast.denoise(cloud, **FAST)

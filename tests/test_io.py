@@ -947,6 +947,34 @@ def test_write_argument_errors(tmp_path, kwargs, match):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_an_array_or_a_result_is_written_as_its_points_and_normals(tmp_path):
+    import pssd_fast
+    from pssd_fast import datasets
+    points = np.arange(12.0).reshape(4, 3)
+    pio.write(tmp_path / "a.npz", points)
+    back = pio.read(tmp_path / "a.npz")
+    np.testing.assert_array_equal(back.points, points)
+    assert back.normals is None
+    part = datasets.cad_part(n_points=1500, noise=0.004, seed=0).points
+    result = pssd_fast.denoise(part, preset="fast")
+    pio.write(tmp_path / "b.npz", result)
+    back = pio.read(tmp_path / "b.npz")
+    np.testing.assert_array_equal(back.points, result.points)
+    np.testing.assert_array_equal(back.normals, result.normals)
+
+
+@pytest.mark.parametrize("cloud, match", [
+    ({"points": np.zeros((4, 3))}, "got dict$"),
+    (np.zeros((4, 2)), r"got ndarray of shape \(4, 2\), dtype float64$"),
+    ("a.ply", "got str$"),
+])
+def test_write_refuses_what_is_not_a_cloud(tmp_path, cloud, match):
+    with pytest.raises(TypeError, match="^cloud must be a pssd_fast.io.PointCloud, a denoise "
+                                        "result or an \\(n, 3\\) array of coordinates; " + match):
+        pio.write(tmp_path / "a.ply", cloud)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_describe_says_nothing_where_the_format_has_nothing_more(tmp_path):
     np.save(tmp_path / "a.npy", np.zeros((4, 3)))
     assert pio.describe(pio.read(tmp_path / "a.npy")) == []

@@ -326,10 +326,11 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
         The output file; its extension (see :func:`formats`) picks the format, and a ``.gz``
         after it (text, PLY, OBJ) gzips it. ``"-"`` writes to standard output in the format
         ``format`` names.
-    cloud : PointCloud
+    cloud : PointCloud, DenoiseResult or (n, 3) array_like
         The cloud to write, usually from :func:`read` (its ``points``, ``normals``, ``fields``
         and, into its own format, the rest of its file), or built in memory
-        (``PointCloud(points, normals, fields)``).
+        (``PointCloud(points, normals, fields)``); a result of :func:`pssd_fast.denoise` is
+        its points and normals, an array its points alone.
     points : (n, 3) array_like, optional
         Coordinates replacing ``cloud.points`` (same number of points).
     normals : (n, 3) array_like, optional
@@ -353,6 +354,8 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
 
     Raises
     ------
+    TypeError
+        If ``cloud`` is none of the kinds above.
     FileExistsError
         If ``path`` exists and ``overwrite`` is False.
     PointCloudFileError
@@ -410,6 +413,7 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     True
     >>> folder.cleanup()
     """
+    cloud = _as_cloud(cloud)
     target = _target(path, format, "<stdout>")
     name = target.name
     if target.path is not None:
@@ -454,6 +458,21 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
         return STDIO
     atomic_write(name, payload, overwrite, cloud)
     return name
+
+
+def _as_cloud(cloud):
+    """``cloud`` as :func:`write` takes it, a :class:`PointCloud`."""
+    if isinstance(cloud, PointCloud):
+        return cloud
+    if all(hasattr(cloud, name) for name in ("points", "normals", "stats")):  # a result
+        return PointCloud(cloud.points, cloud.normals)
+    points = np.asarray(cloud) if isinstance(cloud, (np.ndarray, list, tuple)) else None
+    if (points is None or points.ndim != 2 or points.shape[-1] != 3
+            or points.dtype.kind not in "fiu"):
+        shape = "" if points is None else f" of shape {points.shape}, dtype {points.dtype}"
+        raise TypeError(f"cloud must be a pssd_fast.io.PointCloud, a denoise result or an "
+                        f"(n, 3) array of coordinates; got {type(cloud).__name__}{shape}")
+    return PointCloud(points)
 
 
 def stored(path, cloud, points, *, format=None):

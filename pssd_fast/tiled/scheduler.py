@@ -8,15 +8,15 @@ import time
 LOCAL_SCHEDULERS = ("threads", "processes", "sync")
 
 
-def check_client(client):
+def check_client(client, name="client "):
     """``client``, or TypeError (not a client) or ValueError (a name no scheduler has) naming
-    what it takes."""
+    what it takes; the messages call it ``name``."""
     if not (client is None or isinstance(client, str) or hasattr(client, "submit")):
         raise TypeError(f"client must be None, one of {LOCAL_SCHEDULERS}, a scheduler address "
                         f"or a distributed.Client; got {client!r}")
     if isinstance(client, str) and client not in LOCAL_SCHEDULERS and ":" not in client:
         # Neither a local scheduler nor an address (host:port, tcp://host:port).
-        raise ValueError(f"client {client!r} is neither a local scheduler "
+        raise ValueError(f"{name}{client!r} is neither a local scheduler "
                          f"({', '.join(LOCAL_SCHEDULERS)}) nor a scheduler's address such as "
                          f"'tcp://host:8786'")
     return client
