@@ -480,8 +480,8 @@ def test_sigterm_while_writing_leaves_nothing(tmp_path, cloud):
         time.sleep(0.05)
     proc.send_signal(signal.SIGTERM)
     err = proc.communicate(timeout=60)[1]
-    assert proc.returncode == 128 + signal.SIGTERM
-    assert err.strip().splitlines() == ["pssd: terminated"]
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert err.strip().splitlines() == ["pssd: terminated"], err
     assert sorted(os.listdir(tmp_path)) == ["in.npy"]
 
 

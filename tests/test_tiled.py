@@ -587,3 +587,21 @@ def test_a_store_gives_back_what_was_put_and_the_rows_asked(kind, tmp_path):
         store.get(("cells", 0, 1), ("xyz",))
     if kind == "files":
         assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("targets, sorted_", [(1, True), (3, True), (7, False),
+                                                (70_000, False)])
+def test_records_are_saved_in_the_stable_order_of_their_targets(tmp_path, targets, sorted_):
+    """Whether the records come in order, few targets (a radix sort) or many, the file holds
+    them as a stable sort by target puts them, and the counts are the targets'."""
+    rng = np.random.default_rng(targets)
+    target = rng.integers(0, targets, 5000)
+    if sorted_:
+        target.sort()
+    records = np.zeros(5000, ondisk.part_dtype(("xyz",)))
+    records["row"] = np.arange(5000)
+    records["xyz"] = rng.normal(size=(5000, 3))
+    counts = ondisk.sorted_save(records, target, targets, tmp_path / "part.bin")
+    saved = np.fromfile(tmp_path / "part.bin", records.dtype)
+    assert saved.tobytes() == records[np.argsort(target, kind="mergesort")].tobytes()
+    np.testing.assert_array_equal(counts, np.bincount(target, minlength=targets))

@@ -321,18 +321,18 @@ def _read(array, start, stop, mask=None):
     return array[start:stop], None, mask
 
 
-def unmoved(array, start, stop, mask, path, blocks, n_jobs):
-    """The rows ``start..stop-1`` of ``array`` that ``mask`` selects as :data:`PART` records
-    in a new file at ``path`` (a task), as :func:`pssd_fast.denoise` returns the points of the
-    classes it does not denoise: their coordinates and normals as read (NaN without), NaN
-    likelihood and feature intensity, zero displacement; the count of each of the output's
-    :class:`Blocks` (:func:`sorted_save`)."""
+def unmoved(array, start, stop, mask, path, blocks, columns, n_jobs):
+    """The rows ``start..stop-1`` of ``array`` that ``mask`` selects as records of the output's
+    ``columns`` (:func:`part_dtype`) in a new file at ``path`` (a task), as
+    :func:`pssd_fast.denoise` returns the points of the classes it does not denoise: their
+    coordinates and normals as read (NaN without), NaN likelihood and feature intensity, zero
+    displacement; the count of each of the output's :class:`Blocks` (:func:`sorted_save`)."""
     points, normals, mask = _read(array, start, stop, mask)
     rows = np.flatnonzero(mask)
     normals = np.full((rows.shape[0], 3), np.nan) if normals is None else normals[rows]
     nan = np.full(rows.shape[0], np.nan)
-    records = part_records(rows + start, points[rows], normals, nan, nan,
-                           np.zeros(rows.shape[0]))
+    records = part_records(part_dtype(columns), rows + start, xyz=points[rows], nrm=normals,
+                           likelihood=nan, feature=nan, displacement=np.zeros(rows.shape[0]))
     return sorted_save(records, records["row"] // blocks.size, blocks.count, path)
 
 
@@ -355,9 +355,15 @@ def first_error(results):
 
 
 def sorted_save(records, target, targets, path):
-    """``records`` sorted stably by ``target`` into a file at ``path``, whole (:func:`save`);
-    the count of each of ``targets``."""
-    save(records[np.argsort(target, kind="stable")], path)
+    """``records`` sorted stably by ``target`` (each below ``targets``) into a file at
+    ``path``, whole (:func:`save`); the count of each of ``targets``."""
+    # Records already in order (one bucket, one tile, a tile within one block) are saved as
+    # they are: the gather of a sort would copy them all.
+    if (target[1:] < target[:-1]).any():
+        # numpy sorts keys of 16 bits stably by radix, in linear time: the same order.
+        keys = target.astype(np.uint16) if targets <= 1 << 16 else target
+        records = records[np.argsort(keys, kind="stable")]
+    save(records, path)
     return np.bincount(target, minlength=targets)
 
 
@@ -385,15 +391,20 @@ def columns_width(columns):
     return sum(PART[c].shape[0] if PART[c].shape else 1 for c in columns)
 
 
-def part_records(rows, points, normals, likelihood, feature, displacement):
-    """The :data:`PART` records of denoised points (coordinates as the output holds them)."""
-    records = np.empty(rows.shape[0], PART)
+def part_dtype(columns):
+    """The records of :data:`PART` with its ``row`` and the fields ``columns`` alone: what an
+    output of those columns reads of the results."""
+    return np.dtype([("row", np.int64)] + [(c, PART[c]) for c in columns])
+
+
+def part_records(dtype, rows, **fields):
+    """Records ``dtype`` (:func:`part_dtype`) of denoised points (coordinates as the output
+    holds them): their ``rows`` and those of ``fields`` (``xyz``, ``nrm``, ``likelihood``,
+    ``feature``, ``displacement``) it holds."""
+    records = np.empty(rows.shape[0], dtype)
     records["row"] = rows
-    records["xyz"] = points
-    records["nrm"] = normals
-    records["likelihood"] = likelihood
-    records["feature"] = feature
-    records["displacement"] = displacement
+    for name in dtype.names[1:]:
+        records[name] = fields[name]
     return records
 
 

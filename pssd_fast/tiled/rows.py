@@ -3,9 +3,10 @@
 into its place in the output, so no process holds more than a block and the calling process
 only plans.
 
-The tiles' results arrive as :data:`~ondisk.PART` files sorted by block
-(:func:`ondisk.sorted_save`); the rows set aside as copies of an earlier row
-(:data:`~ondisk.COPY`) take that row's record, found in its block by a task of that block.
+The tiles' results arrive as files of the output's columns of :data:`~ondisk.PART`
+(:func:`ondisk.part_dtype`) sorted by block (:func:`ondisk.sorted_save`); the rows set aside
+as copies of an earlier row (:data:`~ondisk.COPY`) take that row's record, found in its block
+by a task of that block.
 """
 import numpy as np
 
@@ -13,12 +14,12 @@ from . import ondisk
 
 
 def write(runner, path, sources, blocks, n, dtype, columns=("xyz",), copies=(), stage=(0, 1)):
-    """The records of the ``sources`` (``(path, counts)``: a :data:`~ondisk.PART` file sorted by
-    ``blocks``, :class:`~ondisk.Blocks`, and its count of each block) into a new ``.npy`` file
-    at ``path`` of ``(n, c)`` ``dtype``, in row order: the fields ``columns`` side by side;
-    each row of the ``copies`` files (:data:`~ondisk.COPY`) takes the record of its first row,
-    with the displacement from its own input position. ``stage``: the iteration and
-    iterations the tasks report."""
+    """The records of the ``sources`` (``(path, counts)``: a file of records of ``columns``,
+    :func:`~ondisk.part_dtype`, sorted by ``blocks``, :class:`~ondisk.Blocks`, and its count of
+    each block) into a new ``.npy`` file at ``path`` of ``(n, c)`` ``dtype``, in row order:
+    the fields ``columns`` side by side; each row of the ``copies`` files
+    (:data:`~ondisk.COPY`) takes the record of its first row, with the displacement from its
+    own input position. ``stage``: the iteration and iterations the tasks report."""
     paths = [source for source, _ in sources]
     found = ondisk.offsets([counts for _, counts in sources])
     if copies:
@@ -29,7 +30,7 @@ def write(runner, path, sources, blocks, n, dtype, columns=("xyz",), copies=(), 
         copied = [copies[0].with_name(f"copied_{j}.bin") for j in targets]
         counts = runner.map("copied", *stage, _copied, [
             (j, ondisk.pieces(paths, found, j), ondisk.pieces(by_first, first_found, j),
-             blocks, out) for j, out in zip(targets, copied)])
+             blocks, columns, out) for j, out in zip(targets, copied)])
         paths += copied
         found += ondisk.offsets(counts)
     width = ondisk.columns_width(columns)
@@ -48,25 +49,26 @@ def _by_first(copies, blocks, out, n_jobs):
     return ondisk.sorted_save(aside, aside["first"] // blocks.size, blocks.count, out)
 
 
-def _copied(j, records, aside, blocks, out, n_jobs):
+def _copied(j, records, aside, blocks, columns, out, n_jobs):
     """The record of each row set aside (``aside``: the pieces of the copies whose first row
-    lies in block ``j``; ``records``: the pieces of block ``j``): its first row's record, the
-    displacement its own; sorted by the block of its own row into ``out``; the count of each
-    block."""
-    records = ondisk.read_pieces(records, ondisk.PART)
+    lies in block ``j``; ``records``: the pieces of block ``j``, of ``columns``): its first
+    row's record, the displacement its own; sorted by the block of its own row into ``out``;
+    the count of each block."""
+    records = ondisk.read_pieces(records, ondisk.part_dtype(columns))
     aside = ondisk.read_pieces(aside, ondisk.COPY)
     at = np.empty(blocks.size, np.int64)
     at[records["row"] - j * blocks.size] = np.arange(records.shape[0])
     found = records[at[aside["first"] - j * blocks.size]]
     found["row"] = aside["row"]
-    found["displacement"] = np.linalg.norm(found["xyz"] - aside["xyz"], axis=1)
+    if "displacement" in columns:
+        found["displacement"] = np.linalg.norm(found["xyz"] - aside["xyz"], axis=1)
     return ondisk.sorted_save(found, found["row"] // blocks.size, blocks.count, out)
 
 
 def _write_block(pieces, i, blocks, n, dtype, columns, path, offset, n_jobs):
     """Block ``i`` of the output at ``path`` (its array from byte ``offset``) from the records
     of ``pieces``, every row of the block among them."""
-    records = ondisk.read_pieces(pieces, ondisk.PART)
+    records = ondisk.read_pieces(pieces, ondisk.part_dtype(columns))
     start = i * blocks.size
     width = ondisk.columns_width(columns)
     out = np.empty((min(n, start + blocks.size) - start, width), dtype)

@@ -289,7 +289,8 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
                 kept = [folder / f"kept_{start}.bin" for start, _ in ranges]
                 sources += zip(kept, runner.map("kept", *stage, ondisk.unmoved, [
                     (array, start, stop, rows_of(start, stop, tuple(runs), True), path,
-                     setting.blocks) for (start, stop), path in zip(ranges, kept)]))
+                     setting.blocks, _columns(array))
+                    for (start, stop), path in zip(ranges, kept)]))
             clock = Clock(report, *stage)
             clock.run("write", _write, runner, array, output, sources, setting.blocks, dtype,
                       folder, fields, [path for _, _, copies, _ in done for path in copies],
@@ -360,9 +361,9 @@ def _file_run(setting, keep, folder, started):
     """One run of :func:`denoise_file` on the rows of ``setting.array`` that ``keep`` selects
     (``keep(start, stop)``: a mask of rows ``start..stop-1`` or the
     :class:`~pssd_fast.tiled.ondisk.Classes` that finds it; None: every row), its scratch
-    files in ``folder``: its results (``(path, counts)`` of each tile's
-    :data:`~pssd_fast.tiled.ondisk.PART` file, :func:`pssd_fast.tiled.rows.write`), the files
-    of rows set aside as copies and the run's ``stats``."""
+    files in ``folder``: its results (``(path, counts)`` of each tile's file of
+    :func:`_part`, :func:`pssd_fast.tiled.rows.write`), the files of rows set aside as copies
+    and the run's ``stats``."""
     folder.mkdir(exist_ok=True)
     settings, report, runner = setting.settings, setting.report, setting.runner
     first = Clock(report, 0, 1)
@@ -381,8 +382,8 @@ def _file_run(setting, keep, folder, started):
     clock = Clock(report, plan.iterations - 1, plan.iterations)
     paths = [Path(folder) / f"part_{i}.bin" for i in range(len(tiles))]
     parts = clock.run("parts", runner.map, "parts", plan.iterations - 1, plan.iterations,
-                      _part, [(store, i, cloud.centre, setting.dtype, path, setting.blocks)
-                              for i, path in enumerate(paths)])
+                      _part, [(store, i, cloud.centre, setting.dtype, path, setting.blocks,
+                               _columns(setting.array)) for i, path in enumerate(paths)])
     held = sum(found for _, found in parts)
     records[0]["times"].update(first.times)
     records[-1]["times"].update(clock.times)
@@ -416,19 +417,28 @@ def _file_settings(options, classified):
                             if name not in ("classification", "classes")})
 
 
-def _part(store, i, centre, dtype, path, blocks, n_jobs):
-    """Tile ``i``'s results as a :data:`pssd_fast.tiled.ondisk.PART` file at ``path`` sorted
-    by the output's ``blocks``, the coordinates as :func:`pssd_fast.denoise` returns them (a
-    task); the count of each block and the points the tile held in place."""
+def _columns(array):
+    """What an output of ``array``'s kind takes of the results
+    (:func:`pssd_fast.tiled.ondisk.part_dtype`): the coordinates of an ``.npy`` or Zarr
+    array, every column of a LAS/LAZ file's table."""
+    return ("xyz",) if isinstance(array, (ondisk.NpyFile, ondisk.ZarrFile)) else ondisk.TABLE
+
+
+def _part(store, i, centre, dtype, path, blocks, columns, n_jobs):
+    """Tile ``i``'s results as records of the output's ``columns``
+    (:func:`pssd_fast.tiled.ondisk.part_dtype`) in a file at ``path`` sorted by the output's
+    ``blocks``, the coordinates as :func:`pssd_fast.denoise` returns them (a task); the count
+    of each block and the points the tile held in place."""
     out = store.get(("out", i))
     points = store.get(("points", i), ("xyz", "row"))
-    xyz = (out["xyz"] + centre).astype(dtype).astype(np.float64)
-    displacement = np.linalg.norm(out["xyz"] - points["xyz"], axis=1).astype(dtype)
-    nan = np.full(xyz.shape[0], np.nan)
-    records = ondisk.part_records(points["row"], xyz,
-                                  out["normals"].astype(dtype).astype(np.float64),
-                                  out.get("likelihood", nan), out.get("feature", nan),
-                                  displacement)
+    fields = {"xyz": (out["xyz"] + centre).astype(dtype).astype(np.float64)}
+    if "nrm" in columns:
+        nan = np.full(points["row"].shape[0], np.nan)
+        fields.update(nrm=out["normals"].astype(dtype).astype(np.float64),
+                      likelihood=out.get("likelihood", nan), feature=out.get("feature", nan),
+                      displacement=np.linalg.norm(out["xyz"] - points["xyz"],
+                                                  axis=1).astype(dtype))
+    records = ondisk.part_records(ondisk.part_dtype(columns), points["row"], **fields)
     counts = ondisk.sorted_save(records, records["row"] // blocks.size, blocks.count, path)
     return counts, int(out["held"].sum())
 
@@ -443,7 +453,7 @@ def _write(runner, array, output, sources, blocks, dtype, folder, fields, copies
         rows.write(runner, output, sources, blocks, n, dtype, copies=copies, stage=stage)
         return
     table = folder / "rows.npy"
-    columns = ("xyz",) if isinstance(array, ondisk.ZarrFile) else ondisk.TABLE
+    columns = _columns(array)
     rows.write(runner, table, sources, blocks, n, dtype, columns, copies, stage)
     runner.map("write file", *stage, _write_file, [(array, output, table, columns, fields)])
 
