@@ -155,9 +155,17 @@ def near_centres(points, centres, radius):
 def cell_order(code, cells):
     """The order that groups the points by cell (:func:`cell_keys`), stably, and where each
     cell starts in it (with the end)."""
-    order = np.lexsort((cells[:, 2], cells[:, 1], cells[:, 0], code))
+    order = np.argsort(code, kind="stable")
     keys = cells[order]
     change = np.concatenate(([True], (keys[1:] != keys[:-1]).any(axis=1)))
+    # Where each code is one cell (up to 2**21 cells an axis) the stable sort by code is the
+    # sort by code, then coordinates; runs of a coarser code hold several cells, which the
+    # coordinates order.
+    ordered = code[order]
+    if (change[1:] & (ordered[1:] == ordered[:-1])).any():
+        order = np.lexsort((cells[:, 2], cells[:, 1], cells[:, 0], code))
+        keys = cells[order]
+        change = np.concatenate(([True], (keys[1:] != keys[:-1]).any(axis=1)))
     starts = np.concatenate((np.flatnonzero(change), [order.shape[0]])).astype(np.int64)
     return order, starts
 

@@ -423,3 +423,21 @@ def test_regions_near_holds_a_hair_more():
     assert 0 < want.sum() < 500
     assert not regions.near(points, centres[:0], 0.2).any()
     assert regions.near(points[:0], centres, 0.2).shape == (0,)
+
+
+@pytest.mark.parametrize("shift", [0, 3])
+def test_cell_order_sorts_by_code_then_coordinates_stably(shift):
+    """Codes of one cell each (shift 0) or of several (coarser codes): the order is numpy's
+    stable lexicographic sort by code, then the coordinates, and each cell starts where its
+    coordinates first appear in it."""
+    rng = np.random.default_rng(shift)
+    points = rng.uniform(0.0, 40.0, (3000, 3))
+    code, cells = graph_module.cell_keys(points, np.zeros(3), 1.0, shift)
+    assert (np.unique(code).shape[0] < np.unique(cells, axis=0).shape[0]) == (shift > 0)
+    order, starts = graph_module.cell_order(code, cells)
+    np.testing.assert_array_equal(order, np.lexsort((cells[:, 2], cells[:, 1], cells[:, 0],
+                                                     code)))
+    keys = cells[order]
+    for first, end in zip(starts[:-1], starts[1:]):
+        assert (keys[first:end] == keys[first]).all()
+    assert starts[-1] == 3000 and np.unique(keys[starts[:-1]], axis=0).shape[0] == len(starts) - 1
