@@ -370,15 +370,23 @@ class _Progress:
         self.done = 0
         self.enabled = enabled and sys.stderr.isatty()
         self.clock = TimeLeft()
+        self.runs = {}
 
     def __call__(self, iteration, iterations, stage, seconds):
         self.done += 1
         times = describe(*self.clock(iteration, iterations, seconds))
         if self.enabled:
-            filled = int(30 * min(1.0, self.done / (self.total * iterations)))
-            sys.stderr.write(f"\r[{'#' * filled}{'.' * (30 - filled)}] iteration "
-                             f"{iteration}/{iterations} {stage:<10s} {times:<32s}")
+            sys.stderr.write(f"\r{self.line(iteration, iterations, stage)} {times:<32s}")
             sys.stderr.flush()
+
+    def line(self, iteration, iterations, stage):
+        """The bar and the stage, numbered from its second run in one iteration (the
+        refinement's iterations run within the method's last)."""
+        runs = self.runs[iteration, stage] = self.runs.get((iteration, stage), 0) + 1
+        name = stage if runs == 1 else f"{stage} #{runs}"
+        filled = int(30 * min(1.0, self.done / (self.total * iterations)))
+        bar = "#" * filled + "." * (30 - filled)
+        return f"[{bar}] iteration {iteration}/{iterations} {name:<10s}"
 
     def close(self):
         if self.enabled:

@@ -1090,3 +1090,16 @@ def test_orient_is_refused_with_given_normals_in_every_entry(tmp_path, tile_poin
     assert_one_line_error(status, err, f"--{want}; the normals of {source} keep their signs "
                                        "(drop --orient)")
     assert not (tmp_path / "out.las").exists() and not (tmp_path / "t.las").exists()
+
+
+def test_the_bar_numbers_a_stage_run_again_in_one_iteration():
+    """The refinement's second iteration runs within the method's last: its stages say so."""
+    progress = cli._Progress(7, False)
+    lines = []
+    for iteration, stage in [(1, "neighbors"), (2, "neighbors"), (2, "refine_fit"),
+                             (2, "refine_fit")]:
+        progress.done += 1
+        lines.append(progress.line(iteration, 2, stage))
+    assert [line.split("] ")[1].rstrip() for line in lines] == [
+        "iteration 1/2 neighbors", "iteration 2/2 neighbors", "iteration 2/2 refine_fit",
+        "iteration 2/2 refine_fit #2"]
