@@ -13,6 +13,19 @@ from benchmarks import models
 from pssd_fast import cli
 from pssd_fast.kernels import feature
 
+try:
+    import plyfile
+except ImportError:
+    plyfile = None
+try:
+    import laspy
+except ImportError:
+    laspy = None
+
+# NPY, NPZ and text need numpy only: their tests run without the io extra.
+needs_plyfile = pytest.mark.skipif(plyfile is None, reason="plyfile is not installed")
+needs_laspy = pytest.mark.skipif(laspy is None, reason="laspy is not installed")
+
 #: The folder holding the ``pssd_fast`` this process imported: a child process run there imports
 #: the same files (and so loads their cached kernels) rather than an installed copy elsewhere.
 PACKAGE_PARENT = Path(pssd_fast.__file__).resolve().parent.parent

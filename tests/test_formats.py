@@ -11,17 +11,7 @@ import pytest
 from pssd_fast import io as pio
 from pssd_fast.io import PointCloud, PointCloudFileError
 
-try:
-    import plyfile
-except ImportError:
-    plyfile = None
-try:
-    import laspy
-except ImportError:
-    laspy = None
-
-needs_plyfile = pytest.mark.skipif(plyfile is None, reason="plyfile is not installed")
-needs_laspy = pytest.mark.skipif(laspy is None, reason="laspy is not installed")
+from .conftest import laspy, needs_laspy, needs_plyfile, plyfile
 
 RNG = np.random.default_rng(7)
 PTS = RNG.normal(size=(5, 3)) * 100

@@ -13,18 +13,7 @@ import pytest
 from pssd_fast import io as pio
 from pssd_fast.io import PointCloud, PointCloudFileError, PointCloudFileNotFoundError
 
-try:
-    import plyfile
-except ImportError:
-    plyfile = None
-try:
-    import laspy
-except ImportError:
-    laspy = None
-
-# NPY, NPZ and text need numpy only: their tests run without the io extra.
-needs_plyfile = pytest.mark.skipif(plyfile is None, reason="plyfile is not installed")
-needs_laspy = pytest.mark.skipif(laspy is None, reason="laspy is not installed")
+from .conftest import laspy, needs_laspy, needs_plyfile, plyfile
 HAVE_LAZRS = laspy is not None and laspy.LazBackend.LazrsParallel.is_available()
 LAS_EXTS = [".las", pytest.param(".laz", marks=pytest.mark.skipif(not HAVE_LAZRS,
                                                                     reason="lazrs is missing"))]
