@@ -11,6 +11,7 @@ from . import core
 from ._threads import threads
 from ._validation import MIN_K, check_k
 from .graph import knn_graph, morton_order, refresh_graph
+from .parameters import BY_NAME
 from .pipelines import STEPS
 from .pipelines.normals import estimated_normals
 from .progress import Clock
@@ -273,9 +274,11 @@ def stats(request, plan, n, distinct, n_threads, records, held, outliers=None, t
         outliers=outliers,
         n_iterations=plan.iterations,
         held_points=held,
-        # None in the checked parameters is a choice left to the library.
+        # None in the checked parameters is a choice left to the library; the method's
+        # parameters of another pipeline (the paper's under "default") are not the run's.
         params={name: "auto" if value is None else value
-                for name, value in request.params.items()},
+                for name, value in request.params.items()
+                if request.pipeline in (BY_NAME[name].pipelines or (request.pipeline,))},
         n_jobs=n_threads,
         iterations=tuple(Iteration(**record) for record in records),
         tiles=tiles,

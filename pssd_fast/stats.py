@@ -109,7 +109,8 @@ class Stats(_Fields):
     n_iterations, held_points : int
         Iterations, and points held in place (:attr:`pssd_fast.DenoiseResult.held`).
     params : dict
-        The method's parameters as given ("auto": left to the library).
+        The parameters of the pipeline that ran, as given ("auto": left to the library): the
+        default method's under "default" and "fast", the paper's under "paper".
     n_jobs : int
         Threads the kernels ran on.
     iterations : tuple of Iteration

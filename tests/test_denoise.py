@@ -557,6 +557,15 @@ def test_baselines_smooth_and_take_their_parameters(method, params):
         pssd_fast.denoise(points, method=method, radius_factor=3)
 
 
+@pytest.mark.parametrize("preset, names", [
+    ("fast", ["sigma_n", "shift_normals", "keep_normals"]),
+    ("paper", ["h", "radius_factor", "delta", "alpha", "beta", "likelihood", "keep_normals"])])
+def test_stats_list_the_parameters_of_the_pipeline_that_ran(preset, names):
+    points = np.array(datasets.cad_part(n_points=1500, noise=0.004, seed=2).points)
+    result = pssd_fast.denoise(points, preset=preset, iterations=1)
+    assert list(result.stats["params"]) == names
+
+
 def test_progress_reports_every_stage(noisy, capsys):
     seen = []
     pssd_fast.denoise(noisy, iterations=2, preset="paper",
