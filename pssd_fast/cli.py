@@ -676,10 +676,13 @@ def _denoise_on_disk(args, params, inp, out, say):
         tiles = stats["tiles"]
         # With classes, n_points counts the points denoised.
         total = stats["n_points"] + stats.get("classes", {}).get("untouched", 0)
+        moved = stats["displacement"]
+        rounded = " (before the format rounds the coordinates)" if las else ""
         print(f"{inp} -> {out}: {total:,} points, method {args.method}, "
               f"{stats['n_iterations']} iterations, {stats['total_seconds']:.2f} s; "
               f"{tiles['count']} tile{'s' * (tiles['count'] != 1)} of at most "
-              f"{tiles['most_points']:,} points, out of core"
+              f"{tiles['most_points']:,} points, out of core; displacement max "
+              f"{moved['max']:.4g}, mean {moved['mean']:.4g}{rounded}"
               f"{_copies(stats)}{_classes_done(stats)}", file=say)
     if args.verbose:
         _details(stats, say)

@@ -119,6 +119,11 @@ class Stats(_Fields):
         A tiled run's tiles (their count, most points, halo); not in the mapping otherwise.
     total_seconds : float
         Wall seconds of the call.
+    displacement : dict or None
+        A run from a file to a file (:func:`pssd_fast.tiled.denoise_file`): the largest
+        (``max``) and the mean (``mean``) distance of the output's rows from the input's, in
+        its units, before a LAS/LAZ output rounds the coordinates to its scale. Not in the
+        mapping otherwise.
     classes : dict or None
         With a ``classification``: the codes denoised (or "all"), the points ``denoised`` and
         ``untouched``, the classes ``too_small`` and each run's :class:`Stats` (``runs``);
@@ -147,6 +152,7 @@ class Stats(_Fields):
     tiles: Optional[dict] = None
     total_seconds: float = 0.0
     classes: Optional[dict] = None
+    displacement: Optional[dict] = None
 
 
 def finished(stats, times, started):

@@ -188,6 +188,10 @@ def test_copies_stay_together_out_of_core(tmp_path, monkeypatch, ext, n, noise):
     assert stats["tiles"]["count"] >= 4
     assert stats["duplicates"] == whole.stats["duplicates"] > 0
     assert stats["n_points"] == len(copies)
+    # Every row's move, the copies' included, before a LAS file rounds the coordinates.
+    moved = np.linalg.norm(whole.points - copies, axis=1)
+    assert stats["displacement"]["max"] == pytest.approx(moved.max(), rel=1e-12)
+    assert stats["displacement"]["mean"] == pytest.approx(moved.mean(), rel=1e-12)
     if ext == ".npy":
         np.testing.assert_array_equal(np.load(out), whole.points)
         return

@@ -19,20 +19,24 @@ def write(runner, path, sources, blocks, n, dtype, columns=("xyz",), copies=(), 
     each block) into a new ``.npy`` file at ``path`` of ``(n, c)`` ``dtype``, in row order:
     the fields ``columns`` side by side; each row of the ``copies`` files
     (:data:`~ondisk.COPY`) takes the record of its first row, with the displacement from its
-    own input position. ``stage``: the iteration and iterations the tasks report."""
+    own input position. ``stage``: the iteration and iterations the tasks report. Returns the
+    largest and the summed distance of the copies' rows from their input positions."""
     paths = [source for source, _ in sources]
     found = ondisk.offsets([counts for _, counts in sources])
+    moved = (0.0, 0.0)
     if copies:
         by_first = [copy.with_name(copy.stem + "_by_first.bin") for copy in copies]
         first_found = ondisk.offsets(runner.map("copies", *stage, _by_first, [
             (copy, blocks, out) for copy, out in zip(copies, by_first)]))
         targets = [j for j in range(blocks.count) if any(c[j] for _, c in first_found)]
         copied = [copies[0].with_name(f"copied_{j}.bin") for j in targets]
-        counts = runner.map("copied", *stage, _copied, [
+        done = runner.map("copied", *stage, _copied, [
             (j, ondisk.pieces(paths, found, j), ondisk.pieces(by_first, first_found, j),
              blocks, columns, out) for j, out in zip(targets, copied)])
         paths += copied
-        found += ondisk.offsets(counts)
+        found += ondisk.offsets([counts for counts, _, _ in done])
+        moved = (max((largest for _, largest, _ in done), default=0.0),
+                 sum(total for _, _, total in done))
     width = ondisk.columns_width(columns)
     header = np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=(n, width))
     offset = header.offset
@@ -40,6 +44,7 @@ def write(runner, path, sources, blocks, n, dtype, columns=("xyz",), copies=(), 
     runner.map("write", *stage, _write_block, [
         (ondisk.pieces(paths, found, i), i, blocks, n, dtype, columns, path, offset)
         for i in range(blocks.count)])
+    return moved
 
 
 def _by_first(copies, blocks, out, n_jobs):
@@ -53,16 +58,18 @@ def _copied(j, records, aside, blocks, columns, out, n_jobs):
     """The record of each row set aside (``aside``: the pieces of the copies whose first row
     lies in block ``j``; ``records``: the pieces of block ``j``, of ``columns``): its first
     row's record, the displacement its own; sorted by the block of its own row into ``out``;
-    the count of each block."""
+    the count of each block, and the largest and the summed displacement."""
     records = ondisk.read_pieces(records, ondisk.part_dtype(columns))
     aside = ondisk.read_pieces(aside, ondisk.COPY)
     at = np.empty(blocks.size, np.int64)
     at[records["row"] - j * blocks.size] = np.arange(records.shape[0])
     found = records[at[aside["first"] - j * blocks.size]]
     found["row"] = aside["row"]
+    moved = np.linalg.norm(found["xyz"] - aside["xyz"], axis=1)
     if "displacement" in columns:
-        found["displacement"] = np.linalg.norm(found["xyz"] - aside["xyz"], axis=1)
-    return ondisk.sorted_save(found, found["row"] // blocks.size, blocks.count, out)
+        found["displacement"] = moved
+    return (ondisk.sorted_save(found, found["row"] // blocks.size, blocks.count, out),
+            float(moved.max(initial=0.0)), float(moved.sum()))
 
 
 def _write_block(pieces, i, blocks, n, dtype, columns, path, offset, n_jobs):

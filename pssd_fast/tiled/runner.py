@@ -7,6 +7,7 @@ executor of :func:`pssd_fast.denoise` too): :func:`denoise` tiles an array in me
 
 Dask is an optional dependency: ``pip install "pssd_fast[dask]"``.
 """
+import dataclasses
 import inspect
 import shutil
 import tempfile
@@ -275,15 +276,14 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
             done = []
             for code in runs:
                 with lidar.naming(code):
-                    done.append((code, *(_file_run(setting, None, folder, started)
-                                         if code is None else
-                                         _file_run(setting, lambda a, b, code=code:
-                                                   rows_of(a, b, (code,), False),
-                                                   folder / f"class_{code}",
-                                                   time.perf_counter()))))
-            last = done[-1][3]
+                    done.append((code, _file_run(setting, None, folder, started)
+                                 if code is None else
+                                 _file_run(setting, lambda a, b, code=code:
+                                           rows_of(a, b, (code,), False),
+                                           folder / f"class_{code}", time.perf_counter())))
+            last = done[-1][1].stats
             stage = (last["n_iterations"] - 1, last["n_iterations"])
-            sources = [source for _, found, _, _ in done for source in found]
+            sources = [source for _, run in done for source in run.parts]
             if classified is not None:
                 ranges = setting.blocks.ranges()
                 kept = [folder / f"kept_{start}.bin" for start, _ in ranges]
@@ -292,9 +292,9 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
                      setting.blocks, _columns(array))
                     for (start, stop), path in zip(ranges, kept)]))
             clock = Clock(report, *stage)
-            clock.run("write", _write, runner, array, output, sources, setting.blocks, dtype,
-                      folder, fields, [path for _, _, copies, _ in done for path in copies],
-                      stage)
+            copied = clock.run("write", _write, runner, array, output, sources, setting.blocks,
+                               dtype, folder, fields,
+                               [path for _, run in done for path in run.copies], stage)
             atomic.sync(output)
             atomic.replace(output, destination, overwrite=overwrite, exists_message=exists)
     finally:
@@ -303,13 +303,28 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
             shutil.rmtree(output, ignore_errors=True)
         output.unlink(missing_ok=True)
     if classified is None:
-        found = done[0][3]
+        found = done[0][1].stats
     else:
         found = lidar.summary(
-            [(code, run["n_points"], run) for code, _, _, run in done],
-            int(array.shape[0] - sum(run["n_points"] for *_, run in done)), small, runs,
+            [(code, run.stats["n_points"], run.stats) for code, run in done],
+            int(array.shape[0] - sum(run.stats["n_points"] for _, run in done)), small, runs,
             started)
-    return finished(found, clock.times, started)
+    moved = [run.moved for _, run in done] + [copied]
+    # Every row of the output, those of no class and those it left in place (zero) included.
+    displacement = {"max": max(largest for largest, _ in moved),
+                    "mean": sum(total for _, total in moved) / max(array.shape[0], 1)}
+    return dataclasses.replace(finished(found, clock.times, started),
+                               displacement=displacement)
+
+
+class _Done(NamedTuple):
+    """A run of :func:`_file_run`: its results (``(path, counts)`` of each tile's file of
+    :func:`_part`), the files of rows set aside as copies, its ``stats`` and the largest and
+    the summed distance of its rows from their input positions (``moved``)."""
+    parts: list
+    copies: list
+    stats: object
+    moved: tuple
 
 
 class _FileRun(NamedTuple):
@@ -361,9 +376,7 @@ def _file_run(setting, keep, folder, started):
     """One run of :func:`denoise_file` on the rows of ``setting.array`` that ``keep`` selects
     (``keep(start, stop)``: a mask of rows ``start..stop-1`` or the
     :class:`~pssd_fast.tiled.ondisk.Classes` that finds it; None: every row), its scratch
-    files in ``folder``: its results (``(path, counts)`` of each tile's file of
-    :func:`_part`, :func:`pssd_fast.tiled.rows.write`), the files of rows set aside as copies
-    and the run's ``stats``."""
+    files in ``folder``: a :class:`_Done`."""
     folder.mkdir(exist_ok=True)
     settings, report, runner = setting.settings, setting.report, setting.runner
     first = Clock(report, 0, 1)
@@ -384,13 +397,15 @@ def _file_run(setting, keep, folder, started):
     parts = clock.run("parts", runner.map, "parts", plan.iterations - 1, plan.iterations,
                       _part, [(store, i, cloud.centre, setting.dtype, path, setting.blocks,
                                _columns(setting.array)) for i, path in enumerate(paths)])
-    held = sum(found for _, found in parts)
+    held = sum(found for _, found, _ in parts)
     records[0]["times"].update(first.times)
     records[-1]["times"].update(clock.times)
-    return list(zip(paths, [counts for counts, _ in parts])), cloud.copies, stats(
+    return _Done(list(zip(paths, [counts for counts, _, _ in parts])), cloud.copies, stats(
         request, plan, cloud.rows, n, setting.n_threads, records, held,
         tiles={"count": len(tiles), "most_points": max(t.points for t in tiles),
-               "scheduler": runner.name, "threads": runner.threads})
+               "scheduler": runner.name, "threads": runner.threads}),
+        (max((moved[0] for _, _, moved in parts), default=0.0),
+         sum(moved[1] for _, _, moved in parts)))
 
 
 def _file_settings(options, classified):
@@ -428,10 +443,12 @@ def _part(store, i, centre, dtype, path, blocks, columns, n_jobs):
     """Tile ``i``'s results as records of the output's ``columns``
     (:func:`pssd_fast.tiled.ondisk.part_dtype`) in a file at ``path`` sorted by the output's
     ``blocks``, the coordinates as :func:`pssd_fast.denoise` returns them (a task); the count
-    of each block and the points the tile held in place."""
+    of each block, the points the tile held in place, and the largest and the summed distance
+    of its points from their input positions."""
     out = store.get(("out", i))
     points = store.get(("points", i), ("xyz", "row"))
     fields = {"xyz": (out["xyz"] + centre).astype(dtype).astype(np.float64)}
+    moved = np.linalg.norm(fields["xyz"] - (points["xyz"] + centre), axis=1)
     if "nrm" in columns:
         nan = np.full(points["row"].shape[0], np.nan)
         fields.update(nrm=out["normals"].astype(dtype).astype(np.float64),
@@ -440,22 +457,23 @@ def _part(store, i, centre, dtype, path, blocks, columns, n_jobs):
                                                   axis=1).astype(dtype))
     records = ondisk.part_records(ondisk.part_dtype(columns), points["row"], **fields)
     counts = ondisk.sorted_save(records, records["row"] // blocks.size, blocks.count, path)
-    return counts, int(out["held"].sum())
+    return counts, int(out["held"].sum()), (float(moved.max(initial=0.0)), float(moved.sum()))
 
 
 def _write(runner, array, output, sources, blocks, dtype, folder, fields, copies, stage):
     """The sources' points in the input's rows (``copies``: the rows that take their first
     row's, :func:`pssd_fast.tiled.rows.write`): an ``.npy`` or Zarr array, or a copy of the
     LAS/LAZ input with those coordinates and the ``fields`` asked for. A Zarr or LAS/LAZ
-    output is written from a table of the rows by one task."""
+    output is written from a table of the rows by one task. Returns the largest and the
+    summed distance of the copies from their input positions."""
     n = array.shape[0]
     if isinstance(array, ondisk.NpyFile):
-        rows.write(runner, output, sources, blocks, n, dtype, copies=copies, stage=stage)
-        return
+        return rows.write(runner, output, sources, blocks, n, dtype, copies=copies, stage=stage)
     table = folder / "rows.npy"
     columns = _columns(array)
-    rows.write(runner, table, sources, blocks, n, dtype, columns, copies, stage)
+    copied = rows.write(runner, table, sources, blocks, n, dtype, columns, copies, stage)
     runner.map("write file", *stage, _write_file, [(array, output, table, columns, fields)])
+    return copied
 
 
 def _write_file(array, output, table, columns, fields, n_jobs):
