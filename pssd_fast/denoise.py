@@ -281,7 +281,7 @@ def _run(points, normals, runner, tile_points, store, **options):
             done, count, most = iterate(current, given, plan, request), 1, distinct
         if runner is not None:
             tiles = {"count": count, "most_points": most, "scheduler": runner.name,
-                             "threads": runner.threads}
+                     "threads": runner.threads}
     return result(Input(pts, dtype, order, groups), done, centre, kept,
                   None if score is None else score.astype(dtype, copy=False),
                   stats(request, plan, n, distinct, n_threads, done.records,
