@@ -34,9 +34,8 @@ import pssd_fast
 from pssd_fast import io as pio
 
 from .models import data_folder, missing
-from .stages import machine, write_results
+from .stages import add_output, machine, write_results
 
-RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def as_binary(cloud):
@@ -121,9 +120,7 @@ def parse_args(argv=None):
                         help="the folder of the raw views (*.ply.gz)")
     parser.add_argument("--repeats", type=int, default=3,
                         help="runs of each read and write; the best is kept (default 3)")
-    parser.add_argument("--out", type=Path, default=RESULTS)
-    parser.add_argument("--stem", default="io", help="name of the results files")
-    parser.add_argument("--quiet", action="store_true")
+    add_output(parser, "io")
     args = parser.parse_args(argv)
     args.views = sorted(args.data.glob("*.ply.gz")) if args.data.is_dir() else []
     if not args.views:

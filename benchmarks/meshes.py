@@ -240,7 +240,7 @@ def read_off(path):
     Parameters
     ----------
     path : str or os.PathLike
-        The file; read through gzip when its name ends in ``.gz``.
+        As in :func:`read_obj`.
 
     Returns
     -------
@@ -291,7 +291,7 @@ def read_feat(path):
     Parameters
     ----------
     path : str or os.PathLike
-        The file; read through gzip when its name ends in ``.gz``.
+        As in :func:`read_obj`.
 
     Returns
     -------

@@ -50,7 +50,7 @@ import pssd_fast
 from . import meshes, versus
 from .metrics import chamfer_squared, point_to_mesh_squared
 from .models import data_folder
-from .stages import machine, write_results
+from .stages import add_output, machine, save_rows
 
 RESULTS = Path(__file__).resolve().parent / "results"
 PEER_CACHE = RESULTS / "punet_peers.json"
@@ -315,17 +315,10 @@ def parse_args(argv=None):
                         choices=versus.FAMILIES,
                         help="the peer families to run (default all; none: the library only)")
     parser.add_argument("--refresh-peers", action="store_true")
-    parser.add_argument("--out", type=Path, default=RESULTS)
-    parser.add_argument("--stem", default="punet", help="name of the results files")
-    parser.add_argument("--quiet", action="store_true")
+    add_output(parser, "punet")
     args = parser.parse_args(argv)
-    missing = [m for m in args.meshes if not (args.data / f"{m}.off.gz").is_file()]
-    if missing:
-        parser.exit(1, f"the PU-Net meshes were not found in {args.data}: "
-                       f"{', '.join(missing)} (pass --data or set PSSD_DATA)\n")
-    absent = versus.missing_peers(args.peers)
-    if absent:
-        parser.exit(1, absent + "\n")
+    versus.check_inputs(parser, args, "the PU-Net meshes",
+                        [f"{m}.off.gz" for m in args.meshes])
     return args
 
 
@@ -344,11 +337,7 @@ def main(argv=None):
                 peers = versus.peer_cell(cell, f"{name}|{n}|{noise:g}", cache,
                                          args.refresh_peers, log, args.peers)
                 rows.append(measure(cell, {f: peers[f] for f in args.peers}, log))
-    text = markdown(rows, compile_seconds)
-    write_results(args.out, args.stem, text, {"compile_seconds": compile_seconds,
-                                              "rows": rows}, indent=1)
-    log(text)
-    return rows
+    return save_rows(args, markdown(rows, compile_seconds), rows, compile_seconds, log)
 
 
 if __name__ == "__main__":

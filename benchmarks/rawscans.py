@@ -36,9 +36,8 @@ from pssd_fast import io
 from . import meshes, peers, versus
 from .metrics import surface_distance
 from .models import data_folder
-from .stages import machine, write_results
+from .stages import add_output, machine, save_rows
 
-RESULTS = Path(__file__).resolve().parent / "results"
 VIEWS = ("bun000", "bun180", "top3")
 REFERENCE = "bun_zipper.obj.gz"
 UNIT = 1e4
@@ -182,18 +181,10 @@ def parse_args(argv=None):
                         help="the peer families to run (default both; none: the library only)")
     parser.add_argument("--every", type=int, default=1,
                         help="keep every N-th point of each view (a quick run; default 1)")
-    parser.add_argument("--out", type=Path, default=RESULTS)
-    parser.add_argument("--stem", default="rawscans", help="name of the results files")
-    parser.add_argument("--quiet", action="store_true")
+    add_output(parser, "rawscans")
     args = parser.parse_args(argv)
-    need = [f"{v}.ply.gz" for v in args.views] + ["bun.conf", REFERENCE]
-    missing = [name for name in need if not (args.data / name).is_file()]
-    if missing:
-        parser.exit(1, f"the raw scans were not found in {args.data}: {', '.join(missing)} "
-                       f"(pass --data or set PSSD_DATA)\n")
-    absent = versus.missing_peers(args.peers)
-    if absent:
-        parser.exit(1, absent + "\n")
+    versus.check_inputs(parser, args, "the raw scans",
+                        [f"{v}.ply.gz" for v in args.views] + ["bun.conf", REFERENCE])
     return args
 
 
@@ -208,11 +199,7 @@ def main(argv=None):
         points = np.ascontiguousarray(io.read(args.data / f"{view}.ply.gz").points[::args.every])
         log(f"{view} ({points.shape[0]} points)")
         rows.append(measure(view, points, frames[view], reference, log, args.peers))
-    text = markdown(rows, compile_seconds)
-    write_results(args.out, args.stem, text, {"compile_seconds": compile_seconds,
-                                              "rows": rows}, indent=1)
-    log(text)
-    return rows
+    return save_rows(args, markdown(rows, compile_seconds), rows, compile_seconds, log)
 
 
 if __name__ == "__main__":

@@ -23,13 +23,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
 from pssd_fast.run import stored
 
-from .stages import RESULTS, STAGES, knn_query_seconds, machine, write_cad_part, write_results
+from .stages import RESULTS, STAGES, cad_parts, knn_query_seconds, machine, write_results
 
 THREADS = (1, 2, 4, 8, 16)
 #: The result's arrays a run returns (the bytes of its output); fields a run of "default" or
@@ -179,9 +178,7 @@ def main(argv=None):
 
     cells = []
     with tempfile.TemporaryDirectory() as scratch:
-        for n in args.sizes:
-            path = Path(scratch) / f"cloud_{n}.npy"
-            write_cad_part(n, args.noise, path)
+        for n, path in cad_parts(args.sizes, args.noise, scratch):
             for threads in args.threads:
                 cell = {"points": n, "threads": threads,
                         **measure(path, threads, args.k, args.method, args.preset,

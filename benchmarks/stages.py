@@ -41,6 +41,23 @@ def write_cad_part(n_points, noise, path):
                     str(path)], check=True)
 
 
+def cad_parts(sizes, noise, folder):
+    """``(n, path)`` for each size: the CAD part of ``n`` points written into ``folder``
+    (:func:`write_cad_part`)."""
+    for n in sizes:
+        path = Path(folder) / f"cad_{n}.npy"
+        write_cad_part(n, noise, path)
+        yield n, path
+
+
+def add_output(parser, stem):
+    """The options of a benchmark's results: ``--out`` (the folder), ``--stem`` (the files'
+    name, ``stem`` by default) and ``--quiet``."""
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--stem", default=stem, help="name of the results files")
+    parser.add_argument("--quiet", action="store_true")
+
+
 def knn_query_seconds(points, k):
     """Wall time of building pykdtree's tree and querying every point's k neighbours."""
     started = time.perf_counter()
@@ -111,6 +128,15 @@ def main(argv=None):
     write_results(RESULTS, "stages", text,
                   {"k": args.k, "noise": args.noise, "compile_seconds": compile_seconds,
                    "seconds": {str(n): t for n, t in rows.items()}})
+
+
+def save_rows(args, text, rows, compile_seconds, log):
+    """Write a benchmark's ``text`` and ``rows`` as ``args.stem`` in ``args.out``
+    (:func:`write_results`), pass the text to ``log`` and return the rows."""
+    write_results(args.out, args.stem, text, {"compile_seconds": compile_seconds,
+                                              "rows": rows}, indent=1)
+    log(text)
+    return rows
 
 
 def write_results(folder, stem, text, data, indent=2):

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .stages import RESULTS, machine, write_cad_part, write_results
+from .stages import RESULTS, cad_parts, machine, write_results
 
 NOISE = 0.005
 
@@ -179,9 +179,7 @@ def main(argv=None):
 
     cells = []
     with tempfile.TemporaryDirectory() as scratch:
-        for n in args.points:
-            source = Path(scratch) / f"cad_{n}.npy"
-            write_cad_part(n, args.noise, source)
+        for n, source in cad_parts(args.points, args.noise, scratch):
             if args.format == "laz":
                 source = as_laz(source)
             reference = Path(scratch) / f"reference{source.suffix}"

@@ -196,6 +196,18 @@ def missing_peers(families):
             "leave those peers out with --peers")
 
 
+def check_inputs(parser, args, what, names):
+    """Exit through ``parser`` where a file of ``names`` is not in ``args.data`` (naming
+    ``what`` was not found) or a peer family of ``args.peers`` is not installed."""
+    missing = [name for name in names if not (args.data / name).is_file()]
+    if missing:
+        parser.exit(1, f"{what} were not found in {args.data}: {', '.join(missing)} "
+                       f"(pass --data or set PSSD_DATA)\n")
+    absent = missing_peers(args.peers)
+    if absent:
+        parser.exit(1, absent + "\n")
+
+
 def run_peers(case, log, families=FAMILIES):
     """Every setting of the peer ``families`` on one case: family -> label -> {each of
     ``case.columns``, seconds}."""

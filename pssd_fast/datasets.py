@@ -230,12 +230,10 @@ def sphere(n_points=20000, noise=0.005, seed=0, radius=0.5):
 
     Parameters
     ----------
-    n_points : int, optional
-        Number of points, at least 1.
+    n_points, seed
+        As in :func:`plane`.
     noise : float, optional
         Noise std as a fraction of the bounding-box diagonal (``2 sqrt(3) radius``); may be 0.
-    seed : int, optional
-        Non-negative seed of ``np.random.default_rng``.
     radius : float, optional
         Sphere radius, > 0.
 
@@ -274,13 +272,11 @@ def cylinder(n_points=40000, noise=0.005, seed=0, radius=0.3, height=0.8):
 
     Parameters
     ----------
-    n_points : int, optional
-        Number of points, at least 1.
+    n_points, seed
+        As in :func:`plane`.
     noise : float, optional
         Noise std as a fraction of the bounding-box diagonal
         (``sqrt(8 radius^2 + height^2)``); may be 0.
-    seed : int, optional
-        Non-negative seed of ``np.random.default_rng``.
     radius : float, optional
         Radius, > 0.
     height : float, optional
@@ -339,12 +335,10 @@ def cube(n_points=60000, noise=0.005, seed=0, side=1.0):
 
     Parameters
     ----------
-    n_points : int, optional
-        Number of points, at least 1.
+    n_points, seed
+        As in :func:`plane`.
     noise : float, optional
         Noise std as a fraction of the bounding-box diagonal (``sqrt(3) side``); may be 0.
-    seed : int, optional
-        Non-negative seed of ``np.random.default_rng``.
     side : float, optional
         Edge length, > 0.
 
@@ -507,12 +501,10 @@ def cad_part(n_points=100000, noise=0.005, seed=0):
 
     Parameters
     ----------
-    n_points : int, optional
-        Number of points, at least 1.
+    n_points, seed
+        As in :func:`plane`.
     noise : float, optional
         Noise std as a fraction of the bounding-box diagonal (1); may be 0.
-    seed : int, optional
-        Non-negative seed of ``np.random.default_rng``.
 
     Returns
     -------
@@ -525,7 +517,7 @@ def cad_part(n_points=100000, noise=0.005, seed=0):
     Raises
     ------
     TypeError
-        If ``n_points`` or ``seed`` is not an integer or ``noise`` is not a real number.
+        If an argument has the wrong type.
     ValueError
         If ``n_points < 1``, ``noise`` is negative or not finite, or ``seed < 0``.
 

@@ -168,14 +168,10 @@ def outlier_score(points, *, k=core.OUTLIER_K, graph=None, n_jobs=None):
 
     Parameters
     ----------
-    points : array_like, shape (n, 3)
-        Coordinates.
+    points, graph, n_jobs
+        As in :func:`mls_fit`.
     k : int, default 64
         Neighbourhood size including the point itself (ignored when ``graph`` is given).
-    graph : NeighborGraph, optional
-        Precomputed graph from :func:`pssd_fast.neighbors`.
-    n_jobs : int or None
-        Threads (see :func:`pssd_fast.denoise`).
 
     Returns
     -------
@@ -279,8 +275,8 @@ def feature_intensity(points, normals=None, *, k=25, radius_factor=10.0, delta=0
 
     Parameters
     ----------
-    points : array_like, shape (n, 3)
-        Coordinates.
+    points, graph, n_jobs
+        As in :func:`mls_fit`.
     normals : array_like, shape (n, 3), optional
         Unit normals; estimated by PCA when omitted. Only local sign consistency matters.
     k : int, default 25
@@ -289,10 +285,6 @@ def feature_intensity(points, normals=None, *, k=25, radius_factor=10.0, delta=0
         ``R = radius_factor * |E|``, ``|E|`` the mean nearest-neighbour distance (Section 3).
     delta, alpha, beta : float, default 0.2, 0.3, 0.3
         Thresholds of eq. (3).
-    graph : NeighborGraph, optional
-        Precomputed graph from :func:`pssd_fast.neighbors`.
-    n_jobs : int or None
-        Threads (see :func:`pssd_fast.denoise`).
 
     Returns
     -------

@@ -57,9 +57,19 @@ RSS_GROWTH = 512 << 20
 
 FUZZ = dict(deadline=None, derandomize=True, database=None,
             suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
-FAST = settings(max_examples=18, **FUZZ)
-SLOW = settings(max_examples=600, **FUZZ)
 slow = pytest.mark.slow
+
+
+def depth(quick, long):
+    """A fuzz test's number of examples: ``quick`` in the default suite, ``long`` among the
+    slow tests."""
+    return pytest.mark.parametrize("examples", [quick, pytest.param(long, marks=slow)],
+                                   ids=["quick", "at_length"])
+
+
+def fuzz(examples, check, **strategies):
+    """``check`` on ``examples`` cases drawn from ``strategies`` (Hypothesis' ``given``)."""
+    settings(max_examples=examples, **FUZZ)(given(**strategies)(check))()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -710,33 +720,19 @@ def _read_case(case):
 
 
 @pytest.mark.parametrize("name", SEED_NAMES)
-@FAST
-@given(data=st.data())
-def test_mutated_files_are_read_as_they_are_or_refused(name, data):
-    _read_case(data.draw(mutated(name), label="case"))
-
-
-@slow
-@pytest.mark.parametrize("name", SEED_NAMES)
-@SLOW
-@given(data=st.data())
-def test_mutated_files_are_read_as_they_are_or_refused_at_length(name, data):
-    _read_case(data.draw(mutated(name), label="case"))
+@depth(18, 600)
+def test_mutated_files_are_read_as_they_are_or_refused(name, examples):
+    def case(data):
+        _read_case(data.draw(mutated(name), label="case"))
+    fuzz(examples, case, data=st.data())
 
 
 @pytest.mark.parametrize("suffix", SUFFIXES)
-@settings(FAST, max_examples=6)
-@given(data=st.data())
-def test_random_bytes_with_each_suffix(suffix, data):
-    _read_case(data.draw(random_file(suffix), label="case"))
-
-
-@slow
-@pytest.mark.parametrize("suffix", SUFFIXES)
-@settings(SLOW, max_examples=150)
-@given(data=st.data())
-def test_random_bytes_with_each_suffix_at_length(suffix, data):
-    _read_case(data.draw(random_file(suffix), label="case"))
+@depth(6, 150)
+def test_random_bytes_with_each_suffix(suffix, examples):
+    def case(data):
+        _read_case(data.draw(random_file(suffix), label="case"))
+    fuzz(examples, case, data=st.data())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -782,18 +778,11 @@ def _cli_case(case, tiled):
 
 
 @pytest.mark.parametrize("name", CLI_SEEDS)
-@settings(FAST, max_examples=4)
-@given(data=st.data(), tiled=st.booleans())
-def test_cli_refuses_a_broken_file_in_one_line_leaving_no_file(name, data, tiled):
-    _cli_case(data.draw(_refusing(name), label="case"), tiled)
-
-
-@slow
-@pytest.mark.parametrize("name", CLI_SEEDS)
-@settings(SLOW, max_examples=60)
-@given(data=st.data(), tiled=st.booleans())
-def test_cli_refuses_a_broken_file_in_one_line_leaving_no_file_at_length(name, data, tiled):
-    _cli_case(data.draw(_refusing(name), label="case"), tiled)
+@depth(4, 60)
+def test_cli_refuses_a_broken_file_in_one_line_leaving_no_file(name, examples):
+    def case(data, tiled):
+        _cli_case(data.draw(_refusing(name), label="case"), tiled)
+    fuzz(examples, case, data=st.data(), tiled=st.booleans())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -920,19 +909,11 @@ def _tiled_case(name, data):
 
 @pytest.mark.usefixtures("traced")
 @pytest.mark.parametrize("name", TILED_SEEDS)
-@settings(FAST, max_examples=8)
-@given(data=st.data())
-def test_tiled_readers_read_a_broken_file_as_it_is_or_name_it(name, data):
-    _tiled_case(name, data)
-
-
-@slow
-@pytest.mark.usefixtures("traced")
-@pytest.mark.parametrize("name", TILED_SEEDS)
-@settings(SLOW, max_examples=160)
-@given(data=st.data())
-def test_tiled_readers_read_a_broken_file_as_it_is_or_name_it_at_length(name, data):
-    _tiled_case(name, data)
+@depth(8, 160)
+def test_tiled_readers_read_a_broken_file_as_it_is_or_name_it(name, examples):
+    def case(data):
+        _tiled_case(name, data)
+    fuzz(examples, case, data=st.data())
 
 
 # ---------------------------------------------------------------------------------------------

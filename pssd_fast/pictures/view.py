@@ -147,10 +147,8 @@ def height(points, up="z"):
 
     Parameters
     ----------
-    points : array_like, shape (n, 3)
-        Coordinates.
-    up : {"x", "y", "z"}, default "z"
-        The cloud's up axis.
+    points, up
+        As in :func:`choose_view`.
 
     Returns
     -------
