@@ -17,7 +17,7 @@ import numpy as np
 from . import __version__, atomic
 from .parameters import BY_NAME, PARAMETERS
 from .plan import PRESETS
-from .progress import TimeLeft, describe
+from .progress import Names, TimeLeft, describe, label
 
 #: Per-method options of ``pssd denoise`` that take a value: option dest -> (methods that take
 #: it, help), as :mod:`pssd_fast.parameters` declares them.
@@ -363,30 +363,38 @@ def _add_verbosity(parser):
 
 
 class _Progress:
-    """A one-line bar on a terminal's stderr, updated after each stage; silent elsewhere."""
+    """A one-line bar on a terminal's stderr, updated after each stage; silent elsewhere.
+
+    The bar fills by iterations: within one, by the method's stages (``total`` an iteration,
+    one short of the next iteration until it starts); a tile's round (``"name i/n"``) and a
+    pass over a file before the plan move it by nothing."""
 
     def __init__(self, total, enabled):
         self.total = total
-        self.done = 0
         self.enabled = enabled and sys.stderr.isatty()
         self.clock = TimeLeft()
-        self.runs = {}
+        self.names = Names()
+        self.stages = {}
 
     def __call__(self, iteration, iterations, stage, seconds):
-        self.done += 1
         times = describe(*self.clock(iteration, iterations, seconds))
         if self.enabled:
             sys.stderr.write(f"\r{self.line(iteration, iterations, stage)} {times:<32s}")
             sys.stderr.flush()
 
     def line(self, iteration, iterations, stage):
-        """The bar and the stage, numbered from its second run in one iteration (the
-        refinement's iterations run within the method's last)."""
-        runs = self.runs[iteration, stage] = self.runs.get((iteration, stage), 0) + 1
-        name = stage if runs == 1 else f"{stage} #{runs}"
-        filled = int(30 * min(1.0, self.done / (self.total * iterations)))
+        """The bar, the iteration and the stage (numbered from its second run in one
+        iteration)."""
+        if not stage[-1].isdigit():
+            self.stages[iteration] = self.stages.get(iteration, 0) + 1
+        done = 0.0
+        if iteration:
+            done = (iteration - 1 + min(self.stages.get(iteration, 0), self.total - 1)
+                    / self.total) / iterations
+        filled = int(30 * done)
         bar = "#" * filled + "." * (30 - filled)
-        return f"[{bar}] iteration {iteration}/{iterations} {name:<10s}"
+        return (f"[{bar}] {label(iteration, iterations)} "
+                f"{self.names(iteration, stage):<10s}")
 
     def close(self):
         if self.enabled:
@@ -411,7 +419,7 @@ def _scheduler(value):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _run_denoise(points, normals, args, method_params, say=None, **options):
+def _run_denoise(points, normals, args, method_params, **options):
     from .denoise import denoise
 
     progress = _Progress(STAGE_COUNT[args.method], not args.quiet)
@@ -426,10 +434,7 @@ def _run_denoise(points, normals, args, method_params, say=None, **options):
                              **_common_options(args), **options, **method_params)
     finally:
         progress.close()
-    seconds = time.perf_counter() - started
-    if args.verbose:
-        _details(result.stats, say or sys.stdout)
-    return result, seconds
+    return result, time.perf_counter() - started
 
 
 def _details(stats, say):
@@ -689,7 +694,7 @@ def _denoise_on_disk(args, params, inp, out, say):
 
 
 def _copies(stats):
-    """What the tiles' sizes leave out: rows at another row's position ride with it."""
+    """The rows at another row's position, which take that row's result."""
     copies = stats.get("duplicates", 0)
     return f" ({copies:,} rows at another row's position, denoised with it)" if copies else ""
 
@@ -754,9 +759,9 @@ def _denoise_file(args, params, inp, out, say):
     # The default method computes the likelihood and the feature intensity on request only.
     names = _field_names(args)
     extras = names == "all" or bool({"likelihood", "feature_intensity"} & set(names))
-    result, seconds = _run_denoise(cloud.points, given, args, params, say,
-                                   orient=orient, remove_outliers=args.remove_outliers,
-                                   extras=extras, **labels)
+    result, seconds = _run_denoise(cloud.points, given, args, params, orient=orient,
+                                   remove_outliers=args.remove_outliers, extras=extras,
+                                   **labels)
     if args.remove_outliers:
         cloud = io.select(cloud, result.kept)
     if chosen is not None and args.remove_outliers:
@@ -781,8 +786,10 @@ def _denoise_file(args, params, inp, out, say):
             if rounded > 0.0 else ""
         print(f"{inp} -> {out}: {len(disp):,} points{removed}, method {args.method}, "
               f"{result.stats['n_iterations']} iterations, {seconds:.2f} s; displacement max "
-              f"{disp.max():.4g}, mean {disp.mean():.4g}{stored}{_classes_done(result.stats)}",
-              file=say)
+              f"{disp.max():.4g}, mean {disp.mean():.4g}{stored}{_copies(result.stats)}"
+              f"{_classes_done(result.stats)}", file=say)
+    if args.verbose:
+        _details(result.stats, say)
 
 
 def _labels(args, cloud, name):
@@ -889,6 +896,8 @@ def _demo(args):
           f"{disp.mean():.1f} | "
           f"{seconds:.2f}s | {before.mean():.1f} -> {after.mean():.1f} | "
           f"{before[edge].mean():.1f} -> {after[edge].mean():.1f} |")
+    if args.verbose:
+        _details(result.stats, sys.stdout)
     for path in written + pictures:
         print(f"wrote {path}")
     return 0

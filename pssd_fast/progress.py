@@ -2,6 +2,10 @@
 import sys
 import time
 
+#: The ``(iteration, iterations)`` a :class:`Clock` or a round of tasks is given for the passes
+#: over a file before the plan exists: reported as iteration 0 of 0.
+BEFORE = (-1, 0)
+
 
 class Clock:
     """Times the stages of one iteration and reports each to the progress callback."""
@@ -31,7 +35,8 @@ class TimeLeft:
     """Elapsed time of a run and an estimate of the time left, from the reports of its stages.
 
     The estimate is the mean duration of the finished iterations times the iterations left,
-    less the time already spent in the current one; there is none during the first iteration.
+    less the time already spent in the current one; there is none before the first iteration
+    has finished.
     """
 
     def __init__(self):
@@ -48,7 +53,8 @@ class TimeLeft:
             self.started = self.iteration_started = now - seconds
             self.iteration = iteration
         elif iteration != self.iteration:
-            self.durations.append(self.last - self.iteration_started)
+            if self.iteration:  # the passes over a file before the plan are no iteration
+                self.durations.append(self.last - self.iteration_started)
             self.iteration_started = self.last
             self.iteration = iteration
         self.last = now
@@ -57,6 +63,24 @@ class TimeLeft:
             mean = sum(self.durations) / len(self.durations)
             left = max(0.0, mean * (iterations - iteration + 1) - (now - self.iteration_started))
         return now - self.started, left
+
+
+class Names:
+    """Each reported stage's name, numbered from its second run in one iteration (the
+    refinement's iterations run within the method's last: ``"refine_fit #2"``)."""
+
+    def __init__(self):
+        self.runs = {}
+
+    def __call__(self, iteration, stage):
+        runs = self.runs[iteration, stage] = self.runs.get((iteration, stage), 0) + 1
+        return stage if runs == 1 else f"{stage} #{runs}"
+
+
+def label(iteration, iterations):
+    """``"iteration 1/2"``, or ``"preparing"`` for the passes over a file before the plan
+    (iteration 0, :data:`BEFORE`)."""
+    return f"iteration {iteration}/{iterations}" if iteration else "preparing"
 
 
 def describe(elapsed, left):
@@ -71,12 +95,12 @@ def reporter(progress):
     if progress is None or progress is False:
         return None
     if progress is True:
-        clock = TimeLeft()
+        clock, names = TimeLeft(), Names()
 
         def show(iteration, iterations, stage, seconds):
             times = describe(*clock(iteration, iterations, seconds))
-            sys.stderr.write(f"pssd_fast: iteration {iteration}/{iterations} {stage:<10s} "
-                             f"{seconds:8.3f} s ({times})\n")
+            sys.stderr.write(f"pssd_fast: {label(iteration, iterations)} "
+                             f"{names(iteration, stage):<10s} {seconds:8.3f} s ({times})\n")
             sys.stderr.flush()
         return show
     if not callable(progress):

@@ -901,6 +901,15 @@ def test_verbose_tells_the_plan(tmp_path):
             f"{plan['cell_edge']:.4g}); the points that fail the test refit over {refine['k']} "
             f"points within {refine['bound']:.4g}; ") in stdout
     assert "iteration 1: neighbors" in stdout and "project" in stdout
+    _assert_summary_then_details(stdout)
+
+
+def _assert_summary_then_details(text):
+    """``--verbose``'s order, in core and out of core: the line of every run, then the plan,
+    then the stages of each iteration."""
+    lines = text.splitlines()
+    assert " -> " in lines[0] and lines[1].startswith("k = "), text
+    assert lines[2].startswith("iteration 1: "), text
 
 
 def test_tile_points_give_the_in_core_file(tmp_path):
@@ -934,12 +943,13 @@ def _near_copies(tmp_path):
 
 
 def test_duplicate_tolerance_reaches_the_library(tmp_path):
-    """Rows 1e-9 apart merge in cubes of 1e-6."""
+    """Rows 1e-9 apart merge in cubes of 1e-6, and the line says how many, as out of core."""
     want = _near_copies(tmp_path)
     status, out, err = pssd("denoise", tmp_path / "in.npy", tmp_path / "out.npy",
                             "--iterations", "1", "--duplicate-tolerance", "1e-6")
     assert status == 0, err
     assert "out of core" not in out
+    assert f"({want.stats['duplicates']:,} rows at another row's position, denoised" in out
     np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), want.points)
 
 
@@ -953,8 +963,10 @@ def test_duplicate_tolerance_reaches_tiled_runs(tmp_path):
                             "--tile-points", "1000", "--scheduler", "sync", "--verbose")
     assert status == 0, err
     assert "out of core" in out
+    assert f"({want.stats['duplicates']:,} rows at another row's position, denoised" in out
     assert f"k = {want.stats['k']} cell means within" in out
     assert re.search(r"^iteration 1: neighbors [\d.]+, .*, write [\d.]+ \(s\)$", out, re.M), out
+    _assert_summary_then_details(out)
     np.testing.assert_array_equal(np.load(tmp_path / "tiled.npy"), want.points)
 
 
@@ -1092,14 +1104,18 @@ def test_orient_is_refused_with_given_normals_in_every_entry(tmp_path, tile_poin
     assert not (tmp_path / "out.las").exists() and not (tmp_path / "t.las").exists()
 
 
-def test_the_bar_numbers_a_stage_run_again_in_one_iteration():
-    """The refinement's second iteration runs within the method's last: its stages say so."""
+def test_the_bar_fills_by_iterations_and_numbers_a_stage_run_again():
+    """The passes over a file come before the first iteration; a tile's round moves the bar by
+    nothing; the refinement's second iteration runs within the method's last, and its stages
+    say so; the bar is full only when the run ends."""
     progress = cli._Progress(7, False)
-    lines = []
-    for iteration, stage in [(1, "neighbors"), (2, "neighbors"), (2, "refine_fit"),
-                             (2, "refine_fit")]:
-        progress.done += 1
-        lines.append(progress.line(iteration, 2, stage))
-    assert [line.split("] ")[1].rstrip() for line in lines] == [
+    steps = [(0, 0, "read 1/2"), (0, 0, "buckets"), (1, 2, "tile_lists 1/3"), (1, 2, "neighbors"),
+             (2, 2, "neighbors"), (2, 2, "refine_fit"), *[(2, 2, "refine_fit")] * 12]
+    lines = [progress.line(*step) for step in steps]
+    assert [line.split("] ")[1].rstrip() for line in lines[:7]] == [
+        "preparing read 1/2", "preparing buckets", "iteration 1/2 tile_lists 1/3",
         "iteration 1/2 neighbors", "iteration 2/2 neighbors", "iteration 2/2 refine_fit",
         "iteration 2/2 refine_fit #2"]
+    filled = [line.split("]")[0].count("#") for line in lines]
+    assert filled[:3] == [0, 0, 0] and filled == sorted(filled)
+    assert filled[3] == 2 and filled[4] == 17 and filled[-1] == 27  # (1 + 6/7) / 2 of 30

@@ -916,6 +916,20 @@ def test_progress_lines_tell_the_elapsed_and_the_time_left(capsys):
     assert later and all("s left" in line for line in later)
 
 
+def test_progress_lines_number_a_stage_run_again_and_name_the_passes(capsys):
+    """The refinement's iterations run within the method's last: its second says so. The
+    passes over a file before the plan are iteration 0 of 0."""
+    from pssd_fast import progress
+    show = progress.reporter(True)
+    for report in [(0, 0, "read 1/1"), (2, 2, "refine_fit"), (2, 2, "refine_fit"),
+                   (2, 2, "test")]:
+        show(*report, 0.5)
+    lines = [line.split(" ", 1)[1].split("  ")[0].strip()
+             for line in capsys.readouterr().err.splitlines()]
+    assert lines == ["preparing read 1/1", "iteration 2/2 refine_fit",
+                     "iteration 2/2 refine_fit #2", "iteration 2/2 test"]
+
+
 def test_time_left_is_the_mean_iteration_times_the_iterations_to_go(monkeypatch):
     from pssd_fast import progress
     now = [100.0]

@@ -97,6 +97,19 @@ def test_tasks_at_once_share_the_cores(noisy, in_core, monkeypatch):
     _assert_same(alone, in_core["default"])
 
 
+def test_the_threads_in_stats_are_those_of_one_round():
+    """A round of one task takes every thread, a round of four tasks one each: stats give the
+    second round's pair, not a pair of maxima that no round took."""
+    from pssd_fast.tiled.scheduler import Runner
+
+    runner = Runner("threads", 4, None)
+    runner.map("one", 0, 1, lambda n_jobs: n_jobs, [()])
+    assert runner.threads == {"tasks_at_once": 1, "threads_per_task": 4}
+    assert runner.map("four", 0, 1, lambda i, n_jobs: n_jobs, [(i,) for i in range(4)]) == [1] * 4
+    runner.map("one again", 0, 1, lambda n_jobs: n_jobs, [()])
+    assert runner.threads == {"tasks_at_once": 4, "threads_per_task": 1}
+
+
 @pytest.mark.slow  # a local cluster of processes: the killed-worker test below too
 def test_a_local_cluster_of_two_processes_gives_the_in_core_result(noisy, in_core):
     distributed = pytest.importorskip("distributed")
@@ -438,10 +451,13 @@ def test_tasks_read_bin_and_write_a_file_the_caller_never_reads(tmp_path, monkey
     stats = tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy", tile_points=1_000,
                                client="processes", n_jobs=2, classification=labels,
                                classes=[2], iterations=1,
-                               progress=lambda i, n, stage, s: seen.add(stage.split(" ")[0]))
+                               progress=lambda i, n, stage, s: seen.add(
+                                   (i, n, stage.split(" ")[0])))
     np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), expected.points)
     assert stats["duplicates"] == expected.stats["duplicates"] > 0
-    assert {"read", "bin", "merge", "cells", "parts", "copied", "kept", "write"} <= seen
+    # The passes before the plan are iteration 0 of 0; those after it, of the last iteration.
+    assert {(0, 0, "read"), (0, 0, "bin"), (0, 0, "merge"), (0, 0, "cells"), (1, 1, "parts"),
+            (1, 1, "copied"), (1, 1, "kept"), (1, 1, "write")} <= seen
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.npy", "out.npy"]
 
 

@@ -31,6 +31,7 @@ import numpy as np
 
 from .. import core, duplicates, regions
 from .._validation import check_size
+from ..progress import BEFORE
 from ..graph import MORTON_BITS, bounds, cell_keys, cell_order
 from . import ondisk
 
@@ -62,7 +63,7 @@ class Buckets:
         self.dtype = RECORD_NORMALS if getattr(array, "has_normals", False) else RECORD
         chunks = [(array, start, stop, None if keep is None else keep(start, stop))
                   for start, stop in ondisk.Blocks.of(array.shape[0]).ranges()]
-        found = [scan for scan in ondisk.first_error(runner.map("read", 0, 1, _scan, chunks))
+        found = [scan for scan in ondisk.first_error(runner.map("read", *BEFORE, _scan, chunks))
                  if scan[0]]
         n = sum(scan[0] for scan in found)
         check_size(n)
@@ -74,15 +75,15 @@ class Buckets:
         # core.
         self.corner = low - self.centre
         codes = (low, high, tolerance)  # of the cubes of the tolerance
-        histogram = _histogram(runner.map("histogram", 0, 1, _code_prefixes,
+        histogram = _histogram(runner.map("histogram", *BEFORE, _code_prefixes,
                                           [(*chunk, codes) for chunk in chunks]))
         firsts = _bins(histogram, tile_points)
         del histogram
         pieces = [folder / f"chunk_{i}.bin" for i in range(len(chunks))]
-        counts = ondisk.offsets(runner.map("bin", 0, 1, _bin_chunk, [
+        counts = ondisk.offsets(runner.map("bin", *BEFORE, _bin_chunk, [
             (*chunk, codes, firsts, self.dtype, path) for chunk, path in zip(chunks, pieces)]))
         self.paths = [folder / f"bucket_{b}.bin" for b in range(firsts.shape[0])]
-        merged = runner.map("merge", 0, 1, _merge_bucket, [
+        merged = runner.map("merge", *BEFORE, _merge_bucket, [
             (ondisk.pieces(pieces, counts, b), self.dtype, codes, path) for b, path in
             enumerate(self.paths)])
         for path in pieces:
@@ -109,7 +110,7 @@ class Buckets:
             raise TypeError("only [::step] is read from the buckets")
         ranks = np.arange(0, self.shape[0], key.step or 1)
         cuts = np.searchsorted(ranks, self.starts)
-        parts = self.runner.map("sample", 0, 1, _sample, [
+        parts = self.runner.map("sample", *BEFORE, _sample, [
             (path, self.dtype, field, ranks[cuts[i]:cuts[i + 1]] - self.starts[i])
             for i, path in enumerate(self.paths)])
         return np.concatenate(parts).reshape(-1, 3)
@@ -146,21 +147,21 @@ class Buckets:
         # with each coordinate, so the high corner's cell code has the bits of the largest.
         largest = int(cell_keys(self.high[None, :], plan.low, plan.edge, grid[3])[0][0])
         prefix = max(0, largest.bit_length() - PREFIX_BITS)
-        firsts = _bins(_histogram(runner.map("cell histogram", 0, 1, _cell_prefixes, [
+        firsts = _bins(_histogram(runner.map("cell histogram", *BEFORE, _cell_prefixes, [
             (*bucket, prefix) for bucket in buckets])), tile_points)
         pieces = [self.folder / f"cells_of_{i}.bin" for i in range(len(buckets))]
-        counts = ondisk.offsets(runner.map("cell bin", 0, 1, _bin_cells, [
+        counts = ondisk.offsets(runner.map("cell bin", *BEFORE, _bin_cells, [
             (*bucket, prefix, firsts, int(self.starts[i]), path)
             for i, (bucket, path) in enumerate(zip(buckets, pieces))]))
         record = _cell_record(self.dtype)
         grouped = [self.folder / f"cells_{t}.bin" for t in range(firsts.shape[0])]
-        sizes = runner.map("cells", 0, 1, _group_tile, [
+        sizes = runner.map("cells", *BEFORE, _group_tile, [
             (ondisk.pieces(pieces, counts, t), record, grid, path)
             for t, path in enumerate(grouped)])
         for path in pieces:
             path.unlink()
         c0 = np.concatenate(([0], np.cumsum(sizes)))
-        tiles = runner.map("tiles", 0, 1, _put_tile, [
+        tiles = runner.map("tiles", *BEFORE, _put_tile, [
             (path, record, self.centre, int(c0[t]), store, t) for t, path in enumerate(grouped)])
         for path in self.paths:  # every point is in the tiles' entries now
             path.unlink()

@@ -25,7 +25,7 @@ from .. import plan as planning
 from .._threads import threads
 from .._validation import check_int, check_orient_estimated
 from ..parameters import BY_NAME, PARAMETERS
-from ..progress import Clock, reporter
+from ..progress import BEFORE, Clock, reporter
 from ..run import Request, check_distinct, stats
 from ..stats import finished
 from ..store import Files, Memory
@@ -352,7 +352,7 @@ def _file_classes(array, classification, classes, runner):
     if isinstance(classes, str) and classes == "all":
         return None
     if isinstance(array, ondisk.LasFile):
-        total = sum(runner.map("classes", 0, 1, _class_counts, [
+        total = sum(runner.map("classes", *BEFORE, _class_counts, [
             (array, *rows) for rows in ondisk.Blocks.of(array.shape[0]).ranges()]),
             np.zeros(256, np.int64))
         present = np.flatnonzero(total)
@@ -379,7 +379,7 @@ def _file_run(setting, keep, folder, started):
     files in ``folder``: a :class:`_Done`."""
     folder.mkdir(exist_ok=True)
     settings, report, runner = setting.settings, setting.report, setting.runner
-    first = Clock(report, 0, 1)
+    first = Clock(report, *BEFORE)
     cloud = first.run("buckets", binning.Buckets, setting.array, folder, setting.tile_points,
                       settings["duplicate_tolerance"], keep, runner)
     n = check_distinct(cloud.shape[0], cloud.rows, None)

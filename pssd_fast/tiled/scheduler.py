@@ -68,10 +68,11 @@ class Runner:
             self.pool.shutdown(cancel_futures=True)
 
     def _record(self, at_once, per_task):
-        """Keep the most tasks at once and the most threads a task took."""
+        """Keep the round of the most tasks at once (of those, the most threads a task took):
+        the two numbers of one round, where a round of one task takes every thread."""
         before = self.threads or {"tasks_at_once": 0, "threads_per_task": 0}
-        self.threads = {"tasks_at_once": max(before["tasks_at_once"], at_once),
-                        "threads_per_task": max(before["threads_per_task"], per_task)}
+        if (at_once, per_task) > (before["tasks_at_once"], before["threads_per_task"]):
+            self.threads = {"tasks_at_once": at_once, "threads_per_task": per_task}
 
     def map(self, stage, iteration, iterations, func, argsets):
         """``func(*args, n_jobs)`` for each of ``argsets``, results in their order; each
