@@ -24,14 +24,10 @@ import numpy as np
 
 from . import core, method, regions
 from ._threads import threads
-from .graph import ListScales, bounded_graph, knn_graph
+from .graph import ListScales, bounded_graph, cell_keys, knn_graph
 from .pipelines import aware
 from .progress import Clock
 from .store import gather, gather_again, gather_halo
-
-#: Tiles start at multiples of this many cells (where a tile holds more).
-ALIGN = 64
-
 
 class Tile(NamedTuple):
     """A tile: its first cell ``c0`` and its cells ``cells``, its ``points``, and the boxes of
@@ -63,17 +59,13 @@ def group(current, given, plan, store, tile_points=None):
     None) put into ``store`` tile by tile (``("points", i)``: the tile's points grouped by
     cell, their places ``gid`` in ``current`` and their cell ``cell``; ``("cells", i, 0)``:
     its cell means, the points they hold and their places), in tiles of at most
-    ``tile_points`` points (None: one tile). Returns the :class:`Tile` list."""
+    ``tile_points`` points (None: one tile) cut as out of core: between bins of the first bits
+    of the cells' codes (:func:`pssd_fast.regions.cuts`). Returns the :class:`Tile` list."""
     cells = method.cells_of(current, given, plan.edge, plan.low)
     ends = np.concatenate(([0], np.cumsum(cells.counts)))
-    m = cells.counts.shape[0]
     tiles = []
-    c0 = 0
-    while c0 < m:
-        c1 = m if tile_points is None else max(
-            c0 + 1, int(np.searchsorted(ends, ends[c0] + tile_points, side="right")) - 1)
-        if c1 < m and c1 - c0 > ALIGN:
-            c1 -= (c1 - c0) % ALIGN
+    cut = _cuts(current, cells, plan, tile_points)
+    for c0, c1 in zip(cut[:-1].tolist(), cut[1:].tolist()):
         rows = cells.order[ends[c0]:ends[c1]]
         i = len(tiles)
         points = {"xyz": current[rows], "gid": rows, "cell": cells.owner[rows]}
@@ -86,8 +78,23 @@ def group(current, given, plan, store, tile_points=None):
         store.put(("cells", i, 0), means)
         tiles.append(Tile(c0, c1 - c0, rows.shape[0], regions.boxes(points["xyz"]),
                           regions.boxes(means["xyz"])))
-        c0 = c1
     return tiles
+
+
+def _cuts(current, cells, plan, tile_points):
+    """The first cell of each tile of :func:`group`, and the number of cells."""
+    m = cells.counts.shape[0]
+    if tile_points is None:
+        return np.array([0, m])
+    shift, prefix = regions.code_shifts(current.max(axis=0), plan.low, plan.edge)
+    bins = cell_keys(current[cells.order[cells.starts[:-1]]], plan.low, plan.edge,
+                     shift)[0] >> np.uint64(prefix)
+    found, inverse = np.unique(bins, return_inverse=True)
+    firsts = regions.cuts(regions.histogram(
+        [(found, np.bincount(inverse, cells.counts, found.shape[0]).astype(np.int64))]),
+        tile_points)
+    # The cells are in the order of their codes: each tile's are consecutive.
+    return np.searchsorted(regions.part_of(firsts, bins), np.arange(firsts.shape[0] + 1))
 
 
 def run(plan, request, tiles, store, runner=None):

@@ -425,6 +425,32 @@ def test_regions_near_holds_a_hair_more():
     assert regions.near(points[:0], centres, 0.2).shape == (0,)
 
 
+@pytest.mark.parametrize("most", [1, 5, 12, 1000])
+def test_regions_cut_bins_into_parts_of_at_most_most_points(most):
+    """Parts are runs of bins that hold points, as full as fit ``most``; a fuller bin alone."""
+    from pssd_fast import regions
+
+    rng = np.random.default_rng(most)
+    found = np.unique(rng.integers(0, 1 << regions.PREFIX_BITS, 40)).astype(np.uint64)
+    counts = rng.integers(1, 9, found.shape[0])
+    counts[3] = 20
+    summed = regions.histogram([(found[:20], counts[:20]), (found[20:], counts[20:])])
+    firsts = regions.cuts(summed, most)
+    part = regions.part_of(firsts, found)
+    want, filled = [], 0
+    for c in counts:  # a plain greedy walk over the bins in order
+        if not want or (filled and filled + c > most):
+            want.append(want[-1] + 1 if want else 0)
+            filled = 0
+        else:
+            want.append(want[-1])
+        filled += c
+    np.testing.assert_array_equal(part, want)
+    sums = np.bincount(part, counts)
+    assert (sums <= most).all() or most < 20
+    assert ((sums <= most) | (np.bincount(part) == 1)).all()
+
+
 @pytest.mark.parametrize("shift", [0, 3])
 def test_cell_order_sorts_by_code_then_coordinates_stably(shift):
     """Codes of one cell each (shift 0) or of several (coarser codes): the order is numpy's

@@ -20,8 +20,8 @@ passes:
    earlier row are set aside, to take its result when the output is written
    (:mod:`pssd_fast.duplicates`);
 5. per bucket, a sparse histogram of the first bits of the plan's cell codes (as many bits as
-   the high corner's code has, less :data:`PREFIX_BITS`); the driver groups them into *tiles*
-   of whole cells;
+   the high corner's code has, less :data:`~pssd_fast.regions.PREFIX_BITS`); the driver
+   groups them into *tiles* of whole cells, as in core (:func:`pssd_fast.executor.group`);
 6. per bucket, its records sorted by tile; per tile, its pieces grouped by cell (which numbers
    its cells), then its store entries written with the cells numbered from the tiles before.
 """
@@ -35,10 +35,9 @@ from ..progress import BEFORE
 from ..graph import MORTON_BITS, bounds, cell_keys, cell_order
 from . import ondisk
 
-#: Histogram bins of the Morton codes' top bits (7 per axis).
-PREFIX_BITS = 21
-#: The shift that leaves a position code's top :data:`PREFIX_BITS` bits.
-_CODE_SHIFT = np.uint64(3 * MORTON_BITS - PREFIX_BITS)
+#: The shift that leaves a position code's top :data:`~pssd_fast.regions.PREFIX_BITS` bits (7
+#: per axis).
+_CODE_SHIFT = np.uint64(3 * MORTON_BITS - regions.PREFIX_BITS)
 #: A point in a bucket file: its row in the input, its Morton code, its coordinates.
 RECORD = np.dtype([("row", np.int64), ("code", np.uint64), ("xyz", np.float64, 3)])
 #: The same with the point's unit normal, for a file that has normals.
@@ -75,9 +74,9 @@ class Buckets:
         # core.
         self.corner = low - self.centre
         codes = (low, high, tolerance)  # of the cubes of the tolerance
-        histogram = _histogram(runner.map("histogram", *BEFORE, _code_prefixes,
+        histogram = regions.histogram(runner.map("histogram", *BEFORE, _code_prefixes,
                                           [(*chunk, codes) for chunk in chunks]))
-        firsts = _bins(histogram, tile_points)
+        firsts = regions.cuts(histogram, tile_points)
         del histogram
         pieces = [folder / f"chunk_{i}.bin" for i in range(len(chunks))]
         counts = ondisk.offsets(runner.map("bin", *BEFORE, _bin_chunk, [
@@ -138,17 +137,13 @@ class Buckets:
         points (a fuller bin alone), in the order of their cells. Returns the tiles
         (:class:`pssd_fast.executor.Tile`)."""
         runner = self.runner
-        # One shift for every bucket, from the whole cloud's largest cell coordinate: that of
-        # its high corner, rounded as each point's is (graph.cell_keys).
-        top = int(((self.high - plan.low) * (1.0 / plan.edge)).max())
-        grid = (self.centre, plan.low, plan.edge, max(0, top.bit_length() - MORTON_BITS))
+        # One shift for every bucket, from the whole cloud's high corner, as in core.
+        shift, prefix = regions.code_shifts(self.high, plan.low, plan.edge)
+        grid = (self.centre, plan.low, plan.edge, shift)
         buckets = [(path, self.dtype, grid) for path in self.paths]
-        # The codes' first bits: as many as they use, less the prefix. A Morton code grows
-        # with each coordinate, so the high corner's cell code has the bits of the largest.
-        largest = int(cell_keys(self.high[None, :], plan.low, plan.edge, grid[3])[0][0])
-        prefix = max(0, largest.bit_length() - PREFIX_BITS)
-        firsts = _bins(_histogram(runner.map("cell histogram", *BEFORE, _cell_prefixes, [
-            (*bucket, prefix) for bucket in buckets])), tile_points)
+        firsts = regions.cuts(regions.histogram(runner.map(
+            "cell histogram", *BEFORE, _cell_prefixes,
+            [(*bucket, prefix) for bucket in buckets])), tile_points)
         pieces = [self.folder / f"cells_of_{i}.bin" for i in range(len(buckets))]
         counts = ondisk.offsets(runner.map("cell bin", *BEFORE, _bin_cells, [
             (*bucket, prefix, firsts, int(self.starts[i]), path)
@@ -209,7 +204,7 @@ def _bin_chunk(array, start, stop, mask, codes, firsts, dtype, path, n_jobs):
     records["xyz"] = points
     if normals is not None:
         records["nrm"] = normals
-    return ondisk.sorted_save(records, _bucket_of(firsts, code >> _CODE_SHIFT),
+    return ondisk.sorted_save(records, regions.part_of(firsts, code >> _CODE_SHIFT),
                               firsts.shape[0], path)
 
 
@@ -267,7 +262,7 @@ def _bin_cells(path, dtype, grid, prefix, firsts, first_rank, out, n_jobs):
     for name in records.dtype.names:
         if name != "code":
             found[name] = records[name]
-    return ondisk.sorted_save(found, _bucket_of(firsts, code >> np.uint64(prefix)),
+    return ondisk.sorted_save(found, regions.part_of(firsts, code >> np.uint64(prefix)),
                               firsts.shape[0], out)
 
 
@@ -307,28 +302,3 @@ def _put_tile(path, record, centre, c0, store, i, n_jobs):
     path.with_suffix(".starts.npy").unlink()
     return Tile(c0, m, xyz.shape[0], regions.boxes(xyz), regions.boxes(means))
 
-
-def _histogram(sparse):
-    """The histogram of :data:`PREFIX_BITS` bits summed from sparse ``(bins, counts)``."""
-    histogram = np.zeros(1 << PREFIX_BITS, np.int64)
-    for found, counts in sparse:
-        histogram[found.astype(np.int64)] += counts
-    return histogram
-
-
-def _bins(histogram, tile_points):
-    """The first bin of each bucket of ``histogram``: consecutive bins, at most
-    ``tile_points`` points a bucket (a fuller bin alone)."""
-    firsts = []
-    filled = 0
-    for b in np.flatnonzero(histogram):
-        if not firsts or (filled and filled + histogram[b] > tile_points):
-            firsts.append(b)
-            filled = 0
-        filled += histogram[b]
-    return np.array(firsts, np.int64)
-
-
-def _bucket_of(firsts, found):
-    """The bucket of each of the bins ``found`` (bins that hold points)."""
-    return np.searchsorted(firsts, found.astype(np.int64), side="right") - 1
