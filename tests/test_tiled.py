@@ -625,3 +625,18 @@ def test_records_are_saved_in_the_stable_order_of_their_targets(tmp_path, target
     saved = np.fromfile(tmp_path / "part.bin", records.dtype)
     assert saved.tobytes() == records[np.argsort(target, kind="mergesort")].tobytes()
     np.testing.assert_array_equal(counts, np.bincount(target, minlength=targets))
+
+
+@pytest.mark.parametrize("ranks", [[], [0], [3, 4, 5, 900, 901, 90_000, 199_999],
+                                   list(range(0, 200_000, 7)), [5, 100_000, 150_000]])
+def test_the_probe_s_sample_is_read_from_a_bucket_by_rank(tmp_path, ranks):
+    """Ranks near each other are read in runs, far ones alone: either way each record's own
+    field, in the ranks' order."""
+    from pssd_fast.tiled import binning
+
+    records = np.zeros(200_000, binning.RECORD)
+    records["xyz"] = np.random.default_rng(4).normal(size=(200_000, 3))
+    records.tofile(tmp_path / "bucket.bin")
+    ranks = np.array(ranks, np.int64)
+    got = binning._sample(tmp_path / "bucket.bin", binning.RECORD, "xyz", ranks, 1)
+    assert got.tobytes() == records["xyz"][ranks].tobytes()
