@@ -640,3 +640,26 @@ def test_the_probe_s_sample_is_read_from_a_bucket_by_rank(tmp_path, ranks):
     ranks = np.array(ranks, np.int64)
     got = binning._sample(tmp_path / "bucket.bin", binning.RECORD, "xyz", ranks, 1)
     assert got.tobytes() == records["xyz"][ranks].tobytes()
+
+
+def test_records_are_taken_whole_and_pieces_read_into_place(tmp_path):
+    """ondisk.take gives numpy's indexing of the records; read_pieces joins pieces of files in
+    order and names a file that ends before a piece does."""
+    from pssd_fast.tiled import binning
+
+    rng = np.random.default_rng(5)
+    records = np.zeros(3000, binning.RECORD_NORMALS)
+    records["row"] = rng.permutation(3000)
+    records["code"] = rng.integers(0, 2**63, 3000, dtype=np.uint64)
+    records["xyz"], records["nrm"] = rng.normal(size=(3000, 3)), rng.normal(size=(3000, 3))
+    for order in (rng.permutation(3000), np.arange(0, 3000, 7), np.arange(0)):
+        assert ondisk.take(records, order).tobytes() == records[order].tobytes()
+    records[:1000].tofile(tmp_path / "a.bin")
+    records[1000:].tofile(tmp_path / "b.bin")
+    found = [(tmp_path / "a.bin", 10, 990), (tmp_path / "b.bin", 0, 5),
+             (tmp_path / "b.bin", 1500, 500)]
+    want = np.concatenate([records[10:1000], records[1000:1005], records[2500:3000]])
+    assert ondisk.read_pieces(found, records.dtype).tobytes() == want.tobytes()
+    assert ondisk.read_pieces([], records.dtype).shape == (0,)
+    with pytest.raises(OSError, match="b.bin: the file ends"):
+        ondisk.read_pieces([(tmp_path / "b.bin", 1990, 20)], records.dtype)

@@ -229,7 +229,7 @@ def _merge_bucket(pieces, dtype, codes, path, n_jobs):
     records, their bounds and the number set aside."""
     records = ondisk.read_pieces(pieces, dtype)
     # In input order: a stable sort by code is denoise's order.
-    records = records[np.argsort(records["code"], kind="stable")]
+    records = ondisk.take(records, np.argsort(records["code"], kind="stable"))
     low, _, tolerance = codes
     into = duplicates.merged(records["code"], lambda at: duplicates.keys(
         records["xyz"][at], low, tolerance))
@@ -289,7 +289,7 @@ def _group_tile(pieces, record, grid, path, n_jobs):
     code, cells = _keys(records, grid)
     order, starts = cell_order(code, cells)
     np.save(path.with_suffix(".starts.npy"), starts)
-    ondisk.save(records[order], path)
+    ondisk.save(ondisk.take(records, order), path)
     return starts.shape[0] - 1
 
 

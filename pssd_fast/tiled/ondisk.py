@@ -354,6 +354,13 @@ def first_error(results):
     return results
 
 
+def take(records, order):
+    """``records[order]`` (``order`` an index array), each record copied whole: numpy indexes a
+    structured array field by field, 3 to 5 times slower."""
+    whole = np.dtype((np.void, records.dtype.itemsize))
+    return np.take(np.ascontiguousarray(records).view(whole), order).view(records.dtype)
+
+
 def sorted_save(records, target, targets, path):
     """``records`` sorted stably by ``target`` (each below ``targets``) into a file at
     ``path``, whole (:func:`save`); the count of each of ``targets``."""
@@ -362,7 +369,7 @@ def sorted_save(records, target, targets, path):
     if (target[1:] < target[:-1]).any():
         # numpy sorts keys of 16 bits stably by radix, in linear time: the same order.
         keys = target.astype(np.uint16) if targets <= 1 << 16 else target
-        records = records[np.argsort(keys, kind="stable")]
+        records = take(records, np.argsort(keys, kind="stable"))
     save(records, path)
     return np.bincount(target, minlength=targets)
 
@@ -381,9 +388,18 @@ def pieces(paths, found, b):
 
 
 def read_pieces(found, dtype):
-    """The records of the :func:`pieces` ``found``, one after another."""
-    return np.concatenate([np.fromfile(path, dtype, count=count, offset=first * dtype.itemsize)
-                           for path, first, count in found] or [np.empty(0, dtype)])
+    """The records of the :func:`pieces` ``found``, one after another (read into their place:
+    no copy joins them)."""
+    out = np.empty(sum(count for _, _, count in found), dtype)
+    at = 0
+    for path, first, count in found:
+        with open(path, "rb") as fh:
+            fh.seek(first * dtype.itemsize)
+            into = memoryview(out[at:at + count].view(np.uint8))
+            if fh.readinto(into) != into.nbytes:
+                raise OSError(f"{path}: the file ends before its {first + count}-th record")
+        at += count
+    return out
 
 
 def columns_width(columns):
