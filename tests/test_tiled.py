@@ -287,10 +287,10 @@ def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dty
     assert got.dtype == dtype and stats["tiles"]["count"] >= 8
     assert stats["tiles"]["most_points"] <= 1_000
     np.testing.assert_array_equal(got, expected.points)
-    # One binning: in memory, the same tiles.
-    in_memory = tiled.denoise(points, tile_points=1_000, preset=preset, client="sync")
-    assert {key: in_memory.stats["tiles"][key] for key in ("count", "most_points")} == {
-        key: stats["tiles"][key] for key in ("count", "most_points")}
+    if preset == "fast":  # one binning: in memory, the same tiles (once: the cheaper run)
+        in_memory = tiled.denoise(points, tile_points=1_000, preset=preset, client="sync")
+        assert {key: in_memory.stats["tiles"][key] for key in ("count", "most_points")} == {
+            key: stats["tiles"][key] for key in ("count", "most_points")}
     for key in ("k", "noise", "plan", "held_points"):
         assert stats[key] == expected.stats[key], key
     assert [r.get("refined") for r in stats["iterations"]] == [
