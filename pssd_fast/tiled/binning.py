@@ -39,7 +39,8 @@ from . import ondisk
 #: per axis).
 _CODE_SHIFT = np.uint64(3 * MORTON_BITS - regions.PREFIX_BITS)
 #: The probe's sample is read from a bucket file in runs: ranks closer than this many bytes
-#: in one read (about what a read's own cost would read), at most ``SAMPLE_RUN`` records a run.
+#: in one read (about what a read's own cost would read), within one window of ``SAMPLE_RUN``
+#: records.
 SAMPLE_GAP = 1 << 15
 SAMPLE_RUN = 1 << 16
 #: A point in a bucket file: its row in the input, its Morton code, its coordinates.
@@ -181,24 +182,21 @@ def _scan(array, start, stop, mask, n_jobs):
 
 def _sample(path, dtype, field, ranks, n_jobs):
     """The ``field`` of the records at ``ranks`` (increasing) of a bucket file. Ranks closer
-    than :data:`SAMPLE_GAP` bytes are read together, a run of at most :data:`SAMPLE_RUN`
-    records a read; farther ones alone: a memory map would keep the pages around each
-    resident (95 MB of a bucket of 8,000,000 points for a sample every 5,200)."""
+    than :data:`SAMPLE_GAP` bytes are read together, a run within one window of
+    :data:`SAMPLE_RUN` records a read; farther ones alone: a memory map would keep the pages
+    around each resident (95 MB of a bucket of 8,000,000 points for a sample every 5,200)."""
     out = np.empty((ranks.shape[0], 3))
+    if not ranks.shape[0]:
+        return out
     size = dtype.itemsize
-    # Where a run starts: a rank far from the one before, or too far from its run's first.
-    listed = ranks.tolist()
-    starts = [0] if listed else []
-    for at in range(1, len(listed)):
-        if ((listed[at] - listed[at - 1]) * size > SAMPLE_GAP
-                or listed[at] - listed[starts[-1]] >= SAMPLE_RUN):
-            starts.append(at)
-    starts.append(len(listed))
+    # A run starts at a rank far from the one before, or in another window of SAMPLE_RUN.
+    cut = (np.diff(ranks) * size > SAMPLE_GAP) | (np.diff(ranks // SAMPLE_RUN) != 0)
+    starts = np.concatenate(([0], np.flatnonzero(cut) + 1, [ranks.shape[0]])).tolist()
     with open(path, "rb") as fh:
         for a, b in zip(starts[:-1], starts[1:]):
-            first = listed[a]
+            first = int(ranks[a])
             fh.seek(first * size)
-            run = np.fromfile(fh, dtype, count=listed[b - 1] - first + 1)
+            run = np.fromfile(fh, dtype, count=int(ranks[b - 1]) - first + 1)
             out[a:b] = run[field][ranks[a:b] - first]
     return out
 
