@@ -37,7 +37,6 @@ from .models import data_folder, missing
 from .stages import add_output, machine, write_results
 
 
-
 def as_binary(cloud):
     """``cloud`` with its PLY source turned binary little-endian, the rest of the file kept."""
     ply = copy.copy(cloud.source.ply)

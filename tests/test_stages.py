@@ -370,7 +370,6 @@ def test_region_growing_matches_reference(cloud):
             assert got == set(reference.region(points, lists, i, radius))
 
 
-
 def test_exp_polynomial_matches_exp():
     # The vote's weights exp(-|p_j - p_i| / sigma_e) have arguments in [0, 1.5].
     x = np.linspace(0.0, 1.5 * (1 + 1e-12), 10001)
