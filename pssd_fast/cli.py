@@ -5,6 +5,7 @@ command line); no traceback reaches the user.
 """
 import argparse
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -375,11 +376,14 @@ class _Progress:
         self.clock = TimeLeft()
         self.names = Names()
         self.stages = {}
+        # One column short of the terminal's width: a line that wrapped would not be redrawn.
+        self.width = shutil.get_terminal_size().columns - 1
 
     def __call__(self, iteration, iterations, stage, seconds):
         times = describe(*self.clock(iteration, iterations, seconds))
         if self.enabled:
-            sys.stderr.write(f"\r{self.line(iteration, iterations, stage)} {times:<32s}")
+            text = f"{self.line(iteration, iterations, stage)} {times}"[:self.width]
+            sys.stderr.write(f"\r{text:<{self.width}s}")
             sys.stderr.flush()
 
     def line(self, iteration, iterations, stage):
@@ -398,7 +402,7 @@ class _Progress:
 
     def close(self):
         if self.enabled:
-            sys.stderr.write("\r" + " " * 100 + "\r")
+            sys.stderr.write("\r" + " " * self.width + "\r")
             sys.stderr.flush()
 
 
@@ -684,13 +688,19 @@ def _denoise_on_disk(args, params, inp, out, say):
         moved = stats["displacement"]
         rounded = " (before the format rounds the coordinates)" if las else ""
         print(f"{inp} -> {out}: {total:,} points, method {args.method}, "
-              f"{stats['n_iterations']} iterations, {stats['total_seconds']:.2f} s; "
+              f"{_iterations(stats)}, {stats['total_seconds']:.2f} s; "
               f"{tiles['count']} tile{'s' * (tiles['count'] != 1)} of at most "
               f"{tiles['most_points']:,} points, out of core; displacement max "
               f"{moved['max']:.4g}, mean {moved['mean']:.4g}{rounded}"
               f"{_copies(stats)}{_classes_done(stats)}", file=say)
     if args.verbose:
         _details(stats, say)
+
+
+def _iterations(stats):
+    """``"2 iterations"`` (``"1 iteration"``)."""
+    n = stats["n_iterations"]
+    return f"{n} iteration{'s' * (n != 1)}"
 
 
 def _copies(stats):
@@ -785,7 +795,7 @@ def _denoise_file(args, params, inp, out, say):
         stored = f" (as stored: the format rounds coordinates by up to {rounded:.4g})" \
             if rounded > 0.0 else ""
         print(f"{inp} -> {out}: {len(disp):,} points{removed}, method {args.method}, "
-              f"{result.stats['n_iterations']} iterations, {seconds:.2f} s; displacement max "
+              f"{_iterations(result.stats)}, {seconds:.2f} s; displacement max "
               f"{disp.max():.4g}, mean {disp.mean():.4g}{stored}{_copies(result.stats)}"
               f"{_classes_done(result.stats)}", file=say)
     if args.verbose:

@@ -1119,3 +1119,26 @@ def test_the_bar_fills_by_iterations_and_numbers_a_stage_run_again():
     filled = [line.split("]")[0].count("#") for line in lines]
     assert filled[:3] == [0, 0, 0] and filled == sorted(filled)
     assert filled[3] == 2 and filled[4] == 17 and filled[-1] == 27  # (1 + 6/7) / 2 of 30
+
+
+def test_the_bar_fits_the_terminal_and_is_wiped_whole(monkeypatch):
+    """A line longer than the terminal would wrap and leave stale rows: each is cut one column
+    short of the width and padded to it, and closing blanks that width."""
+    import io as stdio
+    import shutil
+
+    class Terminal(stdio.StringIO):
+        def isatty(self):
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    monkeypatch.setattr(shutil, "get_terminal_size", lambda: os.terminal_size((70, 24)))
+    progress = cli._Progress(7, True)
+    progress(2, 2, "refine_neighbors", 1.0)
+    progress(2, 2, "refine_neighbors", 1.0)
+    progress.close()
+    written = terminal.getvalue().split("\r")[1:]
+    assert [len(part) for part in written] == [69, 69, 69, 0]
+    assert written[1].startswith("[") and "refine_neighbors #2 el" in written[1]
+    assert not written[1].endswith(" ") and written[2] == " " * 69
