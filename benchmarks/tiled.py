@@ -85,7 +85,7 @@ def child(kind, source, out, tile_points, workers):
                               for worker, after in client.run(_cpu_seconds).items())
             peaks = list(client.run(
                 lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024).values())
-    passes = sum(record["times"].get(stage, 0.0) for record in stats["iterations"]
+    passes = sum(stats["tiles"][when].get(stage, 0.0) for when in ("before", "after")
                  for stage in ("buckets", "tiles", "write"))
     driver_cpu = _cpu_seconds() - cpu
     print(json.dumps({"seconds": seconds, "driver_cpu": driver_cpu, "workers_cpu": workers_cpu,

@@ -57,8 +57,9 @@ def check_classes(classification, classes):
 def choose(codes, sizes, classes, least):
     """The classes of a classification to denoise, each on its own: their codes (increasing;
     None where the cloud runs as one) and ``(code, points)`` of those too small to run
-    (fewer than ``least`` points); ``codes``: the classes present, increasing, with their
-    ``sizes``. ValueError or TypeError naming what is wrong."""
+    (fewer than ``least`` points; 0 for a class asked for that no point is of); ``codes``:
+    the classes present, increasing, with their ``sizes``. ValueError or TypeError naming
+    what is wrong."""
     codes = np.asarray(codes)
     present = ", ".join(str(c) for c in codes[:20]) + (", ..." if len(codes) > 20 else "")
     if classes is None:
@@ -80,7 +81,9 @@ def choose(codes, sizes, classes, least):
             raise ValueError(f"no point is of class {', '.join(map(str, asked))}; the classes "
                              f"present are {present}")
     chosen = [(int(c), int(size)) for c, size, w in zip(codes, sizes, wanted) if w]
-    small = []
+    # Classes asked for that no point is of: a pipeline over many files names them all.
+    small = [] if classes is None or _name(classes) == "each" else [
+        (int(c), 0) for c in np.setdiff1d(asked, codes)]
     if classes is None or _name(classes) == "each":
         # Classes the library chose: those too small for a run are left as they are.
         small = [(c, size) for c, size in chosen if size < least]
@@ -92,11 +95,15 @@ def choose(codes, sizes, classes, least):
 
 
 def warn_small(small, least, stacklevel):
-    """One :class:`DenoiseWarning` naming the classes too small to denoise, if any."""
-    if small:
-        sizes = ", ".join(f"{code} ({size:,} points)" for code, size in small)
-        warnings.warn(f"class{'es' * (len(small) > 1)} {sizes}: fewer points than a run needs "
-                      f"({least}); left as they are", DenoiseWarning, stacklevel=stacklevel + 1)
+    """One :class:`DenoiseWarning` naming the classes too small to denoise, if any (those of
+    no point among them: asked for, absent)."""
+    absent = [str(code) for code, size in small if size == 0]
+    few = [f"{code} ({size:,} points)" for code, size in small if size > 0]
+    said = ([f"no point is of class {' or '.join(absent)}"] if absent else []) + (
+        [f"class{'es' * (len(few) > 1)} {', '.join(few)}: fewer points than a run needs "
+         f"({least}); left as they are"] if few else [])
+    if said:
+        warnings.warn("; ".join(said), DenoiseWarning, stacklevel=stacklevel + 1)
 
 
 def denoise_each(pts, dtype, normals, classification, classes, options, denoise, started,
@@ -180,20 +187,25 @@ def merge(pts, dtype, given, done, small, described, started):
 def summary(runs, untouched, small, described, started):
     """The ``stats`` of a classes call from those of its ``runs`` (``(code, points,
     stats)``), the number of points of no run (``untouched``) and the classes too ``small``:
-    the largest run's, with :data:`SUMMED`, the outliers and the tiles (their count; their most
-    points the largest) over the runs and ``stats["classes"]`` added."""
+    the largest run's, with :data:`SUMMED`, the outliers and the tiles (their count and the
+    seconds of a file's passes summed; their most points the largest) over the runs and
+    ``stats["classes"]`` added."""
     largest = max(runs, key=lambda run: run[1])[2]
     tiles = largest.tiles
     if tiles is not None:
         # Every class's tiles, not the largest's alone.
         tiles = {**tiles, "count": sum(run[2].tiles["count"] for run in runs),
                  "most_points": max(run[2].tiles["most_points"] for run in runs)}
+        for when in ("before", "after"):  # a file's passes, each class's
+            if when in tiles:
+                tiles[when] = {stage: sum(run[2].tiles[when].get(stage, 0.0) for run in runs)
+                               for stage in tiles[when]}
     return dataclasses.replace(
         largest, **{name: sum(run[2][name] for run in runs) for name in SUMMED}, tiles=tiles,
         outliers=_outliers([run[2]["outliers"] for run in runs]),
         total_seconds=time.perf_counter() - started,
         classes={"classes": described, "denoised": int(sum(run[1] for run in runs)),
-                 "untouched": untouched, "too_small": [code for code, _ in small],
+                 "untouched": untouched, "too_small": [code for code, size in small if size],
                  "runs": {} if described == "all" else {code: found for code, _, found in runs}})
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from . import __version__, atomic
 from .parameters import BY_NAME, PARAMETERS
 from .plan import PRESETS
-from .progress import Names, TimeLeft, describe, label
+from .progress import Names, STAGE_WIDTH, TimeLeft, describe, label
 
 #: Per-method options of ``pssd denoise`` that take a value: option dest -> (methods that take
 #: it, help), as :mod:`pssd_fast.parameters` declares them.
@@ -160,7 +160,7 @@ def _parser():
                        "records and are no point's neighbours (by default the surface classes "
                        "2, 6, 9, 10, 11 and 17 present; a file of classes 0 and 1 only, never "
                        "classified or unclassified, as one cloud)")
-    den.add_argument("--tile-points", type=int, default=None, metavar="N",
+    den.add_argument("--tile-points", type=_tile_points, default=None, metavar="N",
                      help="run in tiles of at most N points on Dask (pip install "
                           "'pssd_fast[dask]'), with the same result; presets default and fast, "
                           "where they work on cell means; a classified input keeps its "
@@ -398,7 +398,7 @@ class _Progress:
         filled = int(30 * done)
         bar = "#" * filled + "." * (30 - filled)
         return (f"[{bar}] {label(iteration, iterations)} "
-                f"{self.names(iteration, stage):<10s}")
+                f"{self.names(iteration, stage):<{STAGE_WIDTH}s}")
 
     def close(self):
         if self.enabled:
@@ -423,6 +423,17 @@ def _scheduler(value):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _tile_points(value):
+    """``--tile-points``: an int of at least :data:`pssd_fast.tiled.runner.MIN_TILE_POINTS`."""
+    from .tiled.runner import check_tile_points
+
+    try:
+        return check_tile_points(int(value))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc) if value.strip().lstrip("+-").isdigit()
+                                         else f"an integer, not {value!r}") from None
+
+
 def _run_denoise(points, normals, args, method_params, **options):
     from .denoise import denoise
 
@@ -443,13 +454,18 @@ def _run_denoise(points, normals, args, method_params, **options):
 
 def _details(stats, say):
     """What ``--verbose`` adds: the sizes the run chose, its threads and each iteration's
-    stage times."""
+    stage times (from a file out of core, the passes over it before and after them too)."""
     threads = stats["n_jobs"]
     print(f"k = {stats['k']}{_chosen(stats)}; {threads} thread{'s' * (threads != 1)}",
           file=say)
-    for i, record in enumerate(stats["iterations"], 1):
-        times = ", ".join(f"{s} {t:.3f}" for s, t in record["times"].items())
-        print(f"iteration {i}: {times} (s)", file=say)
+    passes = stats.get("tiles") or {}
+    lines = [("the file before", passes.get("before"))]
+    lines += [(f"iteration {i}", record["times"]) for i, record in
+              enumerate(stats["iterations"], 1)]
+    for name, times in lines + [("the file after", passes.get("after"))]:
+        if times:
+            listed = ", ".join(f"{s} {t:.3f}" for s, t in times.items())
+            print(f"{name}: {listed} (s)", file=say)
     if stats["outliers"] is not None:
         print(f"outlier score: {stats['outliers']['seconds']:.3f} s", file=say)
 
@@ -682,19 +698,33 @@ def _denoise_on_disk(args, params, inp, out, say):
     finally:
         progress.close()
     if not args.quiet:
-        tiles = stats["tiles"]
         # With classes, n_points counts the points denoised.
         total = stats["n_points"] + stats.get("classes", {}).get("untouched", 0)
         moved = stats["displacement"]
-        rounded = " (before the format rounds the coordinates)" if las else ""
         print(f"{inp} -> {out}: {total:,} points, method {args.method}, "
               f"{_iterations(stats)}, {stats['total_seconds']:.2f} s; "
-              f"{tiles['count']} tile{'s' * (tiles['count'] != 1)} of at most "
-              f"{tiles['most_points']:,} points, out of core; displacement max "
-              f"{moved['max']:.4g}, mean {moved['mean']:.4g}{rounded}"
+              f"{_tiles(stats, 'out of core')}displacement max "
+              f"{moved['max']:.4g}, mean {moved['mean']:.4g}{_rounded(out, None)}"
               f"{_copies(stats)}{_classes_done(stats)}", file=say)
     if args.verbose:
         _details(stats, say)
+
+
+def _tiles(stats, where):
+    """What the summary line says of a tiled run's tiles (nothing for an untiled run)."""
+    tiles = stats.get("tiles")
+    if tiles is None:
+        return ""
+    return (f"{tiles['count']} tile{'s' * (tiles['count'] != 1)} of at most "
+            f"{tiles['most_points']:,} points, {where}; ")
+
+
+def _rounded(out, fmt):
+    """What the summary line adds to the displacement of a LAS or LAZ output (``fmt``: the
+    format of ``-``), in memory as out of core."""
+    ext = str(fmt if _is_stdio(out) else Path(out).suffix).lower().lstrip(".")
+    return " (before the format rounds the coordinates to its scale)" if ext in (
+        "las", "laz") else ""
 
 
 def _iterations(stats):
@@ -786,17 +816,14 @@ def _denoise_file(args, params, inp, out, say):
     io.write(out, cloud, points=points, normals=normals, fields=fields, overwrite=args.force,
              format=fmt if _is_stdio(out) else None)
     if not args.quiet:
-        # The moves the file holds: LAS rounds the coordinates to its scale.
-        written = io.stored(out, cloud, points, format=fmt if _is_stdio(out) else None)
-        disp = np.linalg.norm(written - cloud.points, axis=1)
-        rounded = np.abs(written - points).max(initial=0.0)
+        # The method's moves, as out of core reports them (LAS then rounds to its scale).
+        disp = np.linalg.norm(points - cloud.points, axis=1)
         removed = (f" ({result.stats['outliers']['removed']:,} outliers removed)"
                    if args.remove_outliers else "")
-        stored = f" (as stored: the format rounds coordinates by up to {rounded:.4g})" \
-            if rounded > 0.0 else ""
         print(f"{inp} -> {out}: {len(disp):,} points{removed}, method {args.method}, "
-              f"{_iterations(result.stats)}, {seconds:.2f} s; displacement max "
-              f"{disp.max():.4g}, mean {disp.mean():.4g}{stored}{_copies(result.stats)}"
+              f"{_iterations(result.stats)}, {seconds:.2f} s; {_tiles(result.stats, 'in memory')}"
+              f"displacement max {disp.max():.4g}, mean {disp.mean():.4g}"
+              f"{_rounded(out, fmt)}{_copies(result.stats)}"
               f"{_classes_done(result.stats)}", file=say)
     if args.verbose:
         _details(result.stats, say)

@@ -96,11 +96,14 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     classes : iterable of int, "each" or "all", optional
         Which classes to denoise, each on its own: these codes, or ``"each"`` (every class
         present); ``"all"``: every point as one cloud. ``stats["classes"]`` says what ran.
+        Codes that no point is of are warned of (:class:`DenoiseWarning`); ValueError where
+        none named is present.
     n_jobs : int or None, default None
         Threads; ``None`` or -1: every thread numba may use. The output does not depend on it.
     progress : bool or callable, optional
         ``True``: a line per stage on stderr; a callable gets ``(iteration, iterations,
-        stage, seconds)``.
+        stage, seconds)`` (iteration from 1; a stage run again within an iteration, as the
+        refinement's are, is reported again under its name).
     **method_params
         The method's own (docs/ALGORITHM.md, "Constants"); one its pipeline does not use
         raises ValueError. The paper's: ``h`` ("auto"), ``radius_factor`` (10), ``delta``,

@@ -5,6 +5,9 @@ import time
 #: The ``(iteration, iterations)`` a :class:`Clock` or a round of tasks is given for the passes
 #: over a file before the plan exists: reported as iteration 0 of 0.
 BEFORE = (-1, 0)
+#: The column of the stage names in ``progress=True``'s lines: the longest with its run
+#: number (``"refine_neighbors #2"``).
+STAGE_WIDTH = 19
 
 
 class Clock:
@@ -99,8 +102,9 @@ def reporter(progress):
 
         def show(iteration, iterations, stage, seconds):
             times = describe(*clock(iteration, iterations, seconds))
-            sys.stderr.write(f"pssd_fast: {label(iteration, iterations)} "
-                             f"{names(iteration, stage):<10s} {seconds:8.3f} s ({times})\n")
+            sys.stderr.write(f"pssd_fast: {label(iteration, iterations):<15s} "
+                             f"{names(iteration, stage):<{STAGE_WIDTH}s} {seconds:8.3f} s "
+                             f"({times})\n")
             sys.stderr.flush()
         return show
     if not callable(progress):

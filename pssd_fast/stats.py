@@ -116,7 +116,10 @@ class Stats(_Fields):
     iterations : tuple of Iteration
         One record per iteration.
     tiles : dict or None
-        A tiled run's tiles (their count, most points, halo); not in the mapping otherwise.
+        A tiled run's tiles: their ``count``, ``most_points``, the ``scheduler`` and
+        ``threads`` that ran them; from a file, the seconds of each pass over it ``before``
+        the iterations (binning it into buckets and tiles) and ``after`` them (the tiles'
+        parts and the write). Not in the mapping otherwise.
     total_seconds : float
         Wall seconds of the call.
     displacement : dict or None
@@ -156,9 +159,8 @@ class Stats(_Fields):
 
 
 def finished(stats, times, started):
-    """``stats`` with the stages ``times`` added to its last iteration's (a file's write, after
-    the run) and the call's ``total_seconds`` counted from ``started``."""
-    last = stats.iterations[-1]
-    last = dataclasses.replace(last, times={**last.times, **times})
-    return dataclasses.replace(stats, iterations=stats.iterations[:-1] + (last,),
-                               total_seconds=time.perf_counter() - started)
+    """``stats`` of a run from a file with the stages ``times`` added to its tiles' passes
+    after the iterations (the file's write) and the call's ``total_seconds`` counted from
+    ``started``."""
+    tiles = {**stats.tiles, "after": {**stats.tiles["after"], **times}}
+    return dataclasses.replace(stats, tiles=tiles, total_seconds=time.perf_counter() - started)

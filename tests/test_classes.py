@@ -137,10 +137,25 @@ def test_only_the_named_classes_move(labelled):
     np.testing.assert_array_equal(result.kept, np.arange(len(points)))
 
 
+def test_a_class_asked_for_that_no_point_is_of_is_named(labelled):
+    """A class named but absent is warned of (a pipeline over many files names them all) and
+    the others run as if it was not named; none present is an error."""
+    points, labels = labelled
+    with pytest.warns(pssd_fast.DenoiseWarning, match=r"^no point is of class 7 or 9$"):
+        result = pssd_fast.denoise(points, classification=labels, classes=[2, 7, 9])
+    alone = pssd_fast.denoise(points, classification=labels, classes=[2])
+    np.testing.assert_array_equal(result.points, alone.points)
+    assert result.stats["classes"]["classes"] == [2] and result.stats["classes"][
+        "too_small"] == []
+    with pytest.raises(ValueError, match="no point is of class 7, 9; the classes present"):
+        pssd_fast.denoise(points, classification=labels, classes=[7, 9])
+
+
 def test_classes_keep_given_normals_and_work_with_outlier_removal(labelled):
     points, labels = labelled
     normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
-    result = pssd_fast.denoise(points, normals, classification=labels, classes=(1, 2, 9))
+    with pytest.warns(pssd_fast.DenoiseWarning, match="no point is of class 9"):
+        result = pssd_fast.denoise(points, normals, classification=labels, classes=(1, 2, 9))
     one = labels == 1
     for rows in (one, ~one):  # every point chosen, each class on its own
         alone = pssd_fast.denoise(points[rows], normals[rows])
@@ -383,6 +398,16 @@ def test_a_classified_file_tiled_out_of_core_is_the_in_memory_file(tmp_path, sur
     assert (np.asarray(got["displacement"])[kept] == 0).all()
     assert (stats["classes"]["classes"], stats["classes"]["untouched"], stats["n_points"]) == (
         [2, 6], 1213, 3600)
+    with pytest.warns(pssd_fast.DenoiseWarning, match="^no point is of class 9$"):
+        again = tiled.denoise_file(source, tmp_path / "again.las", tile_points=1000,
+                                   client="sync", orient="up", fields=fields, classes=[2, 6, 9],
+                                   **QUICK)
+    assert laspy.read(str(tmp_path / "again.las")).points.array.tobytes() == \
+        want.points.array.tobytes()
+    assert again["classes"]["classes"] == [2, 6]
+    # The passes over the file, each class's summed.
+    assert {"buckets", "tiles"} <= set(again["tiles"]["before"]) and {"parts", "write"} <= set(
+        again["tiles"]["after"])
     with pytest.raises(ValueError, match="classes of survey.las are its classification field"):
         tiled.denoise_file(source, tmp_path / "no.las", classification=labels)
     # An .npy file, with copies of rows in several classes, and every class on its own.

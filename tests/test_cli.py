@@ -294,28 +294,31 @@ def test_render_names_a_las_file_s_units_on_the_colour_bar(tmp_path, monkeypatch
     assert seen[0]["units"] == "ft" and seen[0]["field"] == "height"
 
 
-def test_the_summary_reports_the_moves_the_file_holds(tmp_path):
-    """A LAS output rounds the coordinates to its scale: the summary's moves are those of the
-    file, and it says by how much the format rounds."""
+def test_the_summary_reports_the_method_s_moves_in_memory_as_out_of_core(tmp_path):
+    """The summary's moves are the method's, in memory as out of core: the same numbers; for
+    a LAS output it says that the format then rounds the coordinates to its scale."""
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = (0.01, 0.01, 0.01)
     las = laspy.LasData(header)
     cloud = datasets.cad_part(n_points=3000, noise=0.01, seed=2)
     las.x, las.y, las.z = (cloud.points * 10.0).T
     las.write(tmp_path / "in.las")
-    status, out, err = pssd("denoise", tmp_path / "in.las", tmp_path / "out.las")
+    status, out, err = pssd("denoise", tmp_path / "in.las", tmp_path / "out.npy")
     assert status == 0, err
-    before, after = laspy.read(tmp_path / "in.las"), laspy.read(tmp_path / "out.las")
-    moves = np.linalg.norm(np.column_stack([after.x - before.x, after.y - before.y,
-                                            after.z - before.z]), axis=1)
-    found = re.search(r"displacement max (\S+), mean (\S+) \(as stored: the format rounds "
-                      r"coordinates by up to (\S+)\)", out)
+    before = laspy.read(tmp_path / "in.las")
+    moves = np.linalg.norm(np.load(tmp_path / "out.npy") - before.xyz, axis=1)
+    summary = r"displacement max (\S+), mean (\S+)"
+    found = re.search(summary + "$", out.strip())
     assert found, out
     assert float(found[1]) == pytest.approx(moves.max(), rel=1e-3)
     assert float(found[2]) == pytest.approx(moves.mean(), rel=1e-3)
-    assert 0.0 < float(found[3]) <= 0.005 + 1e-9
-    status, out, err = pssd("denoise", tmp_path / "in.las", tmp_path / "out.ply")
-    assert status == 0 and "as stored" not in out
+    rounded = summary + r" \(before the format rounds the coordinates to its scale\)"
+    for extra in ([], ["--tile-points", "1000"]):
+        status, out, err = pssd("denoise", tmp_path / "in.las", tmp_path / "out.las", "--force",
+                                *extra)
+        assert status == 0, err
+        assert re.search(rounded, out)[0] == f"{found[0]} (before the format rounds the " \
+                                             f"coordinates to its scale)", out
 
 
 @pytest.mark.parametrize("classes", [None, "6"])
@@ -906,10 +909,11 @@ def test_verbose_tells_the_plan(tmp_path):
 
 def _assert_summary_then_details(text):
     """``--verbose``'s order, in core and out of core: the line of every run, then the plan,
-    then the stages of each iteration."""
+    then the stages of each iteration (out of core between the passes over the file)."""
     lines = text.splitlines()
     assert " -> " in lines[0] and lines[1].startswith("k = "), text
-    assert lines[2].startswith("iteration 1: "), text
+    first = 3 if "out of core" in lines[0] else 2
+    assert lines[first].startswith("iteration 1: "), text
 
 
 def test_tile_points_give_the_in_core_file(tmp_path):
@@ -918,9 +922,12 @@ def test_tile_points_give_the_in_core_file(tmp_path):
     path = tmp_path / "thick.xyz"
     np.savetxt(path, thick.points)
     assert pssd("denoise", path, tmp_path / "in_core.ply", "--preset", "fast")[0] == 0
-    status, _, err = pssd("denoise", path, tmp_path / "tiled.ply", "--preset", "fast",
-                          "--tile-points", "2000", "--scheduler", "sync")
+    status, out, err = pssd("denoise", path, tmp_path / "tiled.ply", "--preset", "fast",
+                            "--tile-points", "2000", "--scheduler", "sync")
     assert status == 0, err
+    tiles = re.search(r"; (\d+) tiles of at most ([\d,]+) points, in memory; displacement",
+                      out)
+    assert tiles and int(tiles[1]) >= 10 and int(tiles[2].replace(",", "")) <= 2000, out
     from pssd_fast import io
 
     in_core = io.read(tmp_path / "in_core.ply")
@@ -965,7 +972,10 @@ def test_duplicate_tolerance_reaches_tiled_runs(tmp_path):
     assert "out of core" in out
     assert f"({want.stats['duplicates']:,} rows at another row's position, denoised" in out
     assert f"k = {want.stats['k']} cell means within" in out
-    assert re.search(r"^iteration 1: neighbors [\d.]+, .*, write [\d.]+ \(s\)$", out, re.M), out
+    lines = out.splitlines()
+    assert re.fullmatch(r"the file before: buckets [\d.]+, tiles [\d.]+ \(s\)", lines[2]), out
+    assert re.fullmatch(r"iteration 1: neighbors [\d.]+, .*, update [\d.]+, .* \(s\)", lines[3])
+    assert re.fullmatch(r"the file after: parts [\d.]+, write [\d.]+ \(s\)", lines[4]), out
     _assert_summary_then_details(out)
     np.testing.assert_array_equal(np.load(tmp_path / "tiled.npy"), want.points)
 
@@ -1045,6 +1055,16 @@ def test_an_unknown_scheduler_is_named_as_the_option(tmp_path, small):
     assert status == 2 and ("argument --scheduler: 'bogus' is neither a local scheduler "
                             "(threads, processes, sync) nor a scheduler's address") in err
     assert not (tmp_path / "out.xyz").exists()
+
+
+@pytest.mark.parametrize("value, match", [
+    ("5", "tile_points must be at least 500; got 5 (a smaller tile is mostly the halo"),
+    ("5x", "an integer, not '5x'"),
+])
+def test_tile_points_are_checked_before_the_input_is_read(tmp_path, value, match):
+    status, _, err = pssd("denoise", tmp_path / "absent.xyz", tmp_path / "out.xyz",
+                          "--tile-points", value)
+    assert status == 2 and f"argument --tile-points: {match}" in err
 
 
 def test_the_survey_is_as_docs_cli_md_gives_it(tmp_path):

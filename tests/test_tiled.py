@@ -206,7 +206,9 @@ def test_progress_hears_of_every_tile(noisy):
 
 
 @pytest.mark.parametrize("kwargs, error, match", [
-    ({"tile_points": 0}, ValueError, "tile_points"),
+    ({"tile_points": 0}, ValueError, "tile_points must be at least 500; got 0"),
+    ({"tile_points": 499}, ValueError, "mostly the halo"),
+    ({"tile_points": 1e6}, TypeError, "tile_points must be an integer"),
     ({"client": 3}, TypeError, "client"),
     ({"client": "bogus"}, ValueError, "neither a local scheduler .* nor a scheduler's address"),
     ({"sigma_n": -1.0}, ValueError, "sigma_n must be positive"),
@@ -538,7 +540,7 @@ NEEDS_EVERY_POINT = "denoise_file runs the default method .* needs? them all"
 
 
 @pytest.mark.parametrize("kwargs, error, match", [
-    ({"tile_points": 0}, ValueError, "tile_points"),
+    ({"tile_points": 5}, ValueError, "tile_points must be at least 500; got 5"),
     ({"client": 3}, TypeError, "client"),
     ({"client": "bogus"}, ValueError, "neither a local scheduler .* nor a scheduler's address"),
     ({"iterations": 0}, ValueError, "iterations"),
