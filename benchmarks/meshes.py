@@ -286,12 +286,8 @@ def read_off(path):
 
 
 def read_feat(path):
-    """Read a ``.feat`` file of feature polylines (the format of ``fandisk.feat``).
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        As in :func:`read_obj`.
+    """Read the feature polylines of ``path``, a ``.feat`` file (the format of
+    ``fandisk.feat``; gzipped where its name ends in ``.gz``, as :func:`read_obj` reads).
 
     Returns
     -------

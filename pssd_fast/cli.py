@@ -199,20 +199,19 @@ def _parser():
     _add_columns(info)
     info.set_defaults(run=_info)
 
-    render = sub.add_parser(
-        "render", help="draw a point cloud as a picture",
-        description="Draw FILE coloured by a per-point field, fitted to the picture. "
-                    "classification (ASPRS colours, a legend naming the classes present), "
-                    "intensity (grey, 2nd to 98th percentile) and rgb (red, green, blue of 8 or "
-                    "16 bits) are FILE's own; displacement too (as pssd denoise --fields "
-                    "displacement writes it), in FILE's units (named where a LAS file's "
-                    "coordinate system says them), 0 to its 98th percentile. likelihood and "
-                    "feature are taken from FILE when it holds them (as pssd denoise --fields "
-                    "writes them), else computed by the same denoise run, so they equal what "
-                    "pssd denoise with the same options would store; curvature is the mean "
-                    "curvature of FILE's points (k=25 MLS fits) times the bounding-box diagonal; "
-                    "height is the coordinate along the up axis. Files without normals are "
-                    "shaded with estimated ones.")
+    render = sub.add_parser("render", help="draw a point cloud as a picture", description=(
+        "Draw FILE coloured by a per-point field, fitted to the picture. "
+        "classification (ASPRS colours, a legend naming the classes present), "
+        "intensity (grey, 2nd to 98th percentile) and rgb (red, green, blue of 8 or "
+        "16 bits) are FILE's own; displacement too (as pssd denoise --fields "
+        "displacement writes it), in FILE's units (named where a LAS file's "
+        "coordinate system says them), 0 to its 98th percentile. likelihood and "
+        "feature are taken from FILE when it holds them (as pssd denoise --fields "
+        "writes them), else computed by the same denoise run, so they equal what "
+        "pssd denoise with the same options would store; curvature is the mean "
+        "curvature of FILE's points (k=25 MLS fits) times the bounding-box diagonal; "
+        "height is the coordinate along the up axis. Files without normals are "
+        "shaded with estimated ones."))
     render.add_argument("file", metavar="FILE", type=Path)
     render.add_argument("-o", "--output", type=Path, required=True,
                         help="picture to write; the format follows the extension: "

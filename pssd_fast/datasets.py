@@ -230,10 +230,8 @@ def sphere(n_points=20000, noise=0.005, seed=0, radius=0.5):
 
     Parameters
     ----------
-    n_points, seed
-        As in :func:`plane`.
-    noise : float, optional
-        Noise std as a fraction of the bounding-box diagonal (``2 sqrt(3) radius``); may be 0.
+    n_points, noise, seed
+        As in :func:`plane`; the bounding-box diagonal is ``2 sqrt(3) radius``.
     radius : float, optional
         Sphere radius, > 0.
 
@@ -244,11 +242,8 @@ def sphere(n_points=20000, noise=0.005, seed=0, radius=0.5):
 
     Raises
     ------
-    TypeError
-        If an argument has the wrong type.
-    ValueError
-        If ``n_points < 1``, ``noise`` is negative or not finite, ``seed < 0``, or ``radius``
-        is not positive and finite.
+    TypeError, ValueError
+        As in :func:`plane`; ValueError also where ``radius`` is not positive and finite.
 
     Notes
     -----
@@ -272,11 +267,8 @@ def cylinder(n_points=40000, noise=0.005, seed=0, radius=0.3, height=0.8):
 
     Parameters
     ----------
-    n_points, seed
-        As in :func:`plane`.
-    noise : float, optional
-        Noise std as a fraction of the bounding-box diagonal
-        (``sqrt(8 radius^2 + height^2)``); may be 0.
+    n_points, noise, seed
+        As in :func:`plane`; the bounding-box diagonal is ``sqrt(8 radius^2 + height^2)``.
     radius : float, optional
         Radius, > 0.
     height : float, optional
@@ -290,11 +282,9 @@ def cylinder(n_points=40000, noise=0.005, seed=0, radius=0.3, height=0.8):
 
     Raises
     ------
-    TypeError
-        If an argument has the wrong type.
-    ValueError
-        If ``n_points < 1``, ``noise`` is negative or not finite, ``seed < 0``, or ``radius``
-        or ``height`` is not positive and finite.
+    TypeError, ValueError
+        As in :func:`plane`; ValueError also where ``radius`` or ``height`` is not positive
+        and finite.
 
     Notes
     -----
@@ -335,10 +325,8 @@ def cube(n_points=60000, noise=0.005, seed=0, side=1.0):
 
     Parameters
     ----------
-    n_points, seed
-        As in :func:`plane`.
-    noise : float, optional
-        Noise std as a fraction of the bounding-box diagonal (``sqrt(3) side``); may be 0.
+    n_points, noise, seed
+        As in :func:`plane`; the bounding-box diagonal is ``sqrt(3) side``.
     side : float, optional
         Edge length, > 0.
 
@@ -350,11 +338,8 @@ def cube(n_points=60000, noise=0.005, seed=0, side=1.0):
 
     Raises
     ------
-    TypeError
-        If an argument has the wrong type.
-    ValueError
-        If ``n_points < 1``, ``noise`` is negative or not finite, ``seed < 0``, or ``side`` is
-        not positive and finite.
+    TypeError, ValueError
+        As in :func:`plane`; ValueError also where ``side`` is not positive and finite.
 
     Notes
     -----

@@ -389,11 +389,11 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     >>> import numpy as np
     >>> from pssd_fast import io
     >>> folder = tempfile.TemporaryDirectory()
-    >>> scan = Path(folder.name, "scan.txt")
+    >>> scan, clean = Path(folder.name, "scan.txt"), Path(folder.name, "clean.txt")
     >>> _ = scan.write_text("// from the scanner\nx y z intensity\n"
     ...                     "0 0 0 7\n1 0 0.5 8\n0 1 0.25 9\n")
     >>> cloud = io.read(scan)
-    >>> out = io.write(Path(folder.name, "clean.txt"), cloud, points=cloud.points + [0, 0, 1],
+    >>> out = io.write(clean, cloud, points=cloud.points + [0, 0, 1],
     ...                fields={"likelihood": np.array([1.0, 0.5, 0.25])})
     >>> print(out.read_text(), end="")
     // from the scanner

@@ -22,20 +22,15 @@ def _symmetric_lists(indptr, indices, limit):
     start = np.cumsum(degree)
     fill = start[:-1].copy()
     adjacent = np.empty(start[n], indices.dtype)
-    for i in range(n):
-        stop = min(indptr[i + 1], indptr[i] + limit)
-        for t in range(indptr[i], stop):
-            j = indices[t]
-            if j != i:
-                adjacent[fill[i]] = j
-                fill[i] += 1
-    for i in range(n):
-        stop = min(indptr[i + 1], indptr[i] + limit)
-        for t in range(indptr[i], stop):
-            j = indices[t]
-            if j != i:
-                adjacent[fill[j]] = i
-                fill[j] += 1
+    for reverse in (False, True):  # every list's own entries first, then who lists it
+        for i in range(n):
+            stop = min(indptr[i + 1], indptr[i] + limit)
+            for t in range(indptr[i], stop):
+                j = indices[t]
+                if j != i:
+                    at, other = (j, i) if reverse else (i, j)
+                    adjacent[fill[at]] = other
+                    fill[at] += 1
     return start, adjacent
 
 
