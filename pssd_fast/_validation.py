@@ -14,6 +14,10 @@ MIN_K = 10
 STEP_OF_SPACING = 0.01
 #: Rows of the sample that estimates the mean spacing, and of its queries.
 SPACING_SAMPLE = (20_000, 1_000)
+#: The smallest extent and the largest absolute coordinate of a cloud the kernels compute in:
+#: squared distances overflow float64 beyond about 1e154 and vanish below about 1e-154, and
+#: the fits' moments go to higher powers of the offsets than the squares.
+COORDINATE_RANGE = (1e-100, 1e100)
 
 
 class DenoiseWarning(UserWarning):
@@ -44,6 +48,10 @@ def as_points(points, name="points"):
         except (TypeError, ValueError) as exc:
             raise TypeError(f"{name} must be an array-like of shape (n, 3); got "
                             f"{type(points).__name__} ({exc})") from None
+    if isinstance(arr, np.ma.MaskedArray) and np.ma.getmaskarray(arr).any():
+        raise TypeError(f"{name} is a masked array with {int(np.ma.getmaskarray(arr).sum())} "
+                        f"masked value(s), which denoising cannot leave out; pass the rows to "
+                        f"denoise, such as {name}.data[~{name}.mask.any(axis=1)]")
     if arr.dtype.kind == "O" and arr.ndim == 0:
         # An object numpy cannot read as numbers: say how to get its coordinates.
         raise TypeError(f"{name} must be an (n, 3) array of real numbers; got "
@@ -56,7 +64,8 @@ def as_points(points, name="points"):
     if arr.ndim != 2 or arr.shape[1] != 3:
         hint = ""
         if arr.ndim == 2 and arr.shape[0] == 3:
-            hint = "; if this is a (3, n) array of coordinates, pass its transpose .T"
+            hint = (f"; if this is a (3, n) array of "
+                    f"{'coordinates' if name == 'points' else name}, pass its transpose .T")
         raise ValueError(f"{name} must have shape (n, 3); got shape {arr.shape}{hint}")
     if arr.shape[0] == 0:
         raise ValueError(f"{name} is empty (shape {arr.shape}); pass at least k + 1 points")
@@ -67,9 +76,26 @@ def as_points(points, name="points"):
         first = int(np.flatnonzero(bad)[0])
         raise ValueError(f"{name} contains NaN or Inf in {int(bad.sum())} row(s); the first is "
                          f"row {first}: {arr[first].tolist()}; drop or repair those rows")
+    if name == "points":
+        check_range(arr.min(axis=0), arr.max(axis=0))
     if not arr.flags.writeable:
         arr = arr.copy()
     return arr, out_dtype
+
+
+def check_range(low, high):
+    """ValueError where a cloud's extent or coordinates (its bounding box's corners ``low``
+    and ``high``) lie outside :data:`COORDINATE_RANGE` (a cloud at one position is named
+    later, as too few points)."""
+    smallest, largest = COORDINATE_RANGE
+    reach = float(max(np.abs(low).max(), np.abs(high).max()))
+    extent = float((high - low).max())
+    if reach > largest or 0.0 < extent < smallest:
+        raise ValueError(
+            f"points reach {reach:.3g} and span {extent:.3g}: denoising computes with "
+            f"squared distances, which float64 holds for coordinates up to {largest:.0e} and "
+            f"extents from {smallest:.0e}; rescale the cloud (for example, subtract its "
+            f"centre and divide by its extent) and scale the result back")
 
 
 def check_precision(points, dtype, stacklevel=3):

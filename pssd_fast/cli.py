@@ -196,6 +196,8 @@ def _parser():
                                       "elements (faces...) and a LAS file's version, point "
                                       "format, scale and offset.")
     info.add_argument("file", metavar="FILE", type=Path)
+    info.add_argument("--format", default=None, metavar="FMT",
+                      help="format of '-' (stdin) as an extension: xyz, csv, ply, las...")
     _add_columns(info)
     info.set_defaults(run=_info)
 
@@ -556,9 +558,10 @@ def _added_fields(args, result, cloud, runs, out, say):
     computes.add("outlier_score")
     fmt = args.format if _is_stdio(out) else None
     names = _field_names(args)
+    normals_held = io.holds_normals(out, cloud, format=fmt)
     if names == "all":
         scalars = [n for n in RESULT_FIELDS if n != "normals" and n in computes]
-        names = [*io.storable(out, scalars, format=fmt), "normals"]
+        names = [*io.storable(out, scalars, format=fmt), *["normals"] * normals_held]
     else:
         unknown = [n for n in names if n not in RESULT_FIELDS]
         if unknown:
@@ -570,6 +573,7 @@ def _added_fields(args, result, cloud, runs, out, say):
                                f"{', '.join(missing)}")
         scalars = [n for n in names if n != "normals"]
         refused = sorted(set(scalars) - set(io.storable(out, scalars, format=fmt)))
+        refused += ["normals"] * ("normals" in names and not normals_held)
         if refused:
             raise CommandError(f"--fields: {out} cannot hold {', '.join(refused)} (use .npz, "
                                f".ply, .las or text)")
@@ -585,8 +589,10 @@ def _added_fields(args, result, cloud, runs, out, say):
 def _field_names(args):
     """The names ``--fields`` gives (none by default), or ``"all"``."""
     names = [] if args.fields is None else [n.strip() for n in args.fields.split(",")
-                                            if n.strip() and n.strip() != "none"]
-    return "all" if names == ["all"] else names
+                                            if n.strip()]
+    if len(names) > 1 and {"all", "none"} & set(names):
+        raise CommandError(f"--fields: all and none stand alone; got {args.fields!r}")
+    return "all" if names == ["all"] else [n for n in names if n != "none"]
 
 
 def _outlier_score(args, cloud, runs, say):
@@ -764,8 +770,6 @@ def _denoise(args):
         try:
             _denoise_file(args, params, inp, out, say)
         except (CommandError, OSError, ValueError, TypeError) as exc:
-            if len(jobs) == 1:
-                raise
             message = _one_line(exc)
             prefix = "" if str(inp) in message else f"{inp}: "
             print(f"pssd: error: {prefix}{message}", file=sys.stderr)
@@ -966,7 +970,7 @@ def _info(args):
 
     from . import io
 
-    cloud = _read(args.file, args)
+    cloud = _read(args.file, args, args.format if _is_stdio(args.file) else None)
     points = cloud.points
     low, high = points.min(axis=0), points.max(axis=0)
     diagonal = np.linalg.norm(high - low)
@@ -1004,7 +1008,7 @@ def _render(args):
     _check_output(args.output, args.force)
     draw.image_format(args.output)  # refuse an unknown format before the long work
     size = _size(args)
-    cloud = _read(args.file, args)
+    cloud = _read(args.file, args, args.format if _is_stdio(args.file) else None)
     points = cloud.points
     given = _given_normals(cloud, args.file)
     up = view.choose_up(points, cloud.format == "las") if args.up == "auto" else args.up

@@ -119,17 +119,20 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     Raises
     ------
     TypeError
-        Non-numeric points, non-integer ``k``, ``iterations`` or ``n_jobs``, unknown keywords.
+        Non-numeric points, a masked array with masked values, non-integer ``k``,
+        ``iterations`` or ``n_jobs``, unknown keywords.
     ValueError
-        Wrong shapes, NaN or Inf, fewer than 11 points or ``k + 1``, values out of range,
-        unused parameters, no surface class in ``classification`` by default.
+        Wrong shapes, NaN or Inf, coordinates beyond 1e100 or a cloud less than 1e-100 across
+        (squared distances would overflow or vanish: rescale it), fewer than 11 points or
+        ``k + 1``, values out of range, unused parameters, no surface class in
+        ``classification`` by default.
 
     Warns
     -----
     DenoiseWarning
         float32 ``points`` so far from the origin that their step exceeds 1% of the spacing
         (docs/DECISIONS.md, "float32 coordinates far from the origin"); default classes too
-        small to denoise.
+        small to denoise; class codes named that no point is of.
 
     Notes
     -----

@@ -22,9 +22,12 @@ caller's kind of cloud, with the denoised points and normals; with ``like=`` the
 other attribute of the input (colours, other fields). Open3D and trimesh are imported only
 inside the functions that make their objects; neither is a dependency of pssd_fast.
 """
+import importlib
 import sys
 
 import numpy as np
+
+__all__ = ["FIELDS", "as_arrays", "coordinates", "to_open3d", "to_structured", "to_trimesh"]
 
 #: Coordinate fields of a structured array, looked for in this order, and the normal fields
 #: that go with each (PDAL's ``NormalX``..., PLY's ``nx``...).
@@ -152,8 +155,7 @@ def to_open3d(result, *, tensor=False, like=None):
         Normals where the result has them; with ``classes``, NaN rows for the points of the
         other classes where none were given.
     """
-    import open3d as o3d
-
+    o3d = _imported("open3d")
     points, normals = _result_arrays(result)
     cloud = _open3d_copy(like, result, points.shape[0], tensor)
     if tensor:
@@ -186,8 +188,7 @@ def to_trimesh(result, *, like=None):
         (trimesh's ``PointCloud`` has no attribute for them; the name is the keyword its PLY
         reader uses), where the result has them.
     """
-    import trimesh
-
+    trimesh = _imported("trimesh")
     points, normals = _result_arrays(result)
     metadata, colors = {}, None
     if like is not None:
@@ -327,10 +328,20 @@ def _rows(result, n_like, n_result):
                      f"that was denoised")
 
 
+def _imported(name):
+    """The module ``name`` (open3d or trimesh), or ImportError saying how to install it."""
+    try:
+        return importlib.import_module(name)
+    except ImportError:
+        raise ImportError(f"this needs {name}, which is not installed: pip install {name} "
+                          f"(or the peers of the comparisons: pip install "
+                          f"'pssd_fast[compare]')") from None
+
+
 def _open3d_copy(like, result, n_result, tensor):
     """A copy of the Open3D cloud ``like`` (of the rows the result holds), of the API
     ``tensor`` asks for; a new empty cloud without ``like``."""
-    import open3d as o3d
+    o3d = _imported("open3d")
 
     api = o3d.t.geometry if tensor else o3d.geometry
     if like is None:

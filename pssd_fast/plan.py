@@ -142,7 +142,8 @@ def make(points, preset, pipeline, *, distinct, low, k=None, iterations=None,
     elif k is None and preset == "paper":
         k = setting["k"]  # the paper's, never cut to the cloud
         if distinct < k + 1:
-            raise ValueError(f"the cloud has {distinct} distinct positions; preset 'paper' "
+            raise ValueError(f"the cloud has {distinct} distinct "
+                             f"position{'s' * (distinct != 1)}; preset 'paper' "
                              f"uses k = {k} neighbours and needs at least {k + 1}; pass a "
                              "smaller k")
     elif k is None:

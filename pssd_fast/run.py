@@ -290,7 +290,8 @@ def check_distinct(distinct, n, k):
     """``distinct``, the positions among ``n`` points, checked against ``k`` (None: the
     preset chooses it)."""
     if distinct < n and distinct < (MIN_K if k is None else k) + 1:
-        raise ValueError(f"the cloud has {n} points but only {distinct} distinct positions; "
+        raise ValueError(f"the cloud has {n} points but only {distinct} distinct "
+                         f"position{'s' * (distinct != 1)}; "
                          f"denoising needs at least {(MIN_K if k is None else k) + 1}"
                          + ("" if k is None else f" for k = {k} (lower k)"))
     return distinct

@@ -721,6 +721,22 @@ def test_stdin_csv_to_stdout_ply_in_process(small, monkeypatch, capsys):
     assert [row.split(",")[6:9] for row in lines[1:3]] == [list(map(str, c)) for c in rgb[:2]]
 
 
+def test_an_error_on_one_input_names_it_as_in_a_batch(tmp_path, capsys):
+    np.savetxt(tmp_path / "five.xyz", np.random.default_rng(0).normal(size=(5, 3)))
+    status = cli.main(["denoise", str(tmp_path / "five.xyz"), str(tmp_path / "out.xyz")])
+    assert_one_line_error(status, capsys.readouterr().err,
+                          f"{tmp_path / 'five.xyz'}: the cloud has 5 points")
+
+
+def test_info_reads_stdin_with_a_format(small, monkeypatch, capsys):
+    lines, _ = csv_lines(small)
+    monkeypatch.setattr(sys, "stdin", Stdio("\n".join(lines).encode()))
+    status = cli.main(["info", "-", "--format", "csv"])
+    out, err = capsys.readouterr()
+    assert status == 0, err
+    assert out.startswith(f"-: xyz, {len(small):,} points\n") and "red (uint8)" in out
+
+
 def test_dash_needs_a_format(tmp_path, capsys):
     status = cli.main(["denoise", "-", str(tmp_path / "out.ply")])
     assert_one_line_error(status, capsys.readouterr().err, "'-' needs --format")
@@ -778,6 +794,8 @@ def test_fields_choose_what_is_added(tmp_path, small, capsys):
     ("out.ply", ["--fields", "likelihood", "--method", "mls"],
      "method 'mls' computes no likelihood"),
     ("out.npy", ["--fields", "likelihood"], "out.npy cannot hold likelihood"),
+    ("out.ply", ["--fields", "all,none"], "--fields: all and none stand alone; got 'all,none'"),
+    ("out.ply", ["--fields", "likelihood,all"], "all and none stand alone"),
 ])
 def test_fields_errors(tmp_path, small, capsys, name, extra, match):
     np.savetxt(tmp_path / "in.xyz", small)
@@ -785,6 +803,21 @@ def test_fields_errors(tmp_path, small, capsys, name, extra, match):
                        "--iterations", "1", "--quiet", *extra])
     assert_one_line_error(status, capsys.readouterr().err, match)
     assert not (tmp_path / name).exists()
+
+
+def test_normals_asked_of_an_npy_output_are_refused(tmp_path, capsys):
+    """An .npy output holds the points only (unless the input was an (n, 6) .npy): --fields
+    normals is refused as the fields it cannot hold are, and all leaves them out."""
+    path = tmp_path / "in.xyz"
+    np.savetxt(path, datasets.cad_part(n_points=600, noise=0.004, seed=1).points)
+    status = cli.main(["denoise", str(path), str(tmp_path / "out.npy"), "--fields", "normals",
+                       "--quiet"])
+    assert_one_line_error(status, capsys.readouterr().err,
+                          "out.npy cannot hold normals (use .npz")
+    assert not (tmp_path / "out.npy").exists()
+    assert cli.main(["denoise", str(path), str(tmp_path / "out.npy"), "--fields", "all",
+                     "--quiet"]) == 0
+    assert capsys.readouterr().err == "" and np.load(tmp_path / "out.npy").shape == (600, 3)
 
 
 def test_dropped_attributes_are_a_one_line_note(tmp_path, ply_with_extras, capsys):

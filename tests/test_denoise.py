@@ -457,13 +457,34 @@ def test_too_small_a_cloud_is_named(n, kwargs, match):
      "NaN or Inf in 1 row.*row 23"),
     (np.where(np.arange(150).reshape(50, 3) % 50 == 4, -np.inf, 1.0), ValueError,
      "NaN or Inf in 3 row.*row 1"),
+    # Squared distances of such clouds overflow or vanish: a crash or no move at all.
+    (np.random.default_rng(0).normal(size=(50, 3)) * 1e160, ValueError,
+     "coordinates up to 1e\\+100.*rescale the cloud"),
+    (np.random.default_rng(0).normal(size=(50, 3)) * 1e-160, ValueError,
+     "span .*e-160.*extents from 1e-100"),
+    (np.ma.masked_greater(np.arange(150.0).reshape(50, 3), 140.0), TypeError,
+     "masked array with 9 masked value"),
 ])
 def test_bad_points_are_named(points, error, match):
     with pytest.raises(error, match=match):
         pssd_fast.denoise(points)
 
 
+def test_clouds_far_inside_the_range_are_denoised_alike():
+    """A cloud scaled by 1e90 or 1e-90 moves by the same fraction of its size."""
+    points = datasets.cad_part(n_points=2000, noise=0.003, seed=4).points
+    moved = [pssd_fast.denoise(points * scale, preset="fast").displacement / scale
+             for scale in (1.0, 1e90, 1e-90)]
+    np.testing.assert_allclose(moved[1], moved[0], rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(moved[2], moved[0], rtol=1e-6, atol=1e-12)
+    unmasked = np.ma.masked_array(points)  # nothing masked: an array like any other
+    np.testing.assert_array_equal(pssd_fast.denoise(unmasked, preset="fast").points,
+                                  pssd_fast.denoise(points, preset="fast").points)
+
+
 def test_bad_normals_are_named(noisy):
+    with pytest.raises(ValueError, match=r"\(3, n\) array of normals"):
+        pssd_fast.denoise(noisy, np.ascontiguousarray(noisy.T))
     with pytest.raises(ValueError, match="one row per point"):
         pssd_fast.denoise(noisy, noisy[:10])
     zero = np.ones_like(noisy)

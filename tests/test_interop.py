@@ -1,6 +1,7 @@
 """The clouds of other libraries in and out (``pssd_fast.interop``): the real Open3D and trimesh
 where they are installed, structured arrays always."""
 import ast
+import sys
 
 import numpy as np
 import pytest
@@ -188,7 +189,16 @@ def test_the_module_imports_open3d_and_trimesh_only_inside_its_functions():
            for alias in node.names}
     top |= {node.module.split(".")[0] for node in tree.body
             if isinstance(node, ast.ImportFrom) and node.module}
-    assert top == {"numpy", "sys"}
+    assert top == {"importlib", "numpy", "sys"}
+
+
+@pytest.mark.parametrize("convert, name", [(interop.to_open3d, "open3d"),
+                                           (interop.to_trimesh, "trimesh")])
+def test_a_missing_library_is_named_with_how_to_install_it(part, monkeypatch, convert, name):
+    monkeypatch.setitem(sys.modules, name, None)  # as if not installed: its import fails
+    with pytest.raises(ImportError, match=f"needs {name}, which is not installed: pip install "
+                                          f"{name} "):
+        convert(part)
 
 
 def test_results_as_plain_arrays_and_bad_results_are_named(part):

@@ -369,7 +369,8 @@ def test_text_round_trip(tmp_path, ext, ncols):
             np.testing.assert_array_equal(cloud.fields[name], data[:, i])
     pio.write(tmp_path / f"b{ext}", cloud)
     text = (tmp_path / f"b{ext}").read_text()
-    assert text.startswith("# from a scanner\n# second comment line\n")
+    count = f"{N}\n" if ext == ".pts" else ""  # a PTS file's first line
+    assert text.startswith(count + "# from a scanner\n# second comment line\n")
     back = pio.read(tmp_path / f"b{ext}")
     np.testing.assert_array_equal(back.points, cloud.points)
     if ncols == 6:
@@ -389,9 +390,9 @@ def test_text_output_names_its_columns_and_reads_them_back(tmp_path):
                        (".pts", "x y z red green blue nx ny nz quality likelihood")):
         pio.write(tmp_path / f"b{ext}", cloud, fields={"likelihood": likelihood})
         lines = (tmp_path / f"b{ext}").read_text().splitlines()
+        if ext == ".pts":  # the point count first, as Leica-layout readers take it
+            assert lines.pop(0) == str(N)
         assert lines[0] == "# " + names
-        if ext == ".pts":
-            assert lines.pop(1) == str(N)
         assert len(lines) == N + 1 and len(lines[1].split()) == 11
         back = pio.read(tmp_path / f"b{ext}")
         np.testing.assert_array_equal(back.points, cloud.points)
@@ -436,6 +437,21 @@ def test_npy_round_trip_keeps_dtype(tmp_path, ncols, dtype):
     back = np.load(tmp_path / "b.npy")
     assert back.dtype == dtype
     np.testing.assert_array_equal(back, arr)
+
+
+def test_npy_output_warns_that_normals_are_dropped_unless_it_had_them(tmp_path):
+    points, normals = np.zeros((4, 3)), np.tile([0.0, 0.0, 1.0], (4, 1))
+    with pytest.warns(pio.PointCloudWarning, match=r"\.npy cannot hold normals;"):
+        pio.write(tmp_path / "b.npy", pio.PointCloud(points, normals))
+    assert np.load(tmp_path / "b.npy").shape == (4, 3)
+    assert not pio.holds_normals(tmp_path / "b.npy", pio.PointCloud(points, normals))
+    np.save(tmp_path / "six.npy", np.hstack([points, normals]))
+    six = pio.read(tmp_path / "six.npy")
+    assert pio.holds_normals(tmp_path / "c.npy", six) and pio.holds_normals("c.ply", six)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pio.write(tmp_path / "c.npy", six)
+    assert np.load(tmp_path / "c.npy").shape == (4, 6)
 
 
 def test_npy_output_warns_that_fields_are_dropped(tmp_path):

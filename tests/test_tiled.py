@@ -500,6 +500,8 @@ def test_a_read_only_output_folder_is_refused_before_the_work(tmp_path, monkeypa
     ("in.npy", np.array([[0.0, 0.0, np.nan]] * 50), ValueError, "row 0"),
     ("in.npy", np.zeros((50, 3), np.complex128), TypeError, "real numbers"),
     ("in.npy", np.zeros((50, 2)), ValueError, r"shape \(n, 3\)"),
+    ("in.npy", np.random.default_rng(0).normal(size=(50, 3)) * 1e160, ValueError,
+     "rescale the cloud"),
 ])
 def test_bad_files_are_named(tmp_path, name, write, error, match):
     source = tmp_path / name

@@ -62,8 +62,8 @@ for _cls in (PointCloud, PointCloudFileError, PointCloudFileNotFoundError, Point
 del _cls
 
 __all__ = ["STDIO", "PointCloud", "PointCloudFileError", "PointCloudFileNotFoundError",
-           "PointCloudWarning", "describe", "formats", "read", "select", "storable", "stored",
-           "write"]
+           "PointCloudWarning", "describe", "formats", "holds_normals", "read", "select",
+           "storable", "stored", "write"]
 
 #: The path that means standard input (:func:`read`) or standard output (:func:`write`).
 STDIO = "-"
@@ -98,6 +98,15 @@ def formats():
     """
     gz = [ext + ".gz" for ext, kind in _FORMATS.items() if kind in _GZIP_KINDS]
     return tuple(sorted([*_FORMATS, *gz]))
+
+
+def holds_normals(path, cloud, *, format=None):
+    """Whether :func:`write` stores normals in ``path`` (``format`` as it takes it): every
+    format does but ``.npy``, which holds them only where ``cloud`` came from an (n, 6)
+    ``.npy`` (columns 4-6)."""
+    if _target(path, format, "<stdout>").ext != ".npy":
+        return True
+    return cloud.format == "npy" and getattr(cloud.source, "columns", 3) == 6
 
 
 def storable(path, names, *, format=None):
@@ -368,7 +377,8 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     Warns
     -----
     PointCloudWarning
-        When ``.npy`` or ``.obj`` output cannot hold some of the fields (they are not written).
+        When ``.npy`` or ``.obj`` output cannot hold some of the fields, or ``.npy`` output
+        the normals (:func:`holds_normals`; they are not written).
 
     Notes
     -----
@@ -443,8 +453,11 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     source = cloud.source if cloud.format == kind else None
     kept = storable(name, merged, format=target.ext)
     dropped = [f for f in merged if f not in kept]
-    if dropped:
-        warnings.warn(f"{name}: {target.ext} cannot hold fields {dropped}; they are not "
+    lost = (["normals"] if nrm is not None and not holds_normals(name, cloud,
+                                                                 format=target.ext) else []) + (
+        [f"fields {dropped}"] if dropped else [])
+    if lost:
+        warnings.warn(f"{name}: {target.ext} cannot hold {' or '.join(lost)}; they are not "
                       f"written (use .npz, .ply, .las or text to keep them)", PointCloudWarning,
                       stacklevel=2)
     payload = _MODULES[kind].payload(name, target.ext, pts, nrm, merged, source)

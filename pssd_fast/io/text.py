@@ -312,9 +312,10 @@ def payload(path, ext, points, normals, fields, source):
         The output's name, for messages.
     ext : str
         ``".csv"``: comma-separated with a bare ``x,y,z,...`` name line. ``".pts"``: the point
-        count line, then ``x y z`` followed by ``intensity red green blue`` (those the cloud
-        has), then the other columns; a ``# x y z ...`` name line only when the names differ
-        from what a reader infers by default. Others: space-separated after ``# x y z ...``.
+        count line first (before the source's comments), then ``x y z`` followed by
+        ``intensity red green blue`` (those the cloud has), then the other columns; a
+        ``# x y z ...`` name line only when the names differ from what a reader infers by
+        default. Others: space-separated after ``# x y z ...``.
     points : (n, 3) numpy.ndarray
         Coordinates, the first three columns.
     normals : (n, 3) numpy.ndarray or None
@@ -340,13 +341,13 @@ def payload(path, ext, points, normals, fields, source):
         columns.update((c, normals[:, i]) for i, c in enumerate(NORMALS))
     columns.update(named)
     names = list(columns)
-    head = list(source.comments) if source is not None else []
+    # A PTS file's first line is its point count, which Leica-layout readers take it for.
+    head = [str(len(points))] if pts else []
+    head += list(source.comments) if source is not None else []
     if ext == ".csv":
         head.append(",".join(names))
     elif not pts or names != _default_names(len(names), ext):
         head.append("# " + " ".join(names))
-    if pts:
-        head.append(str(len(points)))
 
     def write(fh):
         fh.write("".join(line + "\n" for line in head).encode("utf-8", "surrogateescape"))

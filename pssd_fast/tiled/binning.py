@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import core, duplicates, regions
-from .._validation import check_size
+from .._validation import check_range, check_size
 from ..progress import BEFORE
 from ..graph import MORTON_BITS, bounds, cell_keys, cell_order
 from . import ondisk
@@ -74,6 +74,7 @@ class Buckets:
         self.rows = n
         low = np.min([scan[1] for scan in found], axis=0)
         high = np.max([scan[2] for scan in found], axis=0)
+        check_range(low, high)
         self.centre = 0.5 * (low + high)
         # The grid of the default method's cells starts at the low corner of every row, as in
         # core.
