@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, atomic
+from ._validation import check_precision
 from .parameters import BY_NAME, PARAMETERS
 from .plan import PRESETS
 from .progress import Names, STAGE_WIDTH, TimeLeft, describe, label
@@ -785,6 +786,9 @@ def _denoise_file(args, params, inp, out, say):
         return
     fmt = args.format
     cloud = _read(inp, args, fmt if _is_stdio(inp) else None)
+    if cloud.source is not None:
+        # The file's float32 coordinates, read as float64, warn as float32 arrays do.
+        check_precision(cloud.points, cloud.source.coordinates_dtype())
     labels, runs = _labels(args, cloud, inp)
     chosen = None
     if runs is not None:

@@ -728,6 +728,18 @@ def test_an_error_on_one_input_names_it_as_in_a_batch(tmp_path, capsys):
                           f"{tmp_path / 'five.xyz'}: the cloud has 5 points")
 
 
+def test_a_float32_file_far_from_the_origin_gets_the_api_s_note(tmp_path, capsys):
+    """The file's float32 coordinates, read as float64, warn as a float32 array does."""
+    points = datasets.cad_part(n_points=3000, noise=0.003, seed=1).points * 100
+    np.save(tmp_path / "far.npy", (points + [4.5e5, 4e6, 100.0]).astype(np.float32))
+    np.save(tmp_path / "near.npy", points.astype(np.float32))
+    for name, noted in (("far.npy", True), ("near.npy", False)):
+        assert cli.main(["denoise", str(tmp_path / name), str(tmp_path / "out.npy"), "--quiet",
+                         "--force"]) == 0
+        err = capsys.readouterr().err
+        assert ("pssd: note: points are float32 and reach 4000" in err) == noted, err
+
+
 def test_info_reads_stdin_with_a_format(small, monkeypatch, capsys):
     lines, _ = csv_lines(small)
     monkeypatch.setattr(sys, "stdin", Stdio("\n".join(lines).encode()))

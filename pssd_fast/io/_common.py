@@ -90,6 +90,11 @@ class Source:
         it; the others keep nothing per point)."""
         return self
 
+    def coordinates_dtype(self):
+        """The dtype of the coordinates as the file holds them (float64 where they are text,
+        scaled integers or doubles)."""
+        return np.dtype(np.float64)
+
 
 # ---------------------------------------------------------------------------------------------
 # Argument checks

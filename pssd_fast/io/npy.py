@@ -21,6 +21,9 @@ class _ArraySource(Source):
     compressed: bool = False  # npz: zip-deflated members
     extras: dict = field(default_factory=dict)  # npz: arrays that are not per-point fields
 
+    def coordinates_dtype(self):
+        return np.dtype(np.float32) if self.dtype == np.float32 else np.dtype(np.float64)
+
 
 def npy_header(path, fh, size, what):
     """Shape, Fortran order and dtype from an .npy header, checked against the ``size`` bytes

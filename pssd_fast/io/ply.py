@@ -50,6 +50,11 @@ class _PlySource(Source):
                          comments=base.comments, obj_info=base.obj_info)
         return _PlySource(self.path, ply)
 
+    def coordinates_dtype(self):
+        vertex = self.ply["vertex"].data
+        float32 = "x" in vertex.dtype.names and vertex.dtype["x"] == np.float32
+        return np.dtype(np.float32 if float32 else np.float64)
+
 
 @dataclass(frozen=True)
 class _PlyLayout:
