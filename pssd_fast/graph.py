@@ -208,6 +208,11 @@ _NO_IDS = np.empty(0, np.int64)
 #: From this list length on, lists come from the grid query (:mod:`pssd_fast.kernels.knn`)
 #: instead of pykdtree, whose cost grows about as ``k^2`` (docs/DECISIONS.md, "Long lists").
 GRID_K = 128
+#: From this query length on (``k + 1``), bounded lists of the data's own points
+#: (:func:`nearest_within`) come from the grid query: the same bits as from pykdtree, whose
+#: ties :func:`pssd_fast.kernels.graph.keep_nearest` orders, and faster from about 40
+#: (docs/DECISIONS.md, "Long lists").
+BOUNDED_GRID_K = 48
 #: The sample points whose lists set the grid's cell in a bounded query (:func:`_grid_cell`):
 #: its cost, not its lists, depends on them.
 GRID_LOOKED = 1000
@@ -276,7 +281,7 @@ def _nearest_blocks(data, queries, k, bound, ids, count=None):
     q = min(k + 1, n)
     # Long lists of the data's own points come from the grid query (pykdtree's cost grows as
     # k^2); it finds the same points at the same distances.
-    grid = queries is data and q >= GRID_K
+    grid = queries is data and q >= BOUNDED_GRID_K
     query = _grid_query(data, q, GRID_LOOKED) if grid else None
     tree = None if grid else kdtree(data)
     ids = _NO_IDS if ids is None else np.ascontiguousarray(ids, np.int64)
@@ -289,7 +294,7 @@ def _nearest_blocks(data, queries, k, bound, ids, count=None):
             found = np.empty((stop - start, q), np.int32 if n < 2**31 else np.int64)
             dists = query(start, stop, found)
             found = found.astype(np.int64)
-            beyond = ~(dists < bound)  # as pykdtree's bound: strictly within
+            beyond = _beyond(data, start, found, dists, bound)
             dists[beyond] = np.inf
             found[beyond] = n
         else:
@@ -305,6 +310,20 @@ def _nearest_blocks(data, queries, k, bound, ids, count=None):
         lengths = np.empty(stop - start, np.int64)
         keep_nearest(dists, found, n, ids, rows, distances, lengths)
         yield start, stop, rows, distances, lengths
+
+
+def _beyond(data, start, found, dists, bound):
+    """Which entries of the grid query's rows ``start...`` (``found``, at ``dists``) lie
+    beyond ``bound`` as pykdtree's bound has them: not strictly within on squared distances
+    (``d^2 < bound^2``, the square summed as every kernel sums it). The distances' roots
+    decide, but within a few units in the last place of the bound, where the squares do."""
+    beyond = ~(dists < bound)
+    edge = np.nonzero(np.abs(dists - bound) <= 4.0 * np.spacing(bound))
+    if edge[0].size:
+        d = data[found[edge]] - data[start + edge[0]]
+        squared = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+        beyond[edge] = ~(squared < bound * bound)
+    return beyond
 
 
 def bounded_graph(points, k, bound, rows=None, ids=None, first=None):

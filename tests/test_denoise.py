@@ -639,7 +639,7 @@ def test_scaling_the_cloud_scales_the_result(noisy):
 def test_one_position_repeated_is_refused():
     """60 copies of one point are one point (docs/DECISIONS.md, "Duplicates"): too few."""
     for method in pssd_fast.METHODS:
-        with pytest.raises(ValueError, match="60 points but only 1 distinct positions"):
+        with pytest.raises(ValueError, match="60 points but only 1 distinct position;"):
             pssd_fast.denoise(np.tile([1.0, 2.0, 3.0], (60, 1)), method=method, k=15)
 
 

@@ -8,6 +8,7 @@ import pssd_fast
 from pssd_fast import graph as graph_module
 from pssd_fast.graph import bounded_graph, check_graph, knn_graph, morton_order, nearest_within
 from pssd_fast.kernels.graph import keep_nearest
+from pssd_fast.kernels.knn import kth_smallest, select
 from pssd_fast.kernels.order import gather_rows, scatter_rows
 
 from . import reference
@@ -217,11 +218,12 @@ def _check_bounded(found, want, n):
 def test_nearest_within_matches_brute_force(name):
     """The points nearer than the k + 1-th (none of a tie at the cut) and within the bound,
     by distance then index: from the tree (queries apart from the data) and, for lists of
-    GRID_K or more, from the grid query (the data's own points)."""
+    BOUNDED_GRID_K or more, from the grid query (the data's own points)."""
     points = BOUNDED[name]()
     n = len(points)
     spread = float(np.ptp(points, axis=0).max())
-    for k in sorted({min(4, n - 1), min(12, n - 1), min(graph_module.GRID_K, n - 1), n - 1}):
+    for k in sorted({min(4, n - 1), min(12, n - 1), min(graph_module.BOUNDED_GRID_K, n - 1),
+                     n - 1}):
         for bound in (np.inf, 0.2113 * spread):
             want = reference.nearest_within(points, points, k, bound)
             _check_bounded(nearest_within(points, points, k, bound), want, n)
@@ -252,12 +254,81 @@ def test_nearest_within_drops_a_point_at_the_bound_itself_from_either_query():
     _check_bounded(nearest_within(points, points.copy(), 130, 1.0), want, len(points))
 
 
-@pytest.mark.parametrize("k", [20, graph_module.GRID_K + 10])
+#: Squared distances for the grid query's selection: random, tied, ordered, and single.
+SELECTED = {
+    "random": np.random.default_rng(5).random(300),
+    "ties": np.random.default_rng(6).integers(0, 4, 300).astype(np.float64),
+    "equal": np.full(50, 2.5),
+    "increasing": np.arange(100.0),
+    "decreasing": np.arange(100.0)[::-1].copy(),
+    "zeros and one": np.array([0.0] * 30 + [1.0]),
+    "one": np.array([7.0]),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SELECTED))
+def test_the_selection_of_the_kth_distance_is_numpy_s(name):
+    """``select`` (in place) and ``kth_smallest`` (among the values at most a little over a
+    guess, else all) give the j-th smallest value as a full sort does, whatever the guess."""
+    values = SELECTED[name]
+    m = values.shape[0]
+    ordered = np.sort(values)
+    for j in sorted({0, m // 3, m // 2, m - 1}):
+        scratch = values.copy()
+        assert select(scratch, m, j) == ordered[j]
+        assert sorted(scratch) == list(ordered)  # reordered, nothing lost
+        for guess in (0.0, ordered[j], np.nextafter(ordered[j], 0), ordered[0], ordered[-1],
+                      np.inf):
+            assert kth_smallest(values, m, j + 1, guess, np.empty(m)) == ordered[j], guess
+
+
+def _both_queries(monkeypatch, points, k, bound):
+    """``nearest_within(points, points, k, bound)`` from the tree and from the grid."""
+    found = []
+    for first in (10**9, 2):
+        monkeypatch.setattr(graph_module, "BOUNDED_GRID_K", first)
+        found.append(nearest_within(points, points, k, bound))
+    return found
+
+
+def test_the_grid_and_the_tree_give_the_same_bounded_lists_to_the_bit(monkeypatch):
+    """Where the grid query serves the bounded lists, they are the tree's, bit for bit: on a
+    quantised cloud full of ties, at a bound equal to one of its distances and a unit in the
+    last place either side; and where a squared distance is below the square of the bound
+    while its root rounds to the bound (pykdtree's bound is on the squares)."""
+    k = graph_module.BOUNDED_GRID_K  # the grid's shortest lists (the patches below move it)
+    rng = np.random.default_rng(4)
+    points = np.unique(np.round(rng.normal(size=(3000, 3)) * [1.0, 1.0, 0.05], 2), axis=0)
+    at = float(np.linalg.norm(points[0] - KDTree(points).query(points[:1], k=60)[1][0, 40]))
+    for bound in (at, np.nextafter(at, 0), np.nextafter(at, 1)):
+        tree, grid = _both_queries(monkeypatch, points, k, bound)
+        for a, b in zip(grid, tree):
+            np.testing.assert_array_equal(a, b, err_msg=repr(bound))
+    # A point at (u, v, 0) from the origin, its distance's root the bound, its square below
+    # the bound's: the tree keeps it.
+    for u in rng.uniform(0.5, 0.8, 100):
+        v = 0.9
+        squared = u * u + v * v
+        bound = float(np.sqrt(squared))
+        if squared < bound * bound:
+            break
+    else:
+        raise AssertionError("no such point found")
+    near = rng.uniform(-0.1, 0.1, (20, 3))
+    far = rng.uniform(3.0, 4.0, (200, 3))
+    points = np.vstack([[0.0, 0.0, 0.0], [u, v, 0.0], near, far])
+    tree, grid = _both_queries(monkeypatch, points, k, bound)
+    assert 1 in tree[0][0, :tree[2][0]]
+    for a, b in zip(grid, tree):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("k", [20, graph_module.BOUNDED_GRID_K + 10])
 def test_a_bounded_list_depends_only_on_the_points_within_its_bound(k):
     """What tiles rely on: the lists of a block of points computed on any subset holding every
     point within the bound of them (a tile and its halo) are their lists on the whole cloud,
-    bit for bit (the whole cloud's own lists of GRID_K or more come from the grid query, a
-    subset's from the tree)."""
+    bit for bit (the whole cloud's own lists of BOUNDED_GRID_K or more come from the grid
+    query, a subset's from the tree)."""
     rng = np.random.default_rng(21)
     # Dense near x = 0, sparse near x = 1: some lists end at the k + 1-th, others at the bound.
     xy = rng.uniform(0, 1, (4000, 2)) ** [3.0, 1.0]

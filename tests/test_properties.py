@@ -40,7 +40,7 @@ def test_denoise_is_total_and_pure(case):
     copy = points.copy()
     distinct = duplicates.ordered(points.astype(np.float64))[0].shape[0]
     if distinct < k + 1:  # duplicates are one point: too few are left
-        with pytest.raises(ValueError, match="distinct positions"):
+        with pytest.raises(ValueError, match="distinct position"):
             pssd_fast.denoise(points, method=method, k=k)
         return
     result = pssd_fast.denoise(points, method=method, k=k)
