@@ -292,11 +292,8 @@ def _nearest_blocks(data, queries, k, bound, ids, count=None):
             # Rows of the index width of knn_graph's, so that one signature of the grid query
             # serves both (a compile saved in a process that takes both).
             found = np.empty((stop - start, q), np.int32 if n < 2**31 else np.int64)
-            dists = query(start, stop, found)
+            dists = query(start, stop, found, bound * bound, n)
             found = found.astype(np.int64)
-            beyond = _beyond(data, start, found, dists, bound)
-            dists[beyond] = np.inf
-            found[beyond] = n
         else:
             dists, found = tree.query(queries[start:stop], k=q, distance_upper_bound=bound)
             dists = np.asarray(dists, np.float64).reshape(-1, q)
@@ -310,20 +307,6 @@ def _nearest_blocks(data, queries, k, bound, ids, count=None):
         lengths = np.empty(stop - start, np.int64)
         keep_nearest(dists, found, n, ids, rows, distances, lengths)
         yield start, stop, rows, distances, lengths
-
-
-def _beyond(data, start, found, dists, bound):
-    """Which entries of the grid query's rows ``start...`` (``found``, at ``dists``) lie
-    beyond ``bound`` as pykdtree's bound has them: not strictly within on squared distances
-    (``d^2 < bound^2``, the square summed as every kernel sums it). The distances' roots
-    decide, but within a few units in the last place of the bound, where the squares do."""
-    beyond = ~(dists < bound)
-    edge = np.nonzero(np.abs(dists - bound) <= 4.0 * np.spacing(bound))
-    if edge[0].size:
-        d = data[found[edge]] - data[start + edge[0]]
-        squared = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
-        beyond[edge] = ~(squared < bound * bound)
-    return beyond
 
 
 def bounded_graph(points, k, bound, rows=None, ids=None, first=None):
@@ -400,10 +383,10 @@ def _grid_query(points, k, looked=None):
     cell_start = np.concatenate(([0], first, [n])).astype(np.int64)
     cell_points = points[members]
 
-    def query(start, stop, rows):
+    def query(start, stop, rows, bound2=np.inf, missing=0):
         chunk_dists = np.empty(rows.shape)
         grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, members, k, start,
-                 rows, chunk_dists)
+                 bound2, missing, rows, chunk_dists)
         return chunk_dists
 
     return query

@@ -28,10 +28,12 @@ def _column_range(cell_keys, key_lo, key_hi):
 
 
 @helper
-def _take_nearest(cand, dist2, count, kth, idx, dist, chosen, chosen_d2):
+def _take_nearest(cand, dist2, count, kth, bound2, missing, idx, dist, chosen, chosen_d2):
     """The ``k = len(idx)`` nearest of the ``count`` candidates ``cand`` (squared distances
-    ``dist2``, ``kth`` the k-th smallest) into ``idx`` and ``dist``, nearest first:
-    ``chosen`` and ``chosen_d2`` are scratch of length ``k``."""
+    ``dist2``, ``kth`` the k-th smallest) into ``idx`` and ``dist``, nearest first, those not
+    strictly within the squared bound ``bound2`` as ``missing`` at infinity (pykdtree's
+    ``distance_upper_bound``, on the squares): ``chosen`` and ``chosen_d2`` are scratch of
+    length ``k``."""
     k = idx.shape[0]
     # The k winners in gathering order: all below the k-th distance, then its ties.
     taken = 0
@@ -52,8 +54,10 @@ def _take_nearest(cand, dist2, count, kth, idx, dist, chosen, chosen_d2):
     chosen[:] = idx
     chosen_d2[:] = dist
     for t in range(k):
-        idx[t] = chosen[order[t]]
-        dist[t] = np.sqrt(chosen_d2[order[t]])
+        d2 = chosen_d2[order[t]]
+        within = d2 < bound2
+        idx[t] = chosen[order[t]] if within else missing
+        dist[t] = np.sqrt(d2) if within else np.inf
 
 
 @helper
@@ -103,7 +107,7 @@ def select(values, m, j):
 
 @parallel_kernel
 def grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, members, k, start,
-             out_idx, out_dist):
+             bound2, missing, out_idx, out_dist):
     """The ``k`` nearest points of rows ``start .. start + len(out_idx)``, sorted by distance.
 
     Parameters
@@ -127,6 +131,11 @@ def grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, member
         List length, at most ``n``.
     start : int
         Row of ``points`` whose list goes to ``out_idx[0]``.
+    bound2 : float
+        The square of the bound: entries not strictly within it are ``missing`` at infinity
+        (``inf``: none).
+    missing : int
+        The index of an entry beyond the bound.
     out_idx : (rows, k) int32 or int64
         Output neighbour indices, nearest first; ties in a deterministic order.
     out_dist : (rows, k) float64
@@ -228,4 +237,5 @@ def grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, member
                     kth = np.inf
                     break
                 reach *= 2  # doubling: a far outlier needs few rounds
-            _take_nearest(cand, dist2, count, kth, out_idx[r], out_dist[r], chosen, chosen_d2)
+            _take_nearest(cand, dist2, count, kth, bound2, missing, out_idx[r], out_dist[r],
+                          chosen, chosen_d2)
