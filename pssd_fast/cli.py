@@ -216,6 +216,8 @@ def _parser():
         "height is the coordinate along the up axis. Files without normals are "
         "shaded with estimated ones."))
     render.add_argument("file", metavar="FILE", type=Path)
+    render.add_argument("--format", default=None, metavar="FMT",
+                        help="format of '-' (stdin) as an extension: xyz, csv, ply, las...")
     render.add_argument("-o", "--output", type=Path, required=True,
                         help="picture to write; the format follows the extension: "
                              ".png, .jpg, .jpeg, .tif, .tiff, .webp")

@@ -747,6 +747,9 @@ def test_info_reads_stdin_with_a_format(small, monkeypatch, capsys):
     out, err = capsys.readouterr()
     assert status == 0, err
     assert out.startswith(f"-: xyz, {len(small):,} points\n") and "red (uint8)" in out
+    for command in (["info", "-"], ["render", "-", "-o", "picture.png"]):  # render too
+        assert_one_line_error(cli.main(command), capsys.readouterr().err,
+                              "'-' needs a format (format='xyz', --format xyz")
 
 
 def test_dash_needs_a_format(tmp_path, capsys):
