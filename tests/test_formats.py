@@ -375,7 +375,8 @@ def test_stdin_and_stdout(monkeypatch):
 
 
 def test_npy_holds_points_only(tmp_path):
-    pio.write(tmp_path / "a.npy", PointCloud(PTS, NRM))
+    with pytest.warns(pio.PointCloudWarning, match="cannot hold normals"):
+        pio.write(tmp_path / "a.npy", PointCloud(PTS, NRM))
     np.testing.assert_array_equal(np.load(tmp_path / "a.npy"), PTS)
 
 
