@@ -7,7 +7,7 @@ from . import interop
 from ._threads import kdtree, threads
 from ._validation import as_points, check_k
 from .kernels.boxes import inside_any, near_any
-from .kernels.graph import keep_nearest, put_self_first, refresh_lists
+from .kernels.graph import keep_nearest, pack_rows, put_self_first, refresh_lists
 from .kernels.knn import grid_knn
 from .kernels.order import cell_coordinates, interleave, morton_codes
 
@@ -330,9 +330,9 @@ def bounded_graph(points, k, bound, rows=None, ids=None, first=None):
     for start, stop, found, dists, kept in _nearest_blocks(points, queries, k, bound, ids,
                                                            first):
         counts[start:stop] = kept
-        chunk = found[np.arange(k) < kept[:, None]]
-        found_lists[end:end + chunk.shape[0]] = chunk
-        end += chunk.shape[0]
+        ends = end + np.cumsum(kept)
+        pack_rows(found, kept, ends - kept, found_lists)
+        end = int(ends[-1])
         at = rows[start:stop]
         radius[at] = dists[np.arange(stop - start), kept - 1]
         nearest[at] = np.where(kept > 1, dists[:, min(1, k - 1)], 0.0)

@@ -7,7 +7,7 @@ from pykdtree.kdtree import KDTree
 import pssd_fast
 from pssd_fast import graph as graph_module
 from pssd_fast.graph import bounded_graph, check_graph, knn_graph, morton_order, nearest_within
-from pssd_fast.kernels.graph import keep_nearest
+from pssd_fast.kernels.graph import keep_nearest, pack_rows
 from pssd_fast.kernels.knn import kth_smallest, select
 from pssd_fast.kernels.order import gather_rows, scatter_rows
 
@@ -252,6 +252,19 @@ def test_nearest_within_drops_a_point_at_the_bound_itself_from_either_query():
     want = reference.nearest_within(points, points, 130, 1.0)
     _check_bounded(nearest_within(points, points, 130, 1.0), want, len(points))  # the grid's
     _check_bounded(nearest_within(points, points.copy(), 130, 1.0), want, len(points))
+
+
+@pytest.mark.parametrize("lengths", [[3, 0, 5, 1], [5, 5, 5, 5], [0, 0, 0, 0], [2]])
+def test_rows_packed_end_to_end_are_numpy_s_gather(lengths):
+    """``pack_rows`` against the loop it replaces: each row's first entries, in row order,
+    into a narrower integer type (the lists' own)."""
+    lengths = np.array(lengths, np.int64)
+    rows = np.random.default_rng(len(lengths)).integers(0, 1000, (len(lengths), 5))
+    want = [int(v) for r, n in zip(rows, lengths) for v in r[:n]]
+    out = np.full(len(want) + 2, -1, np.int32)
+    ends = 1 + np.cumsum(lengths)  # packed from out[1] on
+    pack_rows(rows, lengths, ends - lengths, out)
+    assert out[1:-1].tolist() == want and out[0] == out[-1] == -1
 
 
 #: Squared distances for the grid query's selection: random, tied, ordered, and single.

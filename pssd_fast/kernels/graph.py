@@ -88,6 +88,19 @@ def refresh_lists(points, indptr, indices, radius, nearest):
 
 
 @parallel_kernel
+def pack_rows(rows, lengths, starts, out):
+    """The first ``lengths[r]`` entries of each row ``r`` of ``rows`` (m, k) into
+    ``out[starts[r]:starts[r] + lengths[r]]``: ragged lists packed end to end (numpy's boolean
+    gather of the same entries makes and reads a mask of every entry)."""
+    m = rows.shape[0]
+    for c in prange((m + CHUNK - 1) // CHUNK):
+        for r in range(c * CHUNK, min(m, (c + 1) * CHUNK)):
+            at = starts[r]
+            for t in range(lengths[r]):
+                out[at + t] = rows[r, t]
+
+
+@parallel_kernel
 def keep_nearest(dists, found, missing, ids, kept, kept_dists, lengths):
     """The nearest entries of each distance-sorted row of a ``k + 1``-nearest query: those
     nearer than the row's last entry, ordered by distance, then index.
