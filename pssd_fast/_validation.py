@@ -98,13 +98,14 @@ def check_range(low, high):
             f"centre and divide by its extent) and scale the result back")
 
 
-def check_precision(points, dtype, stacklevel=3):
+def check_precision(points, dtype, stacklevel=3, largest=None):
     """Warn (:class:`DenoiseWarning`) where ``points`` (float64, as :func:`as_points` returns
-    them) came as float32 whose step at their largest absolute coordinate exceeds
-    :data:`STEP_OF_SPACING` of the cloud's mean spacing (:func:`mean_spacing`)."""
+    them) came as float32 whose step at their largest absolute coordinate (``largest``, or
+    theirs) exceeds :data:`STEP_OF_SPACING` of the cloud's mean spacing
+    (:func:`mean_spacing`, which reads them ``[::step]`` only)."""
     if dtype != np.float32:
         return
-    largest = float(np.abs(points).max())
+    largest = float(np.abs(points).max()) if largest is None else largest
     step = float(np.spacing(np.float32(largest)))
     spacing = mean_spacing(points)
     if not step > STEP_OF_SPACING * spacing:

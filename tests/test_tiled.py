@@ -1,6 +1,7 @@
 """Tiled runs on Dask give the in-core result, bit for bit: the default method's rounds of tile
 tasks on the one executor (pssd_fast.executor), tiles in memory or in files."""
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -493,6 +494,19 @@ def test_a_read_only_output_folder_is_refused_before_the_work(tmp_path, monkeypa
                                               "writable"):
         tiled.denoise_file(tmp_path / "in.npy", tmp_path / "rodir" / "out.npy",
                            scratch=tmp_path / "scratch")
+
+
+def test_a_float32_file_far_from_the_origin_warns_as_a_float32_array_does(tmp_path):
+    points = datasets.cad_part(n_points=3000, noise=0.003, seed=1).points * 100
+    for name, offset, warns in (("far", [4.5e5, 4e6, 100.0], True), ("near", 0.0, False)):
+        np.save(tmp_path / f"{name}.npy", (points + offset).astype(np.float32))
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            tiled.denoise_file(tmp_path / f"{name}.npy", tmp_path / f"{name}_out.npy",
+                               tile_points=1000, client="sync", iterations=1)
+        said = [str(w.message) for w in seen if issubclass(w.category, pssd_fast.DenoiseWarning)]
+        assert bool(said) == warns, said
+        assert not said or said[0].startswith("points are float32 and reach 4000")
 
 
 @pytest.mark.parametrize("name, write, error, match", [

@@ -23,7 +23,7 @@ from ..denoise import checked_options
 from ..denoise import run as run_in_core
 from .. import plan as planning
 from .._threads import threads
-from .._validation import check_int, check_orient_estimated
+from .._validation import check_int, check_orient_estimated, check_precision
 from ..parameters import BY_NAME, PARAMETERS
 from ..progress import BEFORE, Clock, reporter
 from ..run import Request, check_distinct, stats
@@ -216,8 +216,9 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
     Warns
     -----
     DenoiseWarning
-        Where classes chosen by default are too small to denoise, as
-        :func:`pssd_fast.denoise` warns.
+        Where classes chosen by default are too small to denoise, a class named is of no
+        point, or float32 coordinates lie so far from the origin that their step exceeds 1%
+        of the spacing, as :func:`pssd_fast.denoise` warns.
 
     Examples
     --------
@@ -396,6 +397,9 @@ def _file_run(setting, keep, folder, started):
     cloud = first.run("buckets", binning.Buckets, setting.array, folder, setting.tile_points,
                       settings["duplicate_tolerance"], keep, runner)
     n = check_distinct(cloud.shape[0], cloud.rows, None)
+    # As denoise warns of a float32 array: the spacing from a sample of the buckets.
+    check_precision(cloud, setting.dtype, 4, float(np.abs(
+        np.stack([cloud.low, cloud.high]) + cloud.centre).max()))
     check_orient_estimated(settings["orient"], cloud.normals is not None,
                            f"the normals of {setting.array.path}", "drop orient")
     plan = planning.make(cloud, settings["preset"], "default", distinct=n, low=cloud.corner,
