@@ -296,6 +296,22 @@ def test_obj_gets_normals_after_its_vertices_and_keeps_colours(tmp_path):
         "vn 1.0 0.0 0.0", "vn 0.0 1.0 0.0", "vn 0.0 0.0 1.0", "f 1 2 3"]
 
 
+@pytest.mark.parametrize("dtype, values, scale", [(np.uint8, [0, 128, 255], 255.0),
+                                                  (np.uint16, [0, 300, 65535], 65535.0),
+                                                  (np.uint16, [0, 20, 255], 255.0)])
+def test_obj_colours_are_written_as_unit_floats(tmp_path, dtype, values, scale):
+    """Integer colours (a PLY's or a LAS file's) go to OBJ as MeshLab, Open3D and trimesh read
+    them: 0-1 floats, 8 bits or 16 (above 255); the renderer takes them back alike."""
+    from pssd_fast.pictures.colours import rgb_colours
+    colours = {name: np.array(values, dtype) for name in ("red", "green", "blue")}
+    pio.write(tmp_path / "a.obj", PointCloud(PTS[:3], None, colours))
+    lines = (tmp_path / "a.obj").read_text().splitlines()
+    assert [float(line.split()[4]) for line in lines] == [v / scale for v in values]
+    back = pio.read(tmp_path / "a.obj").fields
+    np.testing.assert_array_equal(rgb_colours(back["red"], back["green"], back["blue"]),
+                                  rgb_colours(*colours.values()))
+
+
 def test_obj_errors(tmp_path):
     (tmp_path / "a.obj").write_text("v 0 0 0\nv 1 0\n")
     with pytest.raises(PointCloudFileError, match=r"a\.obj: line 2: malformed v line 'v 1 0'"):
@@ -324,8 +340,11 @@ def test_gzip_round_trip(tmp_path, ext):
     back = pio.read(tmp_path / f"a{ext}")
     np.testing.assert_array_equal(back.points, PTS)
     np.testing.assert_array_equal(back.normals, NRM)
-    np.testing.assert_array_equal(back.fields["red"], RGB[:, 0])
-    assert back.fields["red"].dtype == (np.float64 if ext == ".obj.gz" else np.uint8)
+    if ext == ".obj.gz":  # OBJ colours are 0-1 floats
+        np.testing.assert_array_equal(back.fields["red"], RGB[:, 0] / 255.0)
+    else:
+        np.testing.assert_array_equal(back.fields["red"], RGB[:, 0])
+        assert back.fields["red"].dtype == np.uint8
     # Same data, same bytes: no name (flags byte 0) and no time stamp in the gzip header.
     assert raw[3] == 0 and raw[4:8] == b"\0\0\0\0"
 

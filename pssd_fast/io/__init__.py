@@ -17,8 +17,9 @@ What cannot be carried across formats (the output format follows the output's ex
   properties of vertices, and LAS headers, VLRs, EVLRs and multi-valued extra bytes exist only
   in their own format; writing to another format drops them.
 * ``.npy`` holds points only, an (n, 3) array (normals as columns 4-6 only when the input was
-  an (n, 6) ``.npy``); OBJ holds ``red green blue`` (or ``w``) on its ``v`` lines and normals
-  as ``vn`` lines. Fields these cannot hold are dropped with a :class:`PointCloudWarning`
+  an (n, 6) ``.npy``); OBJ holds ``red green blue`` (or ``w``) on its ``v`` lines, colours as
+  0-1 floats (integer colours divided by 255, or 65535 above 255), and normals as ``vn``
+  lines. Fields these cannot hold are dropped with a :class:`PointCloudWarning`
   (use ``.npz`` to keep them as named arrays).
 * Text files store every column as a decimal number: a column written without decimal point or
   exponent comes back as integers (colours as uint8), others as float64; each value is written

@@ -114,6 +114,13 @@ def _rows(keyword, columns):
     return [f"{keyword} " + " ".join(row) for row in zip(*strings, strict=True)]
 
 
+def _unit_colour(values):
+    """Integer colours (8 bits, or 16 where a value exceeds 255) as floats in ``[0, 1]``."""
+    if values.dtype.kind not in "iub":
+        return values
+    return values / (255.0 if values.max(initial=0) <= 255 else 65535.0)
+
+
 def payload(path, ext, points, normals, fields, source):
     """Prepare an OBJ file: the source's lines with new ``v`` and ``vn`` lines.
 
@@ -129,8 +136,9 @@ def payload(path, ext, points, normals, fields, source):
         Normals: they replace the source's ``vn`` lines when it has one per vertex, or follow
         the last ``v`` line when it has none; a source with per-corner ``vn`` lines keeps them.
     fields : dict of str to (n,) numpy.ndarray
-        ``red green blue`` (written after x y z as they are, integers as integers) or ``w``;
-        other fields cannot be stored and are ignored.
+        ``red green blue`` (written after x y z as 0-1 floats, the convention of MeshLab,
+        Open3D and trimesh: integers divided by 255, or by 65535 where one exceeds 255;
+        floats as they are) or ``w``; other fields cannot be stored and are ignored.
     source : object or None
         What :func:`read` returned for an OBJ input (faces, groups, materials, comments and
         every other line are kept), or None for a file of ``v`` (and ``vn``) lines.
@@ -142,7 +150,7 @@ def payload(path, ext, points, normals, fields, source):
     """
     rgb = ("red", "green", "blue")
     if all(c in fields for c in rgb):
-        extra = [fields[c] for c in rgb]
+        extra = [_unit_colour(fields[c]) for c in rgb]
     else:
         extra = [fields["w"]] if "w" in fields else []
     v_rows = _rows("v", [*points.T, *extra])
