@@ -312,6 +312,14 @@ def test_obj_colours_are_written_as_unit_floats(tmp_path, dtype, values, scale):
                                   rgb_colours(*colours.values()))
 
 
+def test_obj_elements_are_described(tmp_path):
+    (tmp_path / "a.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 3 2 1\nl 1 2\n")
+    assert pio.describe(pio.read(tmp_path / "a.obj")) == [
+        "other elements: faces (2), lines (1)"]
+    (tmp_path / "b.obj").write_text("v 0 0 0\nv 1 0 0\n")
+    assert pio.describe(pio.read(tmp_path / "b.obj")) == ["other elements: none"]
+
+
 def test_obj_errors(tmp_path):
     (tmp_path / "a.obj").write_text("v 0 0 0\nv 1 0\n")
     with pytest.raises(PointCloudFileError, match=r"a\.obj: line 2: malformed v line 'v 1 0'"):

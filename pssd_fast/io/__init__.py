@@ -528,9 +528,9 @@ def describe(cloud):
     Returns
     -------
     list of str
-        One line per item: a PLY file's other elements with their counts (faces...); a LAS
-        file's version, point format, scale, offset and VLR counts. Empty for other formats
-        and for clouds built in memory.
+        One line per item: a PLY or OBJ file's other elements with their counts (faces...);
+        a LAS file's version, point format, scale, offset and VLR counts. Empty for other
+        formats and for clouds built in memory.
     """
     module = _MODULES[cloud.format]
     if cloud.source is None or not hasattr(module, "describe"):

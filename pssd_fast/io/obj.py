@@ -114,6 +114,19 @@ def _rows(keyword, columns):
     return [f"{keyword} " + " ".join(row) for row in zip(*strings, strict=True)]
 
 
+def describe(source):
+    """Lines naming what an OBJ file holds beyond its vertices: its faces, lines and point
+    elements, with their counts."""
+    counts = {}
+    for line in source.lines:
+        word = line.split(None, 1)[0] if line.strip() else ""
+        if word in ("f", "l", "p"):
+            counts[word] = counts.get(word, 0) + 1
+    names = {"f": "faces", "l": "lines", "p": "point elements"}
+    found = [f"{names[w]} ({counts[w]:,})" for w in ("f", "l", "p") if w in counts]
+    return [f"other elements: {', '.join(found) if found else 'none'}"]
+
+
 def _unit_colour(values):
     """Integer colours (8 bits, or 16 where a value exceeds 255) as floats in ``[0, 1]``."""
     if values.dtype.kind not in "iub":
