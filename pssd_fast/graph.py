@@ -116,6 +116,11 @@ def inside_boxes(points, boxes):
     return inside
 
 
+#: Grids of the centres of :func:`near_centres` up to this many cells get a table of every
+#: cell (4 bytes each, 16 MB at most): one lookup a point where larger ones search.
+DENSE_CELLS = 2**22
+
+
 def near_centres(points, centres, radius):
     """The mask of ``points`` within ``radius`` of any of ``centres`` (distances at most
     ``radius``): the centres hashed into a grid of cells at least ``radius`` wide, and each
@@ -146,9 +151,14 @@ def near_centres(points, centres, radius):
                          keys % dims[2]], axis=1)
     steps = np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
     reached = np.unique(keyed((occupied[:, None, :] + steps[None]).reshape(-1, 3)))
+    dense = np.empty(0, np.int32)
+    if float(np.prod(dims.astype(np.float64))) <= DENSE_CELLS:
+        dense = np.full(int(np.prod(dims)), -1, np.int32)
+        dense[reached] = -2
+        dense[keys] = np.arange(keys.shape[0], dtype=np.int32)
     near_any(points, centres[order], low, inv_cell, dims, keys,
-             np.append(starts, centres.shape[0]).astype(np.int64), reached, radius * radius,
-             out)
+             np.append(starts, centres.shape[0]).astype(np.int64), reached, dense,
+             radius * radius, out)
     return out
 
 

@@ -458,12 +458,17 @@ def _near_reference(points, centres, radius):
     return np.array(out, np.bool_)
 
 
+@pytest.mark.parametrize("dense", [True, False])
 @pytest.mark.parametrize("case", ["random", "clustered", "one centre", "coincident",
                                   "radius 0", "spread", "far points", "empty"])
-def test_points_near_centres_match_a_loop(case):
+def test_points_near_centres_match_a_loop(case, dense, monkeypatch):
     """The grid of the centres (graph.near_centres, kernels.boxes.near_any) against loops, on
-    random and degenerate inputs; points at exactly the radius are near."""
+    random and degenerate inputs; points at exactly the radius are near. With a table of
+    every cell and (as larger grids) with binary searches."""
     from pssd_fast.graph import near_centres
+
+    if not dense:
+        monkeypatch.setattr(graph_module, "DENSE_CELLS", 0)
 
     rng = np.random.default_rng(5)
     points, centres, radius = rng.uniform(size=(800, 3)), rng.uniform(size=(40, 3)), 0.07

@@ -46,8 +46,15 @@ def _cell_index(keys, key):
     return lo if lo < keys.shape[0] and keys[lo] == key else -1
 
 
+@helper
+def _slot(keys, dense, key):
+    """The index of cell ``key`` among the centres' cells ``keys``, or -1: from the table
+    ``dense`` of every cell's where it is given (not empty), else by binary search."""
+    return dense[key] if dense.shape[0] else _cell_index(keys, key)
+
+
 @parallel_kernel
-def near_any(points, centres, low, inv_cell, dims, keys, starts, reached, radius2, out):
+def near_any(points, centres, low, inv_cell, dims, keys, starts, reached, dense, radius2, out):
     """Whether each point lies within ``sqrt(radius2)`` of any of ``centres``.
 
     Parameters
@@ -67,6 +74,10 @@ def near_any(points, centres, low, inv_cell, dims, keys, starts, reached, radius
     reached : (r,) int64
         The keys of the centres' cells and of their neighbours, ascending: a point in no such
         cell is near no centre.
+    dense : (nx * ny * nz,) int32 or (0,)
+        For a small grid, each cell's index in ``keys``, -2 for a cell ``reached`` holds that
+        is not one of them and -1 for the others: one lookup a point instead of binary
+        searches (empty: the searches).
     radius2 : float
         The squared distance, included.
     out : (n,) bool
@@ -84,20 +95,21 @@ def near_any(points, centres, low, inv_cell, dims, keys, starts, reached, radius
             # Outside the grid (or not finite), or in a cell no centre reaches: near none.
             if 0.0 <= fx < nx and 0.0 <= fy < ny and 0.0 <= fz < nz:
                 cx, cy, cz = int(math.floor(fx)), int(math.floor(fy)), int(math.floor(fz))
-                if _cell_index(reached, (cx * ny + cy) * nz + cz) >= 0:
-                    hit = _near_in_cells(centres, keys, starts, cx, cy, cz, ny, nz, x, y, z,
-                                         radius2)
+                key = (cx * ny + cy) * nz + cz
+                if (dense[key] != -1) if dense.shape[0] else (_cell_index(reached, key) >= 0):
+                    hit = _near_in_cells(centres, keys, starts, dense, cx, cy, cz, ny, nz, x, y,
+                                         z, radius2)
             out[i] = np.bool_(hit)
 
 
 @helper
-def _near_in_cells(centres, keys, starts, cx, cy, cz, ny, nz, x, y, z, radius2):
+def _near_in_cells(centres, keys, starts, dense, cx, cy, cz, ny, nz, x, y, z, radius2):
     """Whether a centre of cell ``(cx, cy, cz)`` or of a neighbour lies within the radius of
     ``(x, y, z)``."""
     for gx in range(cx - 1, cx + 2):
         for gy in range(cy - 1, cy + 2):
             for gz in range(cz - 1, cz + 2):
-                t = _cell_index(keys, (gx * ny + gy) * nz + gz)
+                t = _slot(keys, dense, (gx * ny + gy) * nz + gz)
                 if t < 0:
                     continue
                 for j in range(starts[t], starts[t + 1]):
