@@ -134,6 +134,7 @@ def block_regions(points, graph, start, stop, radius):
     ball, reach = np.empty(capacity, np.uint64), np.empty(capacity, np.uint64)
     count = feature.grow_block(points, graph.indptr, graph.indices, start, stop, radius * radius,
                                9, np.empty((3, feature.BLOCK)), table, slot_at, nodes, ball,
-                               reach, np.empty(capacity, np.bool_), work)
+                               reach, np.empty(capacity, np.bool_), work,
+                               np.empty((capacity, 8), np.int32), np.empty(capacity, np.int32))
     return [set(nodes[:count][(reach[:count] >> np.uint64(b)) & np.uint64(1) == 1].tolist())
             for b in range(stop - start)]

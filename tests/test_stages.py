@@ -541,7 +541,8 @@ def test_grow_block_says_when_its_node_tables_are_full():
     radius = 10 * core.mean_spacing(graph)
     table, slot_at = np.empty(16, np.int32), np.empty(16, np.int64)
     args = (np.empty(8, np.int32), np.empty(8, np.uint64), np.empty(8, np.uint64),
-            np.empty(8, np.bool_), np.empty(8, np.int64))
+            np.empty(8, np.bool_), np.empty(8, np.int64), np.empty((8, 8), np.int32),
+            np.empty(8, np.int32))
     assert feature.grow_block(points, graph.indptr, graph.indices, 0, feature.BLOCK,
                               radius * radius, 9, np.empty((3, feature.BLOCK)), table, slot_at,
                               *args) == -1
