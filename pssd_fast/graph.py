@@ -223,6 +223,9 @@ GRID_K = 128
 #: ties :func:`pssd_fast.kernels.graph.keep_nearest` orders, and faster from about 40
 #: (docs/DECISIONS.md, "Long lists").
 BOUNDED_GRID_K = 48
+#: ... and from this many points on: below, the grid saves a fraction of a second a run (at
+#: 60,000 points 0.2 s of 1.6), less than its kernel's first compile costs (about 11 s).
+BOUNDED_GRID_POINTS = 100_000
 #: The sample points whose lists set the grid's cell in a bounded query (:func:`_grid_cell`):
 #: its cost, not its lists, depends on them.
 GRID_LOOKED = 1000
@@ -291,7 +294,7 @@ def _nearest_blocks(data, queries, k, bound, ids, count=None):
     q = min(k + 1, n)
     # Long lists of the data's own points come from the grid query (pykdtree's cost grows as
     # k^2); it finds the same points at the same distances.
-    grid = queries is data and q >= BOUNDED_GRID_K
+    grid = queries is data and q >= BOUNDED_GRID_K and n >= BOUNDED_GRID_POINTS
     query = _grid_query(data, q, GRID_LOOKED) if grid else None
     tree = None if grid else kdtree(data)
     ids = _NO_IDS if ids is None else np.ascontiguousarray(ids, np.int64)

@@ -215,10 +215,11 @@ def _check_bounded(found, want, n):
 
 
 @pytest.mark.parametrize("name", sorted(BOUNDED))
-def test_nearest_within_matches_brute_force(name):
+def test_nearest_within_matches_brute_force(name, monkeypatch):
     """The points nearer than the k + 1-th (none of a tie at the cut) and within the bound,
     by distance then index: from the tree (queries apart from the data) and, for lists of
-    BOUNDED_GRID_K or more, from the grid query (the data's own points)."""
+    BOUNDED_GRID_K or more, from the grid query (the data's own points, at any size here)."""
+    monkeypatch.setattr(graph_module, "BOUNDED_GRID_POINTS", 0)
     points = BOUNDED[name]()
     n = len(points)
     spread = float(np.ptp(points, axis=0).max())
@@ -244,10 +245,11 @@ def test_nearest_within_drops_a_tie_at_the_cut():
             :count])
 
 
-def test_nearest_within_drops_a_point_at_the_bound_itself_from_either_query():
+def test_nearest_within_drops_a_point_at_the_bound_itself_from_either_query(monkeypatch):
     """Both queries keep only points strictly within the bound (pykdtree's
     distance_upper_bound): on a lattice with a neighbour at the bound itself, the grid's lists
     and the tree's are the reference's."""
+    monkeypatch.setattr(graph_module, "BOUNDED_GRID_POINTS", 0)
     points = _lattice()
     want = reference.nearest_within(points, points, 130, 1.0)
     _check_bounded(nearest_within(points, points, 130, 1.0), want, len(points))  # the grid's
@@ -297,6 +299,7 @@ def test_the_selection_of_the_kth_distance_is_numpy_s(name):
 
 def _both_queries(monkeypatch, points, k, bound):
     """``nearest_within(points, points, k, bound)`` from the tree and from the grid."""
+    monkeypatch.setattr(graph_module, "BOUNDED_GRID_POINTS", 0)
     found = []
     for first in (10**9, 2):
         monkeypatch.setattr(graph_module, "BOUNDED_GRID_K", first)
@@ -337,11 +340,12 @@ def test_the_grid_and_the_tree_give_the_same_bounded_lists_to_the_bit(monkeypatc
 
 
 @pytest.mark.parametrize("k", [20, graph_module.BOUNDED_GRID_K + 10])
-def test_a_bounded_list_depends_only_on_the_points_within_its_bound(k):
+def test_a_bounded_list_depends_only_on_the_points_within_its_bound(k, monkeypatch):
     """What tiles rely on: the lists of a block of points computed on any subset holding every
     point within the bound of them (a tile and its halo) are their lists on the whole cloud,
     bit for bit (the whole cloud's own lists of BOUNDED_GRID_K or more come from the grid
     query, a subset's from the tree)."""
+    monkeypatch.setattr(graph_module, "BOUNDED_GRID_POINTS", 0)
     rng = np.random.default_rng(21)
     # Dense near x = 0, sparse near x = 1: some lists end at the k + 1-th, others at the bound.
     xy = rng.uniform(0, 1, (4000, 2)) ** [3.0, 1.0]
