@@ -77,7 +77,9 @@ def as_points(points, name="points"):
         raise ValueError(f"{name} contains NaN or Inf in {int(bad.sum())} row(s); the first is "
                          f"row {first}: {arr[first].tolist()}; drop or repair those rows")
     if name == "points":
-        check_range(arr.min(axis=0), arr.max(axis=0))
+        from .graph import bounds  # graph imports this module
+
+        check_range(*bounds(arr))
     if not arr.flags.writeable:
         arr = arr.copy()
     return arr, out_dtype

@@ -62,6 +62,7 @@ def choose(codes, sizes, classes, least):
     what is wrong."""
     codes = np.asarray(codes)
     present = ", ".join(str(c) for c in codes[:20]) + (", ..." if len(codes) > 20 else "")
+    small = []
     if classes is None:
         if np.isin(codes, UNCLASSIFIED).all():
             return None, []
@@ -80,10 +81,9 @@ def choose(codes, sizes, classes, least):
         if not wanted.any():
             raise ValueError(f"no point is of class {', '.join(map(str, asked))}; the classes "
                              f"present are {present}")
+        # Classes asked for that no point is of: a pipeline over many files names them all.
+        small = [(int(c), 0) for c in np.setdiff1d(asked, codes)]
     chosen = [(int(c), int(size)) for c, size, w in zip(codes, sizes, wanted) if w]
-    # Classes asked for that no point is of: a pipeline over many files names them all.
-    small = [] if classes is None or _name(classes) == "each" else [
-        (int(c), 0) for c in np.setdiff1d(asked, codes)]
     if classes is None or _name(classes) == "each":
         # Classes the library chose: those too small for a run are left as they are.
         small = [(c, size) for c, size in chosen if size < least]

@@ -463,10 +463,10 @@ def _details(stats, say):
     print(f"k = {stats['k']}{_chosen(stats)}; {threads} thread{'s' * (threads != 1)}",
           file=say)
     passes = stats.get("tiles") or {}
-    lines = [("the file before", passes.get("before"))]
-    lines += [(f"iteration {i}", record["times"]) for i, record in
-              enumerate(stats["iterations"], 1)]
-    for name, times in lines + [("the file after", passes.get("after"))]:
+    for name, times in [("the file before", passes.get("before")),
+                        *[(f"iteration {i}", record["times"])
+                          for i, record in enumerate(stats["iterations"], 1)],
+                        ("the file after", passes.get("after"))]:
         if times:
             listed = ", ".join(f"{s} {t:.3f}" for s, t in times.items())
             print(f"{name}: {listed} (s)", file=say)
