@@ -713,8 +713,29 @@ def test_range_grid_ply_reads_without_a_note_and_keeps_its_grid(tmp_path):
     assert out.obj_info == ["num_cols 3", "num_rows 2"]
     assert [r.tolist() for r in out["range_grid"]["vertex_indices"]] == [[0], [], [1], [], [],
                                                                           [2]]
-    with pytest.raises(PointCloudFileError, match="cannot drop vertices .* range_grid"):
-        pio.select(cloud, [0, 2])
+    # Dropping a vertex empties its grid cell and renumbers the others (a scanner's grid).
+    kept = pio.select(cloud, [0, 2])
+    pio.write(tmp_path / "kept.ply", kept)
+    out = plyfile.PlyData.read(str(tmp_path / "kept.ply"))
+    assert out["vertex"].count == 2
+    assert [r.tolist() for r in out["range_grid"]["vertex_indices"]] == [[0], [], [], [], [],
+                                                                          [1]]
+
+
+@needs_plyfile
+def test_faces_of_dropped_vertices_are_dropped_with_a_note(tmp_path):
+    make_ply(tmp_path / "a.ply")
+    cloud = pio.read(tmp_path / "a.ply")
+    faces = plyfile.PlyData.read(str(tmp_path / "a.ply"))["face"]["vertex_indices"]
+    drop = int(faces[0][0])
+    rows = np.setdiff1d(np.arange(len(cloud)), [drop])
+    with pytest.warns(pio.PointCloudWarning, match="face rows index dropped vertices"):
+        kept = pio.select(cloud, rows)
+    pio.write(tmp_path / "b.ply", kept)
+    out = plyfile.PlyData.read(str(tmp_path / "b.ply"))
+    renumber = {old: new for new, old in enumerate(rows)}
+    want = [[renumber[v] for v in f] for f in faces if drop not in f]
+    assert [f.tolist() for f in out["face"]["vertex_indices"]] == want
 
 
 @needs_plyfile

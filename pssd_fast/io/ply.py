@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._common import COORDS, NORMALS, PointCloudFileError, Source, fit_dtype, need, stream_size
+from ._common import (COORDS, NORMALS, PointCloudFileError, PointCloudWarning, Source, fit_dtype,
+                      need, stream_size)
 from ._ply_binary import binary_element, binary_rows
 from ._ply_text import Tokens, ascii_element, text_rows
 
@@ -37,23 +38,51 @@ class _PlySource(Source):
     ply: object  # plyfile.PlyData with all elements in memory
 
     def take(self, rows):
-        others = [e.name for e in self.ply.elements if e.name != "vertex"]
-        if others:
-            # Faces and edges index the vertices: dropping rows would silently rewire them.
-            raise PointCloudFileError(f"{self.path}: cannot drop vertices of a PLY file that "
-                                      f"also holds {', '.join(others)} (they index the "
-                                      f"vertices)")
         vertex = copy.copy(self.ply["vertex"])
         vertex.data = self.ply["vertex"].data[rows]
+        # The other elements' vertex indices renumbered to the rows kept (-1: dropped).
+        n = self.ply["vertex"].count
+        renumber = np.full(n, -1, np.int64)
+        renumber[np.arange(n)[rows]] = np.arange(vertex.data.shape[0])
+        elements = [vertex] + [_renumbered(self.path, e, renumber) for e in self.ply.elements
+                               if e.name != "vertex"]
         base = self.ply
-        ply = type(base)([vertex], text=base.text, byte_order=base.byte_order,
+        ply = type(base)(elements, text=base.text, byte_order=base.byte_order,
                          comments=base.comments, obj_info=base.obj_info)
-        return _PlySource(self.path, ply)
+        return _PlySource(ply, path=self.path)
 
     def coordinates_dtype(self):
         vertex = self.ply["vertex"].data
         float32 = "x" in vertex.dtype.names and vertex.dtype["x"] == np.float32
         return np.dtype(np.float32 if float32 else np.float64)
+
+
+def _renumbered(path, element, renumber):
+    """``element`` with its vertex index lists renumbered (``renumber``: each vertex's new
+    index, -1 where dropped). A scanner's ``range_grid`` keeps its cells, those of dropped
+    vertices emptied (a cell without a sample); any other element (faces, edges) loses the
+    rows that index a dropped vertex, with a note."""
+    names = [p.name for p in element.properties if p.name in ("vertex_indices", "vertex_index")
+             and hasattr(p, "len_dtype")]
+    if not names:
+        return element
+    data = element.data.copy()
+    lists = [renumber[np.asarray(row, np.int64)] for row in data[names[0]]]
+    if element.name == "range_grid":
+        kept = np.ones(len(lists), np.bool_)
+        lists = [row[row >= 0] for row in lists]
+    else:
+        kept = np.array([bool((row >= 0).all()) for row in lists], np.bool_)
+        if not kept.all():
+            warnings.warn(f"{path}: {int((~kept).sum()):,} of its {len(kept):,} "
+                          f"{element.name} rows index dropped vertices and are dropped",
+                          PointCloudWarning, stacklevel=4)
+    column = np.empty(len(lists), object)
+    column[:] = [row.astype(data[names[0]][i].dtype) for i, row in enumerate(lists)]
+    data[names[0]] = column
+    out = copy.copy(element)
+    out.data = data[kept]
+    return out
 
 
 @dataclass(frozen=True)
