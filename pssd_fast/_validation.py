@@ -77,9 +77,7 @@ def as_points(points, name="points"):
         raise ValueError(f"{name} contains NaN or Inf in {int(bad.sum())} row(s); the first is "
                          f"row {first}: {arr[first].tolist()}; drop or repair those rows")
     if name == "points":
-        from .graph import bounds  # graph imports this module
-
-        check_range(*bounds(arr))
+        check_range(arr.min(axis=0), arr.max(axis=0))
     if not arr.flags.writeable:
         arr = arr.copy()
     return arr, out_dtype
