@@ -18,7 +18,7 @@ import numbers
 
 import numpy as np
 
-from .graph import MORTON_BITS, bounds, grid_codes
+from .graph import MORTON_BITS, bounds, code_order, grid_codes
 
 
 def check_tolerance(value):
@@ -109,7 +109,7 @@ def ordered(points, tolerance=0.0):
     """
     low, high = bounds(points)
     found = codes(points, low, high, tolerance)
-    order = np.argsort(found, kind="stable")
+    order = code_order(found)
     into = merged(found[order], lambda at: keys(points[order[at]], low, tolerance))
     if into is None:
         return order, None

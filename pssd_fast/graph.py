@@ -9,7 +9,7 @@ from ._validation import as_points, check_k
 from .kernels.boxes import inside_any, near_any
 from .kernels.graph import keep_nearest, pack_rows, put_self_first, refresh_lists
 from .kernels.knn import grid_knn
-from .kernels.order import cell_coordinates, interleave, morton_codes
+from .kernels.order import cell_coordinates, interleave, morton_codes, stable_argsort
 
 MORTON_BITS = 21  # per axis: 3 * 21 = 63 bits fit an unsigned 64-bit code
 
@@ -70,7 +70,24 @@ def morton_order(points):
         ``points[order]`` visits the cloud along the curve, so that neighbours in space are
         mostly neighbours in memory. Ties keep the input order (stable sort): deterministic.
     """
-    return np.argsort(morton_cells(points), kind="stable")
+    return code_order(morton_cells(points))
+
+
+#: From this many codes on, :func:`code_order` sorts by radix (numpy's stable sort of uint64
+#: merges runs: 0.20 s against 0.075 s for 2,000,000 codes in input order on 2 cores); below,
+#: the radix kernel's first compile would outweigh what it saves.
+RADIX_POINTS = 100_000
+
+
+def code_order(codes):
+    """``np.argsort(codes, kind="stable")`` of uint64 codes, the same permutation by a radix
+    sort (:func:`pssd_fast.kernels.order.stable_argsort`) from :data:`RADIX_POINTS` codes
+    on."""
+    if codes.shape[0] < RADIX_POINTS:
+        return np.argsort(codes, kind="stable")
+    order = np.empty(codes.shape[0], np.int64)
+    stable_argsort(np.ascontiguousarray(codes, dtype=np.uint64), order)
+    return order
 
 
 def morton_cells(points):
@@ -389,7 +406,8 @@ def _grid_query(points, k, looked=None):
         dims = (extent / cell).astype(np.int64) + 1
     coords = np.minimum(((points - low) / cell).astype(np.int64), dims - 1)
     keys = (coords[:, 0] * dims[1] + coords[:, 1]) * dims[2] + coords[:, 2]
-    members = np.argsort(keys, kind="stable").astype(np.int32 if n < 2**31 else np.int64)
+    # The keys are at least 0: as uint64 they sort alike.
+    members = code_order(keys.view(np.uint64)).astype(np.int32 if n < 2**31 else np.int64)
     sorted_keys = keys[members]
     first = np.flatnonzero(np.diff(sorted_keys)) + 1
     cell_keys = np.ascontiguousarray(sorted_keys[np.concatenate(([0], first))])

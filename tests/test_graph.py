@@ -9,7 +9,7 @@ from pssd_fast import graph as graph_module
 from pssd_fast.graph import bounded_graph, check_graph, knn_graph, morton_order, nearest_within
 from pssd_fast.kernels.graph import keep_nearest, pack_rows
 from pssd_fast.kernels.knn import kth_smallest, select
-from pssd_fast.kernels.order import gather_rows, scatter_rows
+from pssd_fast.kernels.order import gather_rows, scatter_rows, stable_argsort
 
 from . import reference
 from .conftest import CLOUDS
@@ -152,6 +152,35 @@ def test_row_permutations_are_inverse():
     back = np.empty_like(points)
     scatter_rows(moved, order, offset, back)
     np.testing.assert_allclose(back, points, rtol=1e-15, atol=1e-15)
+
+
+def _stable_order(keys):
+    """The plain stable sort: rows by key, ties in row order (Python's sort is stable)."""
+    return np.array(sorted(range(len(keys)), key=lambda i: int(keys[i])), dtype=np.int64)
+
+
+@pytest.mark.parametrize("case", ["random", "few", "sorted", "reversed", "equal", "top bit",
+                                  "one", "none"])
+def test_the_radix_sort_gives_the_stable_order(case):
+    rng = np.random.default_rng(3)
+    keys = {"random": rng.integers(0, 2**63, 5000, dtype=np.uint64),
+            "few": rng.integers(0, 4, 5000).astype(np.uint64) << np.uint64(40),
+            "sorted": np.sort(rng.integers(0, 2**30, 3000).astype(np.uint64)),
+            "reversed": np.sort(rng.integers(0, 2**30, 3000).astype(np.uint64))[::-1].copy(),
+            "equal": np.full(2000, 2**64 - 1, np.uint64),
+            "top bit": rng.integers(0, 2, 3000).astype(np.uint64) << np.uint64(63),
+            "one": np.array([5], np.uint64), "none": np.zeros(0, np.uint64)}[case]
+    order = np.full(keys.shape[0], -1, np.int64)
+    stable_argsort(keys, order)
+    np.testing.assert_array_equal(order, _stable_order(keys))
+
+
+@pytest.mark.parametrize("radix_points", [0, 10**9])
+def test_code_order_is_numpy_s_stable_argsort_either_way(radix_points, monkeypatch):
+    monkeypatch.setattr(graph_module, "RADIX_POINTS", radix_points)
+    codes = np.random.default_rng(4).integers(0, 2**12, 20000).astype(np.uint64)
+    np.testing.assert_array_equal(graph_module.code_order(codes),
+                                  np.argsort(codes, kind="stable"))
 
 
 def test_neighbors_in_caller_order_for_any_permutation():

@@ -75,3 +75,61 @@ def interleave(cells, shift, out):
                 code |= _spread_bits(np.uint64(cells[i, axis]) >> np.uint64(shift)) << np.uint64(
                     axis)
             out[i] = code
+
+
+#: Bits of the key sorted in each pass of :func:`stable_argsort`, and the blocks of rows each
+#: pass counts and moves in parallel (fixed, not from the thread count: the order is the
+#: stable one whatever the blocks, and they keep each block's counts small).
+RADIX_BITS = 11
+RADIX_BLOCKS = 64
+
+
+@parallel_kernel
+def stable_argsort(keys, out):
+    """The permutation that sorts ``keys`` (uint64) stably, ties in their order, into ``out``
+    (int64): ``np.argsort(keys, kind="stable")``.
+
+    A least-significant-digit radix sort, :data:`RADIX_BITS` bits a pass, passes over digits
+    that every key shares skipped (the high bits of codes from one part of a grid). Each pass
+    counts the digits of :data:`RADIX_BLOCKS` blocks of rows, gives each block its own
+    offsets after those of the earlier blocks, and moves the rows of each block in order:
+    stable, so the passes sort by the whole key.
+    """
+    n = keys.shape[0]
+    varying = np.uint64(0)
+    if n:
+        common = keys[0]
+        for i in range(n):
+            varying |= keys[i] ^ common
+    size = (n + RADIX_BLOCKS - 1) // RADIX_BLOCKS
+    digits = 1 << RADIX_BITS
+    mask = np.uint64(digits - 1)
+    order = np.arange(n)
+    moved = np.empty(n, np.int64)
+    key = keys.copy()
+    moved_key = np.empty(n, np.uint64)
+    counts = np.empty((RADIX_BLOCKS, digits), np.int64)
+    for first_bit in range(0, 64, RADIX_BITS):
+        shift = np.uint64(first_bit)
+        if (varying >> shift) & mask == 0:
+            continue
+        for b in prange(RADIX_BLOCKS):
+            counts[b, :] = 0
+            for i in range(b * size, min(n, (b + 1) * size)):
+                counts[b, (key[i] >> shift) & mask] += 1
+        total = 0
+        for d in range(digits):
+            for b in range(RADIX_BLOCKS):
+                count = counts[b, d]
+                counts[b, d] = total
+                total += count
+        for b in prange(RADIX_BLOCKS):
+            for i in range(b * size, min(n, (b + 1) * size)):
+                d = (key[i] >> shift) & mask
+                at = counts[b, d]
+                counts[b, d] = at + 1
+                moved[at] = order[i]
+                moved_key[at] = key[i]
+        order, moved = moved, order
+        key, moved_key = moved_key, key
+    out[:] = order

@@ -32,7 +32,7 @@ import numpy as np
 from .. import core, duplicates, regions
 from .._validation import check_range, check_size
 from ..progress import BEFORE
-from ..graph import MORTON_BITS, bounds, cell_keys, cell_order
+from ..graph import MORTON_BITS, bounds, cell_keys, cell_order, code_order
 from . import ondisk
 
 #: The shift that leaves a position code's top :data:`~pssd_fast.regions.PREFIX_BITS` bits (7
@@ -228,7 +228,7 @@ def _merge_bucket(pieces, dtype, codes, path, n_jobs):
     records, their bounds and the number set aside."""
     records = ondisk.read_pieces(pieces, dtype)
     # In input order: a stable sort by code is denoise's order.
-    records = ondisk.take(records, np.argsort(records["code"], kind="stable"))
+    records = ondisk.take(records, code_order(records["code"]))
     low, _, tolerance = codes
     into = duplicates.merged(records["code"], lambda at: duplicates.keys(
         records["xyz"][at], low, tolerance))
