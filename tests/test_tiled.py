@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import pssd_fast
-from pssd_fast import datasets, executor, method, tiled
+from pssd_fast import datasets, executor, graph, method, tiled
 from pssd_fast.tiled import ondisk
 
 from .conftest import refuse_new_files
@@ -300,6 +300,20 @@ def test_a_file_tiled_out_of_core_gives_the_in_core_points(tmp_path, preset, dty
         r.get("refined") for r in expected.stats["iterations"]]
     assert list(scratch.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == [
         "in.npy", "out.npy", "scratch"]
+
+
+@pytest.mark.usefixtures("small_chunks")
+def test_codes_sorted_by_radix_give_the_same_points(tmp_path, monkeypatch):
+    """Every sort of codes by radix (as on clouds of ``graph.RADIX_POINTS`` or more), in core
+    and in a file's buckets: the points of numpy's stable sort."""
+    points = datasets.cad_part(n_points=4_000, noise=0.005, seed=9).points
+    source, out = tmp_path / "in.npy", tmp_path / "out.npy"
+    np.save(source, points)
+    expected = pssd_fast.denoise(points).points
+    monkeypatch.setattr(graph, "RADIX_POINTS", 0)
+    np.testing.assert_array_equal(pssd_fast.denoise(points).points, expected)
+    tiled.denoise_file(source, out, tile_points=1_000, client="sync")
+    np.testing.assert_array_equal(np.load(out), expected)
 
 
 @pytest.mark.usefixtures("small_chunks")
