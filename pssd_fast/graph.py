@@ -182,7 +182,7 @@ def near_centres(points, centres, radius):
 def cell_order(code, cells):
     """The order that groups the points by cell (:func:`cell_keys`), stably, and where each
     cell starts in it (with the end)."""
-    order = np.argsort(code, kind="stable")
+    order = code_order(code)
     keys = cells[order]
     change = np.concatenate(([True], (keys[1:] != keys[:-1]).any(axis=1)))
     # Where each code is one cell (up to 2**21 cells an axis) the stable sort by code is the
