@@ -209,13 +209,16 @@ def surface_fits(surface, nrm, lists, sigma_n, mass=None):
     return coef, rms, degree
 
 
-def own_fits(points, nrm, lists, sigma_n):
+def own_fits(points, nrm, lists, sigma_n, origins=None):
     """:func:`aware_fit` with its robust alternative on lists that start with the point
-    itself: the height, RMS residual, degree, and the plain fit's leverage on the point."""
-    n = points.shape[0]
+    itself: the height, RMS residual, degree, and the plain fit's leverage on the point.
+    ``origins``: the points whose lists of ``points`` these are, where not ``points`` (each
+    list starting with a copy of its origin)."""
+    origins = points if origins is None else origins
+    n = origins.shape[0]
     height, rms, leverage = np.empty(n), np.empty(n), np.empty(n)
     degree = np.empty(n, np.int8)
-    kernels.mls.aware_fit(points, points, nrm, np.empty(0), lists.indptr, lists.indices,
+    kernels.mls.aware_fit(origins, points, nrm, np.empty(0), lists.indptr, lists.indices,
                           sigma_n, True, height, rms, degree, _NO_COEF, leverage)
     return height, rms, degree, leverage
 

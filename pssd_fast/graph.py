@@ -339,6 +339,47 @@ def _nearest_blocks(data, queries, k, bound, ids, count=None):
         yield start, stop, rows, distances, lengths
 
 
+def candidates(data, queries, q, bound, block):
+    """The ``q`` nearest of ``data`` strictly within ``bound`` of each of ``queries``, by the
+    grid query whatever ``q``, ``block`` queries at a time: ``(start, stop, distances, rows)``,
+    ``(stop - start, q)`` arrays sorted by distance, infinity and ``len(data)`` past the points
+    found. The distances are exact, so the candidates of the pieces of a cloud give the whole
+    cloud's lists (:func:`merge_candidates`)."""
+    n, m = data.shape[0], queries.shape[0]
+    have = min(q, n)
+    query = _grid_query(data, have, GRID_LOOKED) if have else None
+    for start in range(0, m, block):
+        stop = min(m, start + block)
+        distances = np.full((stop - start, q), np.inf)
+        rows = np.full((stop - start, q), n, np.int64)
+        if have:
+            found = np.empty((stop - start, have), np.int32 if n < 2**31 else np.int64)
+            distances[:, :have] = query(start, stop, found, bound * bound, n, queries)
+            rows[:, :have] = found
+        yield start, stop, distances, rows
+
+
+def merge_candidates(distances, rows, k, missing):
+    """:func:`nearest_within`'s lists of ``k`` from the :func:`candidates` of a cloud's pieces
+    side by side (``(m, c)`` distances and rows in the whole cloud, ``missing`` where none;
+    each piece's ``k + 1`` nearest, or more): ``(rows, lengths, order)``, ``order`` the
+    columns of the candidates each kept entry came from."""
+    m = distances.shape[0]
+    # By distance, then row: the first k + 1 are the whole cloud's nearest, ties by row.
+    order = np.lexsort((rows, distances), axis=1)[:, :k + 1]
+    nearest = np.take_along_axis(distances, order, axis=1)
+    found = np.take_along_axis(rows, order, axis=1)
+    if order.shape[1] < k + 1:  # as if the k + 1-th were beyond the bound
+        pad = k + 1 - order.shape[1]
+        nearest = np.column_stack((nearest, np.full((m, pad), np.inf)))
+        found = np.column_stack((found, np.full((m, pad), missing)))
+        order = np.column_stack((order, np.zeros((m, pad), np.int64)))
+    kept = np.empty((m, k), np.int64)
+    lengths = np.empty(m, np.int64)
+    keep_nearest(nearest, found, missing, _NO_IDS, kept, np.empty((m, k)), lengths)
+    return kept, lengths, order[:, :k]
+
+
 def bounded_graph(points, k, bound, rows=None, ids=None, first=None):
     """Lists of the ``k`` nearest points within distance ``bound`` of each of ``rows`` (all
     points by default; the ``first`` points where given, found as the lists of all are, to
@@ -414,10 +455,11 @@ def _grid_query(points, k, looked=None):
     cell_start = np.concatenate(([0], first, [n])).astype(np.int64)
     cell_points = points[members]
 
-    def query(start, stop, rows, bound2=np.inf, missing=0):
+    def query(start, stop, rows, bound2=np.inf, missing=0, queries=None):
+        # Queries other than the points (``queries[start:stop]``) are looked up alike.
         chunk_dists = np.empty(rows.shape)
-        grid_knn(points, cell_points, low, cell, dims, cell_keys, cell_start, members, k, start,
-                 bound2, missing, rows, chunk_dists)
+        grid_knn(points if queries is None else queries, cell_points, low, cell, dims,
+                 cell_keys, cell_start, members, k, start, bound2, missing, rows, chunk_dists)
         return chunk_dists
 
     return query

@@ -100,12 +100,18 @@ def list_bound(k, spacing, edge):
     return LIST["reach"] * math.sqrt(k / math.pi) * max(spacing, edge)
 
 
+def list_radius(k, spacing):
+    """The radius of a list of ``k`` points on an even sample of ``spacing``: ``sqrt(k / pi)``
+    spacings."""
+    return math.sqrt(k / math.pi) * spacing
+
+
 def own_lists_span(k, spacing, sigma):
-    """Whether lists of ``k`` points, of radius ``sqrt(k / pi)`` spacings on an even sample,
-    span ``TEST["span"]`` noise widths: the least at which a fit's residuals read the noise
-    rather than a part of it (a narrower list holds the points nearest the point's own height;
-    docs/ALGORITHM.md, "The test and the refinement")."""
-    return math.sqrt(k / math.pi) * spacing >= TEST["span"] * sigma
+    """Whether lists of ``k`` points (:func:`list_radius`) span ``TEST["span"]`` noise widths:
+    the least at which a fit's residuals read the noise rather than a part of it (a narrower
+    list holds the points nearest the point's own height; docs/ALGORITHM.md, "The test and the
+    refinement")."""
+    return list_radius(k, spacing) >= TEST["span"] * sigma
 
 
 def cell_edge(sigma, spacing):

@@ -12,12 +12,13 @@ whose lists span at least ``min_ratio`` noise widths is taken: the shortest list
 enough sees the least of the shape.
 """
 import math
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
 
 from . import core
-from .graph import knn_graph
+from .graph import NeighborGraph, candidates, knn_graph, merge_candidates
 
 #: ``points``: the most points the probe reads (a larger cloud: every ``s``-th point of its
 #: Morton order; a sparser sample would read a smaller cloud's curvature as noise);
@@ -40,6 +41,18 @@ CALIBRATION = {
          (6.36, 0.8758), (8.62, 0.8887), (11.7, 0.8952), (16, 0.8983), (21.9, 0.8998),
          (30, 0.9006), (41.1, 0.901), (56.3, 0.9011), (77.1, 0.9013)),
 }
+
+
+#: What the refinement's own fits read of a known noise (:func:`own_sigma`): ``(list radius /
+#: sigma, reading / sigma)``, from planes of 60,000 uniformly random points of the unit square
+#: at 9 noise levels, the lists sized as the plan sizes them from the probe
+#: (``python -m benchmarks.noise_probe --own`` measures it again, these rows at its seed).
+OWN_CALIBRATION = ((1.92, 0.638), (2.25, 0.733), (2.49, 0.795), (2.8, 0.849), (3.12, 0.886),
+                   (3.59, 0.936), (4.11, 0.934), (6.05, 0.949), (12, 0.966))
+#: The most points :func:`own_sigma` reads (every ``s``-th point of the probe's sample), and
+#: how many of their lists at a time.
+OWN_POINTS = 4000
+OWN_BLOCK = 4096
 
 
 class Noise(NamedTuple):
@@ -69,15 +82,21 @@ class Noise(NamedTuple):
                 "readings": {str(k): v for k, v in self.readings.items()}}
 
 
-def probe(points):
-    """The :class:`Noise` of ``points`` (distinct positions in Morton order; a ``(n, 3)`` array
-    or what offers ``shape`` and ``[::step]`` as one)."""
-    n = points.shape[0]
-    stride = -(-n // PROBE["points"])
-    sample = np.ascontiguousarray(points[::stride], dtype=np.float64)
-    lengths = [k for k in PROBE["lengths"] if k < sample.shape[0]] or [sample.shape[0] - 1]
-    graph = knn_graph(sample, lengths[-1], False)
-    scale, radius = core.local_noise(sample, graph, np.array(lengths, np.int64))
+def sample(points):
+    """The probe's sample of ``points`` (distinct positions in Morton order; a ``(n, 3)``
+    array or what offers ``shape`` and ``[::step]`` as one): every ``stride``-th point, at
+    most ``PROBE["points"]``; ``(sample, stride)``."""
+    stride = -(-points.shape[0] // PROBE["points"])
+    return np.ascontiguousarray(points[::stride], dtype=np.float64), stride
+
+
+def probe(points, taken=None):
+    """The :class:`Noise` of ``points`` (as :func:`sample` takes them), read on their
+    :func:`sample` (``taken``: the sample already taken)."""
+    sample_, stride = sample(points) if taken is None else taken
+    lengths = [k for k in PROBE["lengths"] if k < sample_.shape[0]] or [sample_.shape[0] - 1]
+    graph = knn_graph(sample_, lengths[-1], False)
+    scale, radius = core.local_noise(sample_, graph, np.array(lengths, np.int64))
     readings = {}
     for col, length in enumerate(lengths):
         read, mean_radius = float(np.median(scale[:, col])), float(np.mean(radius[:, col]))
@@ -91,6 +110,62 @@ def probe(points):
     spacing = readings[lengths[-1]]["radius"] * math.sqrt(math.pi / lengths[-1]) / math.sqrt(
         stride)
     return Noise(sigma, spacing, stride, readings)
+
+
+def own_sigma(points, taken, k, bound, radius):
+    """The noise as the refinement's own fits read it on the probe's sample (every ``s``-th
+    point of it, at most :data:`OWN_POINTS`): each such point's ``k`` nearest points of
+    ``points`` within ``bound`` (:func:`sampled_variances`; what offers
+    ``own_variances(sample, k, bound)`` reads them itself, out of core), the root mean of
+    their :func:`own_variances`, read back through :data:`OWN_CALIBRATION` for lists of mean
+    ``radius`` (:func:`invert`). ``taken``: :func:`sample`'s."""
+    reader = getattr(points, "own_variances", None)
+    every = -(-taken[0].shape[0] // OWN_POINTS)
+    variances = (reader if reader is not None else partial(sampled_variances, points))(
+        taken[0][::every], k, bound)
+    finite = variances[np.isfinite(variances)]
+    read = math.sqrt(float(np.mean(finite))) if finite.shape[0] else 0.0
+    return invert(read, radius, OWN_CALIBRATION)
+
+
+def sampled_variances(points, sample_, k, bound):
+    """:func:`own_variances` of the lists of ``sample_``'s ``k`` nearest ``points`` within
+    ``bound`` (``sample_`` among ``points``, so each list starts with its own point)."""
+    n = points.shape[0]
+    out = np.empty(sample_.shape[0])
+    for start, stop, distances, rows in candidates(points, sample_, k + 1, bound, OWN_BLOCK):
+        kept, lengths, _ = merge_candidates(distances, rows, k, n)
+        out[start:stop] = own_variances(points[np.minimum(kept, n - 1)], lengths)
+    return out
+
+
+def own_variances(lists, lengths):
+    """What each list's own fit reads of the noise: the squared height of the feature-aware
+    quadratic (robust alternative included, no normal weights) of the first ``lengths[i]``
+    points of ``lists[i]`` (``(m, k, 3)``, the point itself first), in the frame of their PCA
+    normal, over ``1 - H``, ``H`` the plain fit's leverage on the point
+    (:func:`pssd_fast.core.own_fits`); NaN for an empty list."""
+    m, k = lengths.shape[0], lists.shape[1]
+    has = lengths > 0
+    flat = lists[np.arange(k) < lengths[:, None]]
+    total = flat.shape[0]
+    firsts = (np.cumsum(lengths) - lengths)[has]
+    width = np.int32 if total < 2**31 else np.int64
+    # The PCA kernel reads a list for every row: the others list themselves alone.
+    per_row = np.ones(total, np.int64)
+    per_row[firsts] = lengths[has]
+    indptr = np.concatenate(([0], np.cumsum(per_row)))
+    indices = np.arange(total, dtype=width).repeat(per_row)
+    owner = np.repeat(firsts, lengths[has])
+    indices[np.repeat(indptr[firsts], lengths[has]) + np.arange(total) - owner] = \
+        np.arange(total)
+    normals, _ = core.pca_normals(flat, NeighborGraph(indptr, indices, None), flat)
+    lists_of = NeighborGraph(np.concatenate(([0], np.cumsum(lengths[has]))),
+                             np.arange(total, dtype=width), None)
+    height, _, _, leverage = core.own_fits(flat, normals, lists_of, 0.0, flat[firsts])
+    out = np.full(m, np.nan)
+    out[has] = height * height / np.maximum(1.0 - leverage, np.finfo(np.float64).eps)
+    return out
 
 
 def invert(read, radius, table):

@@ -13,7 +13,7 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
-from . import method
+from . import method, noise
 from .noise import Noise, probe
 
 #: Presets: the pipeline of the robust method; for the default method whether it refines
@@ -78,13 +78,18 @@ class Plan:
         The failing points' own iterations; None: no refinement ("fast").
     own_noise : bool
         Whether the test reads each point's noise from its own fit over those lists (they span
-        at least ``TEST["span"]`` noise widths), else the probe's ``sigma``.
+        at least ``TEST["span"]`` noise widths of the probe's noise, or of ``own_sigma``),
+        else the probe's ``sigma``.
+    own_sigma : float or None
+        The noise as the refinement's own fits read it on the probe's sample, where the
+        probe's noise leaves the test against the own noise out
+        (:func:`pssd_fast.noise.own_sigma`); else None.
     rebuild_graph : bool
         The paper's pipeline and the baselines: whether each iteration queries its lists
         anew.
     probe : dict or None
-        The baselines' noise probe behind a ``k`` chosen from the data, or the default
-        method's probe's ``seconds``; else None.
+        The baselines' noise probe behind a ``k`` chosen from the data, or the seconds the
+        default method's probe and own reading took (``seconds``); else None.
     """
 
     pipeline: str
@@ -96,6 +101,7 @@ class Plan:
     low: Optional[np.ndarray] = field(default=None, compare=False)
     refine: Optional[Refine] = None
     own_noise: bool = False
+    own_sigma: Optional[float] = None
     rebuild_graph: bool = False
     probe: Optional[dict] = None
 
@@ -108,7 +114,8 @@ class Plan:
                 "cell_edge": self.edge, "bound": self.bound, "noise": self.noise.record(),
                 "refine": None if self.refine is None else
                 {"k": self.refine.k, "bound": self.refine.bound,
-                 "iterations": self.refine.iterations, "own_noise": self.own_noise}}
+                 "iterations": self.refine.iterations, "own_noise": self.own_noise,
+                 "own_sigma": self.own_sigma}}
 
 
 def make(points, preset, pipeline, *, distinct, low, k=None, iterations=None,
@@ -169,20 +176,27 @@ def _default(points, setting, distinct, low, k, iterations):
     """The default method's plan: its probe and the sizes of its steps (``k``: the caller's
     list length on the means, or None)."""
     started = time.perf_counter()
-    found = probe(points)
-    seconds = time.perf_counter() - started
+    taken = noise.sample(points)
+    found = probe(points, taken)
     edge = method.cell_edge(found.sigma, found.spacing)
     if k is None:
         k = min(method.list_length(found.sigma, found.spacing, edge), distinct - 1)
     bound = method.list_bound(k, found.spacing, edge)
     refine = None
-    own = False
+    own, own_sigma = False, None
     if setting["refine"]:
         k_r = min(method.list_length(found.sigma, found.spacing, 0.0, method.REFINE["radius"],
                                      method.REFINE["k"]), distinct - 1)
         refine = Refine(k_r, method.list_bound(k_r, found.spacing, 0.0),
                         method.REFINE["iterations"])
         own = method.own_lists_span(k_r, found.spacing, found.sigma)
+        if not own:
+            # The probe reads thin and curved parts' shape as noise: the own fits' reading
+            # decides (docs/ALGORITHM.md, "The test and the refinement").
+            own_sigma = noise.own_sigma(points, taken, k_r, refine.bound,
+                                        method.list_radius(k_r, found.spacing))
+            own = method.own_lists_span(k_r, found.spacing, own_sigma)
     return Plan("default", method.ITERATIONS if iterations is None else iterations, k,
                 noise=found, edge=edge, bound=bound, low=np.asarray(low, np.float64),
-                refine=refine, own_noise=own, probe={"seconds": seconds})
+                refine=refine, own_noise=own, own_sigma=own_sigma,
+                probe={"seconds": time.perf_counter() - started})

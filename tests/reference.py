@@ -670,20 +670,49 @@ def noise_probe(points, lengths, table, min_ratio):
     found = []
     for c, length in enumerate(lengths):
         read, mean_radius = float(np.median(scale[:, c])), float(np.mean(radius[:, c]))
-        xs = np.log([row[0] for row in table[length]])
-        fs = np.log([row[1] for row in table[length]])
-        lo, hi = math.log(read) - 1.0, math.log(read) + 10.0
-        for _ in range(100):
-            mid = 0.5 * (lo + hi)
-            ratio = math.log(mean_radius) - mid
-            if mid + np.interp(ratio, xs, fs) < math.log(read):
-                lo = mid
-            else:
-                hi = mid
-        found.append((mean_radius, math.exp(0.5 * (lo + hi))))
+        found.append((mean_radius, read_back(read, mean_radius, table[length])))
     usable = [sigma for r, sigma in found if r >= min_ratio * sigma]
     sigma = min(usable) if usable else found[-1][1]
     return sigma, found[-1][0] * math.sqrt(math.pi / lengths[-1])
+
+
+def read_back(read, radius, table):
+    """The noise ``sigma`` whose reading by lists of ``radius`` is ``read``: ``sigma f(radius /
+    sigma) = read``, ``f`` the ``table`` (``((radius / sigma, reading / sigma), ...)``,
+    log-linear between rows, held at the ends), by bisection in ``log sigma``."""
+    xs = np.log([row[0] for row in table])
+    fs = np.log([row[1] for row in table])
+    lo, hi = math.log(read) - 1.0, math.log(read) + 10.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if mid + np.interp(math.log(radius) - mid, xs, fs) < math.log(read):
+            lo = mid
+        else:
+            hi = mid
+    return math.exp(0.5 * (lo + hi))
+
+
+def own_variances(points, rows, k, bound):
+    """What the own fit of each of ``points[rows]`` reads of the noise: its list
+    (:func:`nearest_within`, ``k`` within ``bound``), the PCA normal of the list, the
+    feature-aware quadratic with its robust alternative and no normal weight
+    (:func:`frame_fit`, ``sigma_n`` 0), its squared height over ``1 - H``
+    (:func:`own_leverage`)."""
+    out = []
+    for i, (members, _) in zip(rows, nearest_within(points, points[rows], k, bound)):
+        pts = points[members]
+        n = pca_normal(points, members)[0]
+        height = frame_fit(points[i], n, pts, np.tile(n, (len(pts), 1)), 0.0, robust=True)[0]
+        leverage = own_leverage(points[i], n, pts, np.tile(n, (len(pts), 1)), 0.0)
+        out.append(height ** 2 / max(1.0 - leverage, np.finfo(float).eps))
+    return np.array(out)
+
+
+def own_sigma(points, rows, k, bound, radius, table):
+    """The noise the own fits of ``points[rows]`` read: the root mean of their
+    :func:`own_variances`, read back through ``table`` for lists of ``radius``
+    (:func:`read_back`)."""
+    return read_back(math.sqrt(own_variances(points, rows, k, bound).mean()), radius, table)
 
 
 def method_plan(sigma, spacing, n, cell, radius, shortest, longest, reach, refine_radius,

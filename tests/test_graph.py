@@ -285,6 +285,36 @@ def test_nearest_within_drops_a_point_at_the_bound_itself_from_either_query(monk
     _check_bounded(nearest_within(points, points.copy(), 130, 1.0), want, len(points))
 
 
+@pytest.mark.parametrize("name", sorted(BOUNDED))
+@pytest.mark.parametrize("pieces", [1, 3])
+def test_candidates_of_pieces_merge_into_the_whole_cloud_s_lists(name, pieces):
+    """Each piece's candidates (the grid's k + 1 nearest within the bound, rows numbered in
+    the whole cloud) side by side, merged: the reference's lists of the whole cloud, ties at
+    the cut and at one distance included (the lattice), lists longer than a piece too."""
+    points = BOUNDED[name]()
+    n = len(points)
+    queries = points[::3]
+    cuts = np.linspace(0, n, pieces + 1).astype(int)
+    spread = float(np.ptp(points, axis=0).max())
+    for k in sorted({min(4, n - 1), min(12, n - 1), n - 1}):
+        for bound in (np.inf, 0.2113 * spread):
+            distances, rows = [], []
+            for a, b in zip(cuts[:-1], cuts[1:]):
+                (_, _, d, r), = graph_module.candidates(points[a:b], queries, k + 1, bound,
+                                                        len(queries))
+                distances.append(d)
+                rows.append(np.where(r < b - a, r + a, n))
+            kept, lengths, order = graph_module.merge_candidates(
+                np.hstack(distances), np.hstack(rows), k, n)
+            want = reference.nearest_within(points, queries, k, bound)
+            for i, (members, _) in enumerate(want):
+                assert lengths[i] == len(members), (k, bound, i)
+                np.testing.assert_array_equal(kept[i, :lengths[i]], members)
+                # The columns each kept entry came from hold it.
+                np.testing.assert_array_equal(
+                    np.hstack(rows)[i, order[i, :lengths[i]]], members)
+
+
 @pytest.mark.parametrize("lengths", [[3, 0, 5, 1], [5, 5, 5, 5], [0, 0, 0, 0], [2]])
 def test_rows_packed_end_to_end_are_numpy_s_gather(lengths):
     """``pack_rows`` against the loop it replaces: each row's first entries, in row order,

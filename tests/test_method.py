@@ -488,8 +488,9 @@ def test_stats_describe_one_method(part):
     k_r = method.list_length(sigma, spacing, 0.0, method.REFINE["radius"], method.REFINE["k"])
     own = math.sqrt(k_r / math.pi) * spacing >= method.TEST["span"] * sigma
     assert plan["refine"] == {"k": k_r, "bound": method.list_bound(k_r, spacing, 0.0),
-                              "iterations": method.REFINE["iterations"], "own_noise": own}
-    assert own  # 0.25% noise: the own lists span the noise
+                              "iterations": method.REFINE["iterations"], "own_noise": own,
+                              "own_sigma": None}
+    assert own  # 0.25% noise: the own lists span the noise (no own fits' reading needed)
     last = stats["iterations"][-1]
     assert 0 < last["refined"] < len(part.points) and 0 < last["cells"] <= len(part.points)
     assert {"neighbors", "normals", "filter", "mls", "update", "project", "own_noise", "test",

@@ -152,3 +152,65 @@ def test_the_calibration_is_measured_again_on_a_noisy_plane():
             xs, fs = (np.log(np.array(column)) for column in zip(*noise.CALIBRATION[length]))
             table = math.exp(np.interp(math.log(x), xs, fs))
             assert abs(np.median(scale[inner, col]) / sigma / table - 1) < 0.04, (sigma, length)
+
+
+@pytest.mark.parametrize("name", sorted(CLOUDS))
+def test_own_variances_match_the_reference(name):
+    """What the own fits read on every 5th point (their lists of 30 within a bound that cuts
+    some short): the library's blocks of gathered lists against the reference's fits one
+    point at a time."""
+    points = _ordered(CLOUDS[name]())
+    n = len(points)
+    rows = np.arange(0, n, 5)
+    k = min(30, n - 1)
+    bound = 0.3 * float(np.ptp(points, axis=0).max())
+    got = noise.sampled_variances(points, points[rows], k, bound)
+    want = reference.own_variances(points, rows, k, bound)
+    scale = float(np.ptp(points, axis=0).max()) ** 2
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-12 * scale)
+
+
+def test_own_variances_of_lists_of_one_point_and_of_none():
+    """A list of the point alone reads no noise; an empty list reads NaN (no point)."""
+    lists = np.zeros((3, 4, 3))
+    lists[0, :3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.5], [0.0, 1.0, -0.5]]
+    lists[1, 0] = [2.0, 2.0, 2.0]
+    got = noise.own_variances(lists, np.array([3, 1, 0]))
+    assert np.isfinite(got[0]) and got[1] == 0.0 and np.isnan(got[2])
+
+
+@pytest.mark.parametrize("ratio", [1.0, 3.0])
+def test_the_own_reading_gives_back_a_planes_noise(ratio):
+    """On a noisy plane of the calibration's size whose noise spans 1 and 3 spacings (the
+    refinement's lists about 7 and 2.4 noise widths across), the own fits' reading of 4,000
+    points, read back through OWN_CALIBRATION, is the noise within 6%."""
+    rng = np.random.default_rng(7)
+    n = 60_000
+    sigma = ratio / math.sqrt(n)
+    points = _ordered(np.column_stack([rng.uniform(0, 1, (n, 2)), rng.normal(0, sigma, n)]))
+    taken = noise.sample(points)
+    found = noise.probe(points, taken)
+    k = 160 if ratio > 2 else 80
+    radius = math.sqrt(k / math.pi) * found.spacing
+    assert noise.own_sigma(points, taken, k, 2.0 * radius, radius) == pytest.approx(
+        sigma, rel=0.06)
+
+
+def test_own_sigma_matches_the_reference(monkeypatch):
+    """At most OWN_POINTS of the probe's sample read (here 100 of the 400 points of a wavy
+    surface: every 4th), their mean variance read back through OWN_CALIBRATION: the
+    reference's noise to round-off."""
+    monkeypatch.setattr(noise, "OWN_POINTS", 100)
+    points = _ordered(CLOUDS["wavy"]())
+    radius = 0.1
+    got = noise.own_sigma(points, noise.sample(points), 30, 0.2, radius)
+    want = reference.own_sigma(points, np.arange(0, len(points), 4), 30, 0.2, radius,
+                               noise.OWN_CALIBRATION)
+    assert got == pytest.approx(want, rel=1e-9)
+
+
+def test_own_sigma_reads_the_calibration_back():
+    """``invert`` on OWN_CALIBRATION gives back the noise of every row."""
+    for x, f in noise.OWN_CALIBRATION:
+        assert noise.invert(0.7 * f, 0.7 * x, noise.OWN_CALIBRATION) == pytest.approx(
+            0.7, rel=1e-9)

@@ -52,7 +52,8 @@ def test_the_default_method_s_plan(quiet, preset):
         "method": "default", "iterations": found.iterations, "k": found.k,
         "cell_edge": found.edge, "bound": found.bound, "noise": probe.record(),
         "refine": None if found.refine is None else {**found.refine._asdict(),
-                                                     "own_noise": found.own_noise}}
+                                                     "own_noise": found.own_noise,
+                                                     "own_sigma": None}}
 
 
 def test_own_lists_span_the_noise():
@@ -61,6 +62,34 @@ def test_own_lists_span_the_noise():
     span = method.TEST["span"]
     assert method.own_lists_span(40, 1.0, math.sqrt(40 / math.pi) / span)
     assert not method.own_lists_span(40, 1.0, 1.0001 * math.sqrt(40 / math.pi) / span)
+
+
+def _ordered_centred(points):
+    points = np.asarray(points, np.float64)
+    points = points[morton_order(points)]
+    return np.ascontiguousarray(points - 0.5 * (points.min(axis=0) + points.max(axis=0)))
+
+
+@pytest.mark.parametrize("n_points, level, on", [(20_000, 0.04, True), (30_000, 0.08, False)])
+def test_the_own_fits_decide_where_the_probe_s_noise_leaves_their_test_out(n_points, level,
+                                                                           on):
+    """Where the refinement's lists span fewer than TEST["span"] of the probe's noise widths,
+    the plan reads the noise by the own fits (noise.own_sigma on the probe's sample) and the
+    test against the own noise runs if the lists span as many of those: on the generated part
+    at 20,000 points and 4% (the probe reads its edges as noise: 2.95 widths, the own fits
+    3.33), not at 30,000 points and 8% (1.97 and 2.69)."""
+    points = _ordered_centred(datasets.make("cad_part", n_points=n_points, noise=level,
+                                            seed=2).points)
+    found = plan.make(points, "default", "default", distinct=len(points),
+                      low=points.min(axis=0))
+    k_r, bound_r, _ = found.refine
+    radius = method.list_radius(k_r, found.noise.spacing)
+    assert not method.own_lists_span(k_r, found.noise.spacing, found.noise.sigma)
+    assert found.own_sigma == noise.own_sigma(points, noise.sample(points), k_r, bound_r,
+                                              radius)
+    assert found.own_noise == method.own_lists_span(k_r, found.noise.spacing,
+                                                    found.own_sigma) == on
+    assert found.describe()["refine"]["own_sigma"] == found.own_sigma
 
 
 def test_the_callers_choices_override_the_preset_s(quiet):
@@ -161,3 +190,6 @@ def test_tiled_runs_follow_the_same_plan(tmp_path, noise_level):
                                tile_points=12_000, client="sync")
     assert stats["plan"] == whole.stats["plan"]
     np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), whole.points)
+    # At 2% the probe's noise leaves the own test out: the own fits' reading, read from the
+    # files' buckets (lists across them), decided.
+    assert (whole.stats["plan"]["refine"]["own_sigma"] is not None) == (noise_level > 0.01)

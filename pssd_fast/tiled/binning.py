@@ -29,10 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import core, duplicates, regions
+from .. import core, duplicates, noise, regions
 from .._validation import check_range, check_size
 from ..progress import BEFORE
-from ..graph import MORTON_BITS, bounds, cell_keys, cell_order, code_order
+from ..graph import (MORTON_BITS, bounds, candidates, cell_keys, cell_order, code_order,
+                     merge_candidates)
 from . import ondisk
 
 #: The shift that leaves a position code's top :data:`~pssd_fast.regions.PREFIX_BITS` bits (7
@@ -96,6 +97,8 @@ class Buckets:
         # The rows at one position share its code (pssd_fast.duplicates), so a bucket holds
         # whole positions and merges its own; the bounds are then those of the distinct
         # positions, as in core.
+        # Each bucket's box, for the buckets a query must read (own_variances).
+        self.boxes = [(m[1] - self.centre, m[2] - self.centre) for m in merged]
         self.copies = [path.with_name(path.stem + "_copies.bin") for path, m in
                        zip(self.paths, merged) if m[3]]
         self.starts = np.concatenate(([0], np.cumsum([m[0] for m in merged])))
@@ -134,6 +137,33 @@ class Buckets:
                 return buckets.ranked("nrm", key)
 
         return Normals()
+
+    def own_variances(self, sample, k, bound):
+        """:func:`pssd_fast.noise.sampled_variances` of ``sample`` (points of the cloud, in
+        its Morton order) by tasks: per bucket within ``bound`` of some of them, their
+        :func:`~pssd_fast.graph.candidates` among its points, into a file; per block of
+        :data:`~pssd_fast.noise.OWN_BLOCK` of them, their candidates from every bucket merged
+        into the whole cloud's lists (:func:`~pssd_fast.graph.merge_candidates`) and read
+        (:func:`pssd_fast.noise.own_variances`): the in-core values, bit for bit."""
+        blocks = -(-sample.shape[0] // noise.OWN_BLOCK)
+        argsets, pieces = [], []
+        for b, (path, (low, high)) in enumerate(zip(self.paths, self.boxes)):
+            # Every bucket that may hold a point within the bound (a little wider: a bucket
+            # too many adds candidates beyond the lists, never changes them).
+            gap = np.maximum(np.maximum(low - sample, sample - high), 0.0)
+            at = np.flatnonzero((gap * gap).sum(axis=1) <= (bound * (1.0 + 1e-9)) ** 2)
+            if at.shape[0]:
+                pieces.append(self.folder / f"own_{b}.bin")
+                argsets.append((path, self.dtype, self.centre, int(self.starts[b]),
+                                self.shape[0], sample[at], at, k, bound, blocks, pieces[-1]))
+        counts = ondisk.offsets(self.runner.map("own lists", *BEFORE, _own_candidates,
+                                                argsets))
+        parts = self.runner.map("own fits", *BEFORE, _own_block, [
+            (ondisk.pieces(pieces, counts, b), _own_record(k + 1), k, self.shape[0])
+            for b in range(blocks)])
+        for path in pieces:
+            path.unlink()
+        return np.concatenate(parts) if parts else np.empty(0)
 
     def cells(self, plan, store, tile_points):
         """The points grouped by the cells of ``plan`` into ``store``, as
@@ -200,6 +230,53 @@ def _sample(path, dtype, field, ranks, n_jobs):
             run = np.fromfile(fh, dtype, count=int(ranks[b - 1]) - first + 1)
             out[a:b] = run[field][ranks[a:b] - first]
     return out
+
+
+def _own_record(q):
+    """A sample point's candidates from one bucket: its place in the sample (``at``), and the
+    distance, rank and position of each of its ``q`` nearest there."""
+    return np.dtype([("at", np.int64), ("d", np.float64, q), ("rank", np.int64, q),
+                     ("xyz", np.float64, (q, 3))])
+
+
+def _own_candidates(path, dtype, centre, first, n, queries, at, k, bound, blocks, out,
+                    n_jobs):
+    """The :func:`~pssd_fast.graph.candidates` among a bucket's points (its first at rank
+    ``first`` of ``n``) of the sample points ``queries`` (at ``at`` in the sample), as
+    :func:`_own_record` records sorted by block of the sample into a file at ``out``; the
+    count of each block."""
+    xyz = np.fromfile(path, dtype)["xyz"] - centre
+    m = xyz.shape[0]
+    found = np.empty(queries.shape[0], _own_record(k + 1))
+    found["at"] = at
+    for start, stop, distances, rows in candidates(xyz, queries, k + 1, bound,
+                                                   noise.OWN_BLOCK):
+        found["d"][start:stop] = distances
+        found["rank"][start:stop] = np.where(rows < m, rows + first, n)
+        found["xyz"][start:stop] = xyz[np.minimum(rows, m - 1)]
+    return ondisk.sorted_save(found, at // noise.OWN_BLOCK, blocks, out)
+
+
+def _own_block(pieces, record, k, n, n_jobs):
+    """:func:`pssd_fast.noise.own_variances` of a block of the sample, from its candidates in
+    every bucket's file (``pieces``)."""
+    records = ondisk.read_pieces(pieces, record)
+    records = ondisk.take(records, np.argsort(records["at"], kind="stable"))
+    at = records["at"]
+    first = np.flatnonzero(np.concatenate(([True], at[1:] != at[:-1])))
+    slot = np.arange(at.shape[0]) - np.repeat(first, np.diff(np.append(first, at.shape[0])))
+    q = record["d"].shape[0]
+    width = (int(slot.max()) + 1) * q
+    row = np.repeat(np.arange(first.shape[0]), np.diff(np.append(first, at.shape[0])))
+    distances = np.full((first.shape[0], width), np.inf)
+    ranks = np.full((first.shape[0], width), n, np.int64)
+    xyz = np.zeros((first.shape[0], width, 3))
+    columns = slot[:, None] * q + np.arange(q)
+    distances[row[:, None], columns] = records["d"]
+    ranks[row[:, None], columns] = records["rank"]
+    xyz[row[:, None], columns] = records["xyz"]
+    _, lengths, order = merge_candidates(distances, ranks, k, n)
+    return noise.own_variances(np.take_along_axis(xyz, order[:, :, None], axis=1), lengths)
 
 
 def _code_prefixes(array, start, stop, mask, codes, n_jobs):
