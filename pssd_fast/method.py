@@ -48,6 +48,11 @@ ITERATIONS = 2
 #: variance) by ``z_own`` standard deviations of the ratio of two such chi-squares
 #: (``sqrt(4 / m)``), plus what their own fits would leave of it.
 TEST = {"z": 1.0, "cells": 32, "span": 3.0, "reads": 0.91, "z_own": 4.0}
+#: Where the refinement's lists span fewer than ``TEST["span"]`` of the probe's noise widths
+#: but at least this share of them, the own fits' reading decides whether they span as many
+#: of the noise the own fits read (:func:`own_reading_decides`; docs/ALGORITHM.md, "The test
+#: and the refinement").
+OWN_READ = 0.5
 #: The failing points' own fits: their lists reach ``radius`` noise widths (at least ``k``
 #: points), and they iterate ``iterations`` times.
 REFINE = {"radius": 4.0, "k": 40, "iterations": 2}
@@ -112,6 +117,18 @@ def own_lists_span(k, spacing, sigma):
     list holds the points nearest the point's own height; docs/ALGORITHM.md, "The test and the
     refinement")."""
     return list_radius(k, spacing) >= TEST["span"] * sigma
+
+
+def own_reading_decides(k, spacing, sigma):
+    """Whether the own fits' reading of the noise decides :func:`own_lists_span` for lists of
+    ``k`` points where the probe's noise ``sigma`` does not: they span fewer than
+    ``TEST["span"]`` noise widths of it but at least :data:`OWN_READ` of that. Narrower,
+    they are narrower than the noise itself can be (the probe over-reads a noise at most
+    2.06 times on the clouds measured), and the reading cannot tell them from lists of 3
+    noise widths: a list far narrower than the noise is a ball in it, whose own fit reads a
+    quarter of its radius, as a list of 3.7 noise widths does."""
+    return (not own_lists_span(k, spacing, sigma)
+            and list_radius(k, spacing) >= OWN_READ * TEST["span"] * sigma)
 
 
 def cell_edge(sigma, spacing):

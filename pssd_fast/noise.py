@@ -116,10 +116,10 @@ def own_sigma(points, taken, k, bound, radius):
     """The noise as the refinement's own fits read it on the probe's sample (every ``s``-th
     point of it, at most :data:`OWN_POINTS`): each such point's ``k`` nearest points of
     ``points`` within ``bound`` (:func:`sampled_variances`; what offers
-    ``own_variances(sample, k, bound)`` reads them itself, out of core), the root mean of
+    ``sampled_variances(sample, k, bound)`` reads them itself, out of core), the root mean of
     their :func:`own_variances`, read back through :data:`OWN_CALIBRATION` for lists of mean
     ``radius`` (:func:`invert`). ``taken``: :func:`sample`'s."""
-    reader = getattr(points, "own_variances", None)
+    reader = getattr(points, "sampled_variances", None)
     every = -(-taken[0].shape[0] // OWN_POINTS)
     variances = (reader if reader is not None else partial(sampled_variances, points))(
         taken[0][::every], k, bound)

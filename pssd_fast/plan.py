@@ -190,7 +190,7 @@ def _default(points, setting, distinct, low, k, iterations):
         refine = Refine(k_r, method.list_bound(k_r, found.spacing, 0.0),
                         method.REFINE["iterations"])
         own = method.own_lists_span(k_r, found.spacing, found.sigma)
-        if not own:
+        if method.own_reading_decides(k_r, found.spacing, found.sigma):
             # The probe reads thin and curved parts' shape as noise: the own fits' reading
             # decides (docs/ALGORITHM.md, "The test and the refinement").
             own_sigma = noise.own_sigma(points, taken, k_r, refine.bound,

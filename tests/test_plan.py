@@ -92,6 +92,18 @@ def test_the_own_fits_decide_where_the_probe_s_noise_leaves_their_test_out(n_poi
     assert found.describe()["refine"]["own_sigma"] == found.own_sigma
 
 
+def test_the_own_fits_read_where_the_lists_span_half_the_test_s_widths():
+    """The own fits' reading decides between OWN_READ and 1 times TEST["span"] of the
+    probe's noise widths; beyond, the probe's noise decides; below, the lists are narrower than
+    the noise can be and the test stays off."""
+    span, k = method.TEST["span"], 40
+    radius = method.list_radius(k, 1.0)
+    for widths, reads in ((1.01 * span, False), (0.99 * span, True),
+                          (1.01 * method.OWN_READ * span, True),
+                          (0.99 * method.OWN_READ * span, False)):
+        assert method.own_reading_decides(k, 1.0, radius / widths) == reads, widths
+
+
 def test_the_callers_choices_override_the_preset_s(quiet):
     found = _make(quiet, "default", "default", k=30, iterations=3)
     assert found.k == 30 and found.iterations == 3

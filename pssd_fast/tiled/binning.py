@@ -94,11 +94,11 @@ class Buckets:
             enumerate(self.paths)])
         for path in pieces:
             path.unlink()
+        # Each bucket's box, for the buckets a query must read (sampled_variances).
+        self.boxes = [(m[1] - self.centre, m[2] - self.centre) for m in merged]
         # The rows at one position share its code (pssd_fast.duplicates), so a bucket holds
         # whole positions and merges its own; the bounds are then those of the distinct
         # positions, as in core.
-        # Each bucket's box, for the buckets a query must read (own_variances).
-        self.boxes = [(m[1] - self.centre, m[2] - self.centre) for m in merged]
         self.copies = [path.with_name(path.stem + "_copies.bin") for path, m in
                        zip(self.paths, merged) if m[3]]
         self.starts = np.concatenate(([0], np.cumsum([m[0] for m in merged])))
@@ -138,7 +138,7 @@ class Buckets:
 
         return Normals()
 
-    def own_variances(self, sample, k, bound):
+    def sampled_variances(self, sample, k, bound):
         """:func:`pssd_fast.noise.sampled_variances` of ``sample`` (points of the cloud, in
         its Morton order) by tasks: per bucket within ``bound`` of some of them, their
         :func:`~pssd_fast.graph.candidates` among its points, into a file; per block of

@@ -402,8 +402,10 @@ def _file_run(setting, keep, folder, started):
         np.stack([cloud.low, cloud.high]) + cloud.centre).max()))
     check_orient_estimated(settings["orient"], cloud.normals is not None,
                            f"the normals of {setting.array.path}", "drop orient")
-    plan = planning.make(cloud, settings["preset"], "default", distinct=n, low=cloud.corner,
-                         k=settings["k"], iterations=settings["iterations"])
+    # The probe's sample and the own fits' reading are passes over the buckets too.
+    plan = first.run("plan", lambda: planning.make(
+        cloud, settings["preset"], "default", distinct=n, low=cloud.corner, k=settings["k"],
+        iterations=settings["iterations"]))
     request = Request("robust", settings["preset"], "default", None, settings["params"],
                       settings["orient"], cloud.centre, report, started, settings["extras"])
     store = Files(folder)
