@@ -1022,7 +1022,8 @@ def test_duplicate_tolerance_reaches_tiled_runs(tmp_path):
     assert f"({want.stats['duplicates']:,} rows at another row's position, denoised" in out
     assert f"k = {want.stats['k']} cell means within" in out
     lines = out.splitlines()
-    assert re.fullmatch(r"the file before: buckets [\d.]+, tiles [\d.]+ \(s\)", lines[2]), out
+    assert re.fullmatch(r"the file before: buckets [\d.]+, plan [\d.]+, tiles [\d.]+ \(s\)",
+                        lines[2]), out
     assert re.fullmatch(r"iteration 1: neighbors [\d.]+, .*, update [\d.]+, .* \(s\)", lines[3])
     assert re.fullmatch(r"the file after: parts [\d.]+, write [\d.]+ \(s\)", lines[4]), out
     _assert_summary_then_details(out)

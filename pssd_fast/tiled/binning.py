@@ -263,11 +263,13 @@ def _own_block(pieces, record, k, n, n_jobs):
     records = ondisk.read_pieces(pieces, record)
     records = ondisk.take(records, np.argsort(records["at"], kind="stable"))
     at = records["at"]
+    # Each sample point's candidates from its buckets side by side, in the buckets' order.
     first = np.flatnonzero(np.concatenate(([True], at[1:] != at[:-1])))
-    slot = np.arange(at.shape[0]) - np.repeat(first, np.diff(np.append(first, at.shape[0])))
+    sizes = np.diff(np.append(first, at.shape[0]))
+    slot = np.arange(at.shape[0]) - np.repeat(first, sizes)
+    row = np.repeat(np.arange(first.shape[0]), sizes)
     q = record["d"].shape[0]
     width = (int(slot.max()) + 1) * q
-    row = np.repeat(np.arange(first.shape[0]), np.diff(np.append(first, at.shape[0])))
     distances = np.full((first.shape[0], width), np.inf)
     ranks = np.full((first.shape[0], width), n, np.int64)
     xyz = np.zeros((first.shape[0], width, 3))
