@@ -92,6 +92,21 @@ def test_the_own_fits_decide_where_the_probe_s_noise_leaves_their_test_out(n_poi
     assert found.describe()["refine"]["own_sigma"] == found.own_sigma
 
 
+def test_the_own_fits_read_the_same_bits_on_one_thread_as_on_two():
+    """The reading's kernels split their lists among threads, never a sum: one thread and
+    two read the same noise, to the bit."""
+    from pssd_fast._threads import threads
+
+    points = _ordered_centred(datasets.make("cad_part", n_points=20_000, noise=0.04,
+                                            seed=2).points)
+    read = []
+    for n_jobs in (1, 2):
+        with threads(n_jobs):
+            read.append(plan.make(points, "default", "default", distinct=len(points),
+                                  low=points.min(axis=0)).own_sigma)
+    assert read[0] is not None and read[0] == read[1]
+
+
 def test_the_test_holds_the_steps_against_the_smaller_noise(monkeypatch):
     """Where the plan read the own fits' noise and it is below the probe's (the generated part
     at 20,000 points and 4%: the probe reads its edges as noise), the test holds the steps
