@@ -396,7 +396,7 @@ def _test(store, keys, boxes, i, region, plan, n_jobs):
     cells = gather(store, keys, i, boxes, region, names, "xyz")
     n_own = store.get(keys[i], ("gid",))["gid"].shape[0]
     with threads(n_jobs):
-        fails = method.failing(cells["xyz"], cells["sums"], cells["mass"], plan.test_sigma,
+        fails = method.failing(cells["xyz"], cells["sums"], cells["mass"], plan.noise.sigma,
                                plan.bound, cells["gid"], (cells["noise"], cells["spread"])
                                if plan.own_noise else None, n_own)[:n_own]
     points = store.get(("points", i), ("cell",))

@@ -105,16 +105,6 @@ class Plan:
     rebuild_graph: bool = False
     probe: Optional[dict] = None
 
-    @property
-    def test_sigma(self):
-        """The noise the test holds the points' steps against: the smaller of the probe's and
-        the own fits' reading where the plan took it (each over-reads a shape it cannot
-        follow, the probe's thinned lists the more; docs/ALGORITHM.md, "The test and the
-        refinement")."""
-        if self.own_sigma is None:
-            return self.noise.sigma
-        return min(self.noise.sigma, self.own_sigma)
-
     def describe(self):
         """The plan for ``stats["plan"]`` (JSON-serialisable)."""
         if self.pipeline != "default":

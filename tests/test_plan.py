@@ -107,30 +107,6 @@ def test_the_own_fits_read_the_same_bits_on_one_thread_as_on_two():
     assert read[0] is not None and read[0] == read[1]
 
 
-def test_the_test_holds_the_steps_against_the_smaller_noise(monkeypatch):
-    """Where the plan read the own fits' noise and it is below the probe's (the generated part
-    at 20,000 points and 4%: the probe reads its edges as noise), the test holds the steps
-    against it; where the plan took no reading, against the probe's noise."""
-    points = datasets.make("cad_part", n_points=20_000, noise=0.04, seed=2).points
-    ordered = _ordered_centred(points)
-    found = plan.make(ordered, "default", "default", distinct=len(points),
-                      low=ordered.min(axis=0))
-    assert found.own_sigma < found.noise.sigma and found.test_sigma == found.own_sigma
-    assert dataclasses.replace(found, own_sigma=None).test_sigma == found.noise.sigma
-    assert dataclasses.replace(found, own_sigma=2 * found.noise.sigma).test_sigma == \
-        found.noise.sigma
-    seen = []
-    failing = method.failing
-
-    def spy(means, sums, counts, sigma, *args):
-        seen.append(sigma)
-        return failing(means, sums, counts, sigma, *args)
-
-    monkeypatch.setattr(method, "failing", spy)
-    pssd_fast.denoise(points, iterations=1)
-    assert seen and set(seen) == {found.own_sigma}
-
-
 def test_the_own_fits_read_where_the_lists_span_half_the_test_s_widths():
     """The own fits' reading decides between OWN_READ and 1 times TEST["span"] of the
     probe's noise widths; beyond, the probe's noise decides; below, the lists are narrower than
