@@ -81,9 +81,9 @@ class Plan:
         at least ``TEST["span"]`` noise widths of the probe's noise, or of ``own_sigma``),
         else the probe's ``sigma``.
     own_sigma : float or None
-        The noise as the refinement's own fits read it on the probe's sample, where the
-        probe's noise leaves the test against the own noise out
-        (:func:`pssd_fast.noise.own_sigma`); else None.
+        The noise as the refinement's own fits read it on the probe's sample, where that
+        reading decides ``own_noise`` (:func:`pssd_fast.method.own_reading_decides`,
+        :func:`pssd_fast.noise.own_sigma`); else None.
     rebuild_graph : bool
         The paper's pipeline and the baselines: whether each iteration queries its lists
         anew.
