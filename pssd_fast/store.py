@@ -7,6 +7,7 @@ the same step, only the rows inside its halo (:meth:`Files.rows`: those rows alo
 """
 import pickle
 import shutil
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,18 @@ import numpy as np
 from . import atomic
 from . import regions
 from .graph import inside_boxes
+
+
+#: numpy reads a ``.npy`` header with ``ast.literal_eval``, which CPython 3.11 before 3.11.8
+#: can fail ("AST constructor recursion depth mismatch", gh-106905) in threads that run it at
+#: once, as a threaded run's tasks do: one thread reads a header at a time.
+_HEADERS = threading.Lock()
+
+
+def load(path, mmap_mode=None):
+    """``np.load(path, mmap_mode)`` of a ``.npy`` file (no pickles), safe in threads."""
+    with _HEADERS:
+        return np.load(path, mmap_mode=mmap_mode, allow_pickle=False)
 
 
 class Memory:
@@ -79,13 +92,13 @@ class Files:
         """The arrays ``names`` of entry ``key``, at ``rows`` only (read through a memory map:
         the pages that hold them)."""
         folder = self._path(key)
-        return {name: np.load(folder / f"{name}.npy", mmap_mode="r")[rows] for name in names}
+        return {name: load(folder / f"{name}.npy", "r")[rows] for name in names}
 
     @staticmethod
     def _read(folder, name):
         path = folder / f"{name}.npy"
         if path.exists():
-            return np.load(path, allow_pickle=False)
+            return load(path)
         with open(folder / f"{name}.pkl", "rb") as fh:
             return pickle.load(fh)
 

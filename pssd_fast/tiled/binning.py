@@ -32,6 +32,7 @@ import numpy as np
 from .. import core, duplicates, noise, regions
 from .._validation import check_range, check_size
 from ..progress import BEFORE
+from ..store import load
 from ..graph import (MORTON_BITS, bounds, candidates, cell_keys, cell_order, code_order,
                      merge_candidates)
 from . import ondisk
@@ -377,7 +378,7 @@ def _put_tile(path, record, centre, c0, store, i, n_jobs):
     from ..executor import Tile
 
     records = np.fromfile(path, record)
-    starts = np.load(path.with_suffix(".starts.npy"))
+    starts = load(path.with_suffix(".starts.npy"))
     m = starts.shape[0] - 1
     xyz = records["xyz"] - centre
     normals = records["nrm"] if "nrm" in records.dtype.names else None
