@@ -34,7 +34,7 @@ from .._validation import check_range, check_size
 from ..progress import BEFORE
 from ..store import load
 from ..graph import (MORTON_BITS, bounds, candidates, cell_keys, cell_order, code_order,
-                     merge_candidates)
+                     inside_boxes, merge_candidates)
 from . import ondisk
 
 #: The shift that leaves a position code's top :data:`~pssd_fast.regions.PREFIX_BITS` bits (7
@@ -147,12 +147,12 @@ class Buckets:
         into the whole cloud's lists (:func:`~pssd_fast.graph.merge_candidates`) and read
         (:func:`pssd_fast.noise.own_variances`): the in-core values, bit for bit."""
         blocks = -(-sample.shape[0] // noise.OWN_BLOCK)
+        # Every bucket that may hold a point within the bound: its box grown by a little more
+        # than it (a bucket too many adds candidates beyond the lists, never changes them).
+        reach = bound * (1.0 + 1e-9)
         argsets, pieces = [], []
         for b, (path, (low, high)) in enumerate(zip(self.paths, self.boxes)):
-            # Every bucket that may hold a point within the bound (a little wider: a bucket
-            # too many adds candidates beyond the lists, never changes them).
-            gap = np.maximum(np.maximum(low - sample, sample - high), 0.0)
-            at = np.flatnonzero((gap * gap).sum(axis=1) <= (bound * (1.0 + 1e-9)) ** 2)
+            at = np.flatnonzero(inside_boxes(sample, np.array([[low - reach, high + reach]])))
             if at.shape[0]:
                 pieces.append(self.folder / f"own_{b}.bin")
                 argsets.append((path, self.dtype, self.centre, int(self.starts[b]),
