@@ -162,8 +162,8 @@ def _parser():
                        "2, 6, 9, 10, 11 and 17 present; a file of classes 0 and 1 only, never "
                        "classified or unclassified, as one cloud)")
     den.add_argument("--tile-points", type=_tile_points, default=None, metavar="N",
-                     help="run in tiles of at most N points on Dask (pip install "
-                          "'pssd_fast[dask]'), with the same result; presets default and fast, "
+                     help="run in tiles of at most N points on Dask (the dask extra: pip "
+                          "install '.[dask]'), with the same result; presets default and fast, "
                           "where they work on cell means; a classified input keeps its "
                           "classes apart as without it (see --classes)")
     den.add_argument("--scheduler", default=None, metavar="WHERE", type=_scheduler,
@@ -474,6 +474,14 @@ def _details(stats, say):
         print(f"outlier score: {stats['outliers']['seconds']:.3f} s", file=say)
 
 
+def _method(args):
+    """The summary's method, with the preset where the method has presets (the preset is what
+    ``stats["plan"]["method"]`` names)."""
+    if args.method == "robust":
+        return f"method robust, preset {args.preset}"
+    return f"method {args.method}"
+
+
 def _chosen(stats):
     """What ``--verbose`` says after ``k``: where the run's sizes came from."""
     plan, probe = stats["plan"], stats["auto_k"]
@@ -709,7 +717,7 @@ def _denoise_on_disk(args, params, inp, out, say):
         # With classes, n_points counts the points denoised.
         total = stats["n_points"] + stats.get("classes", {}).get("untouched", 0)
         moved = stats["displacement"]
-        print(f"{inp} -> {out}: {total:,} points, method {args.method}, "
+        print(f"{inp} -> {out}: {total:,} points, {_method(args)}, "
               f"{_iterations(stats)}, {stats['total_seconds']:.2f} s; "
               f"{_tiles(stats, 'out of core')}displacement max "
               f"{moved['max']:.4g}, mean {moved['mean']:.4g}{_rounded(out, None)}"
@@ -829,7 +837,7 @@ def _denoise_file(args, params, inp, out, say):
         disp = np.linalg.norm(points - cloud.points, axis=1)
         removed = (f" ({result.stats['outliers']['removed']:,} outliers removed)"
                    if args.remove_outliers else "")
-        print(f"{inp} -> {out}: {len(disp):,} points{removed}, method {args.method}, "
+        print(f"{inp} -> {out}: {len(disp):,} points{removed}, {_method(args)}, "
               f"{_iterations(result.stats)}, {seconds:.2f} s; {_tiles(result.stats, 'in memory')}"
               f"displacement max {disp.max():.4g}, mean {disp.mean():.4g}"
               f"{_rounded(out, fmt)}{_copies(result.stats)}"

@@ -321,6 +321,20 @@ def test_the_summary_reports_the_method_s_moves_in_memory_as_out_of_core(tmp_pat
                                              f"coordinates to its scale)", out
 
 
+@pytest.mark.parametrize("extra, named", [([], "method robust, preset default"),
+                                          (["--preset", "fast"], "method robust, preset fast"),
+                                          (["--method", "mls"], "method mls"),
+                                          (["--tile-points", "1000"],
+                                           "method robust, preset default")])
+def test_the_summary_names_the_preset_that_the_stats_name(tmp_path, extra, named):
+    """The summary names the method and, for the robust method, the preset, which is what
+    ``stats["plan"]["method"]`` calls the run (in memory and out of core)."""
+    np.save(tmp_path / "in.npy", datasets.cad_part(n_points=2000, noise=0.005, seed=1).points)
+    status, out, err = pssd("denoise", tmp_path / "in.npy", tmp_path / "out.npy", *extra)
+    assert status == 0, err
+    assert f" points, {named}, " in out, out
+
+
 @pytest.mark.parametrize("classes", [None, "6"])
 def test_render_draws_the_points_of_other_classes_grey(tmp_path, monkeypatch, classes):
     """The displacement of a classified file (as pssd denoise --fields displacement writes it)

@@ -6,7 +6,7 @@ tasks of the one executor (:mod:`pssd_fast.executor`). :mod:`.runner` sets the r
 :mod:`.scheduler` runs the tasks on Dask, and :mod:`.ondisk` reads a cloud on disk in chunks
 and bins it into tiles.
 
-Dask is an optional dependency: ``pip install "pssd_fast[dask]"``.
+Dask is an optional dependency: ``pip install ".[dask]"`` in the repository.
 """
 from .runner import FILE_KINDS, LOCAL_SCHEDULERS, denoise, denoise_file
 

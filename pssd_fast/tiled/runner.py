@@ -5,7 +5,7 @@ executor of :func:`pssd_fast.denoise` too): :func:`denoise` tiles an array in me
 :func:`denoise_file` a file on disk, whose points never all sit in one process. Both take
 :func:`pssd_fast.denoise`'s parameters and give its result, bit for bit.
 
-Dask is an optional dependency: ``pip install "pssd_fast[dask]"``.
+Dask is an optional dependency: ``pip install ".[dask]"`` in the repository.
 """
 import dataclasses
 import inspect
