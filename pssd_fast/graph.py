@@ -240,8 +240,10 @@ GRID_K = 128
 #: ties :func:`pssd_fast.kernels.graph.keep_nearest` orders, and faster from about 40
 #: (docs/DECISIONS.md, "Long lists").
 BOUNDED_GRID_K = 48
-#: ... and from this many points on: below, the grid saves a fraction of a second a run (at
-#: 60,000 points 0.2 s of 1.6), less than its kernel's first compile costs (about 11 s).
+#: ... and from this many points on, or from ``GRID_K`` entries on at any size: below both,
+#: the grid saves a fraction of a second a run (at 60,000 points 0.2 s of 1.6), less than its
+#: kernel's first compile costs (about 11 s); lists of ``GRID_K`` take pykdtree long enough
+#: (the default at 30,000-60,000 points and 1% noise: 13-15% of its run) to pay for it.
 BOUNDED_GRID_POINTS = 100_000
 #: The sample points whose lists set the grid's cell in a bounded query (:func:`_grid_cell`):
 #: its cost, not its lists, depends on them.
@@ -311,7 +313,7 @@ def _nearest_blocks(data, queries, k, bound, ids, count=None):
     q = min(k + 1, n)
     # Long lists of the data's own points come from the grid query (pykdtree's cost grows as
     # k^2); it finds the same points at the same distances.
-    grid = queries is data and q >= BOUNDED_GRID_K and n >= BOUNDED_GRID_POINTS
+    grid = queries is data and (q >= GRID_K or q >= BOUNDED_GRID_K and n >= BOUNDED_GRID_POINTS)
     query = _grid_query(data, q, GRID_LOOKED) if grid else None
     tree = None if grid else kdtree(data)
     ids = _NO_IDS if ids is None else np.ascontiguousarray(ids, np.int64)

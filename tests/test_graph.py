@@ -398,6 +398,28 @@ def test_the_grid_and_the_tree_give_the_same_bounded_lists_to_the_bit(monkeypatc
         np.testing.assert_array_equal(a, b)
 
 
+def test_long_bounded_lists_of_a_small_cloud_come_from_the_grid(monkeypatch):
+    """Below BOUNDED_GRID_POINTS, bounded lists of GRID_K or more come from the grid query, as
+    the unbounded lists do (pykdtree's cost grows as k^2), and they are the tree's lists."""
+    rng = np.random.default_rng(8)
+    points = np.column_stack([rng.uniform(0, 1, (3000, 2)), rng.normal(0, 0.01, 3000)])
+    k, bound = graph_module.GRID_K, 0.15
+    assert len(points) < graph_module.BOUNDED_GRID_POINTS
+    made = []
+    grid_query = graph_module._grid_query
+    monkeypatch.setattr(graph_module, "_grid_query", lambda *a: made.append(a) or grid_query(*a))
+    grid = nearest_within(points, points, k, bound)
+    assert made
+    nearest_within(points, points, k - 2, bound)  # a query of k - 1: the tree
+    assert len(made) == 1
+    monkeypatch.setattr(graph_module, "GRID_K", 10**9)
+    tree = nearest_within(points, points, k, bound)
+    assert len(made) == 1
+    assert (grid[2] < k).any() and (grid[2] == k).any()  # the bound and the k + 1-th both cut
+    for a, b in zip(grid, tree):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.parametrize("k", [20, graph_module.BOUNDED_GRID_K + 10])
 def test_a_bounded_list_depends_only_on_the_points_within_its_bound(k, monkeypatch):
     """What tiles rely on: the lists of a block of points computed on any subset holding every
