@@ -313,7 +313,7 @@ def _nearest_blocks(data, queries, k, bound, ids, count=None):
     q = min(k + 1, n)
     # Long lists of the data's own points come from the grid query (pykdtree's cost grows as
     # k^2); it finds the same points at the same distances.
-    grid = queries is data and (q >= GRID_K or q >= BOUNDED_GRID_K and n >= BOUNDED_GRID_POINTS)
+    grid = queries is data and (q >= GRID_K or (q >= BOUNDED_GRID_K and n >= BOUNDED_GRID_POINTS))
     query = _grid_query(data, q, GRID_LOOKED) if grid else None
     tree = None if grid else kdtree(data)
     ids = _NO_IDS if ids is None else np.ascontiguousarray(ids, np.int64)
