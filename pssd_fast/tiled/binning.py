@@ -31,10 +31,10 @@ import numpy as np
 
 from .. import core, duplicates, noise, regions
 from .._validation import check_range, check_size
-from ..progress import BEFORE
-from ..store import load
 from ..graph import (MORTON_BITS, bounds, candidates, cell_keys, cell_order, code_order,
                      inside_boxes, merge_candidates)
+from ..progress import BEFORE
+from ..store import load
 from . import ondisk
 
 #: The shift that leaves a position code's top :data:`~pssd_fast.regions.PREFIX_BITS` bits (7
