@@ -180,13 +180,17 @@ def check_orient_estimated(orient, has_normals, source="the given normals",
                          f"({fix})")
 
 
-def check_k(k, n_points, minimum=MIN_K):
-    """Check the neighbour count against the cubic's needs and the cloud's size."""
+def check_k(k, n_points, minimum=MIN_K, denoising=True):
+    """Check the neighbour count against the cubic's needs and the cloud's size (``denoising``:
+    a cloud too small for any ``k`` is refused as too small to denoise; else as too small for
+    lists of ``k``)."""
     k = check_int(k, "k", minimum=minimum)
     if n_points < k + 1:
-        check_size(n_points, minimum)
+        if denoising:
+            check_size(n_points, minimum)
+        lower = "lower k or pass" if n_points >= minimum + 1 else f"k is at least {minimum}: pass"
         raise ValueError(f"need at least k + 1 = {k + 1} points for k = {k}; got {n_points} "
-                         f"points (lower k or pass a larger cloud)")
+                         f"point{'s' * (n_points != 1)} ({lower} a larger cloud)")
     return k
 
 

@@ -5,6 +5,7 @@ command line); no traceback reaches the user.
 """
 import argparse
 import os
+import re
 import shutil
 import signal
 import sys
@@ -67,7 +68,10 @@ def main(argv=None):
     killed by it), each after one line on stderr and with no temporary file left behind.
     """
     parser = _parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        # The usage of the command they were given to, not the top level's.
+        getattr(args, "parser", parser).error(f"unrecognized arguments: {' '.join(unknown)}")
     if not hasattr(args, "run"):
         parser.print_help()
         return 2
@@ -107,7 +111,25 @@ def _one_line(exc):
     message = text[0] if text else type(exc).__name__
     if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in message:
         message = f"{exc.filename}: {message}"
-    return message
+    return _as_flags(message)
+
+
+#: The keywords of :func:`pssd_fast.denoise` that the library's messages name and that a
+#: command line spells as options (not the one-letter ``k`` and ``h``, words such as
+#: ``method`` that messages use in their own sense, nor ``shift_normals``, whose option is
+#: ``--no-shift-normals``).
+_SPELLED = tuple(sorted((p.name for p in PARAMETERS if p.name != "shift_normals" and (
+    "_" in p.name or p.name in ("lam", "delta", "alpha", "beta"))), key=len, reverse=True))
+
+
+def _as_flags(message):
+    """A library message as the command line reads it: its keywords as options."""
+    message = re.sub(r"\bpreset='(\w+)'", r"--preset \1", message)
+    message = re.sub(r"^([kh]) ", r"--\1 ", message)  # "k must be at least 10"
+    message = message.replace("a positive integer, -1 or None (all cores)",
+                              "a positive integer or -1 (all cores)")
+    return re.sub(r"(?<![\w'-])(" + "|".join(_SPELLED) + r")(?![\w'-])",
+                  lambda m: "--" + m.group(1).replace("_", "-"), message)
 
 
 def _parser():
@@ -171,7 +193,7 @@ def _parser():
                           "scheduler's address")
     den.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
     _add_verbosity(den)
-    den.set_defaults(run=_denoise)
+    den.set_defaults(run=_denoise, parser=den)
 
     demo = sub.add_parser(
         "demo", help="denoise the built-in CAD part and draw the figure set",
@@ -189,7 +211,7 @@ def _parser():
     _add_size(demo)
     demo.add_argument("--force", action="store_true", help="overwrite files in the folder")
     _add_verbosity(demo)
-    demo.set_defaults(run=_demo, method="robust")
+    demo.set_defaults(run=_demo, method="robust", parser=demo)
 
     info = sub.add_parser("info", help="describe a point cloud file",
                           description="Print point count, bounds, average spacing and the "
@@ -200,7 +222,7 @@ def _parser():
     info.add_argument("--format", default=None, metavar="FMT",
                       help="format of '-' (stdin) as an extension: xyz, csv, ply, las...")
     _add_columns(info)
-    info.set_defaults(run=_info)
+    info.set_defaults(run=_info, parser=info)
 
     render = sub.add_parser("render", help="draw a point cloud as a picture", description=(
         "Draw FILE coloured by a per-point field, fitted to the picture. "
@@ -245,7 +267,7 @@ def _parser():
     render.add_argument("--force", action="store_true", help="overwrite the picture if it "
                                                              "exists")
     render.add_argument("--quiet", action="store_true", help="print nothing but errors")
-    render.set_defaults(run=_render, method="robust")
+    render.set_defaults(run=_render, method="robust", parser=render)
     return parser
 
 
@@ -543,6 +565,10 @@ def _jobs(args):
         raise CommandError("'-' needs --format to name its format (e.g. --format xyz)")
     for inp, out in jobs:
         fmt = args.format if _is_stdio(out) else None
+        zarr = [str(p) for p in (inp, out) if str(p).lower().rstrip("/").endswith(".zarr")]
+        if zarr and args.tile_points is None:
+            raise CommandError(f"{zarr[0]}: Zarr arrays are read and written out of core only: "
+                               f"pass --tile-points (e.g. --tile-points 2000000)")
         if not (args.tile_points is not None and str(out).lower().endswith(".zarr")):
             io.storable(out, [], format=fmt)  # an unknown format fails now, not after the work
         if _is_stdio(out):
@@ -632,11 +658,12 @@ def _run_tiled(points, normals, args, method_params, progress, orient, remove_ou
     (``options``: ``extras`` and the classes, as :func:`pssd_fast.denoise` takes them)."""
     from . import tiled
 
-    _check_tiled(args, method_params, remove_outliers)
+    _check_tiled(args, method_params)
     return tiled.denoise(points, normals, tile_points=args.tile_points, client=args.scheduler,
                          preset=args.preset, iterations=args.iterations, orient=orient,
                          duplicate_tolerance=args.duplicate_tolerance, n_jobs=args.n_jobs,
-                         progress=progress, **options, **method_params)
+                         progress=progress, remove_outliers=remove_outliers, **options,
+                         **method_params)
 
 
 def _flag(dest):
@@ -644,12 +671,11 @@ def _flag(dest):
     return "--no-shift-normals" if dest == "shift_normals" else f"--{dest.replace('_', '-')}"
 
 
-def _check_tiled(args, method_params, remove_outliers):
+def _check_tiled(args, method_params):
     """Refuse the options that ``--tile-points`` does not take."""
     unused = [name for name, given in (
         ("--method", args.method != "robust"), ("--k", args.k is not None),
         ("--lam", args.lam is not None), ("--rebuild-graph", args.rebuild_graph is not None),
-        ("--remove-outliers", remove_outliers),
         *((_flag(dest), True) for dest in method_params
           if dest != "sigma_n"))
         if given]
@@ -690,7 +716,11 @@ def _denoise_on_disk(args, params, inp, out, say):
     from .tiled import ondisk
     from .tiled import FILE_KINDS
 
-    _check_tiled(args, params, args.remove_outliers)
+    _check_tiled(args, params)
+    if args.remove_outliers:
+        raise CommandError("--remove-outliers drops rows, which a run out of core (--tile-points "
+                           "from .npy, Zarr or LAS/LAZ into a file of its kind) does not do: "
+                           "drop --tile-points to denoise in memory")
     las = FILE_KINDS[Path(inp).suffix.lower()] == "las"
     if not las and args.classes not in (None, "all"):
         raise CommandError(f"--classes: {inp} has no classification field")
@@ -772,18 +802,30 @@ def _denoise(args):
     jobs = _jobs(args)
     # Data on stdout: every message goes to stderr.
     say = sys.stderr if any(_is_stdio(out) for _, out in jobs) else sys.stdout
+    failed = 0
+
+    def report(inp, exc):
+        message = _one_line(exc)
+        prefix = "" if str(inp) in message else f"{inp}: "
+        print(f"pssd: error: {prefix}{message}", file=sys.stderr)
+
     if args.output_dir is not None:
         args.output_dir.mkdir(parents=True, exist_ok=True)
-        for _, out in jobs:
-            _check_output(out, args.force)
-    failed = 0
+        # Every output that cannot be written is named before any work; the others are.
+        ready = []
+        for inp, out in jobs:
+            try:
+                _check_output(out, args.force)
+                ready.append((inp, out))
+            except CommandError as exc:
+                report(inp, exc)
+                failed += 1
+        jobs = ready
     for inp, out in jobs:
         try:
             _denoise_file(args, params, inp, out, say)
         except (CommandError, OSError, ValueError, TypeError) as exc:
-            message = _one_line(exc)
-            prefix = "" if str(inp) in message else f"{inp}: "
-            print(f"pssd: error: {prefix}{message}", file=sys.stderr)
+            report(inp, exc)
             failed += 1
     return 1 if failed else 0
 
@@ -984,6 +1026,9 @@ def _info(args):
 
     from . import io
 
+    if str(args.file).lower().rstrip("/").endswith(".zarr"):
+        raise CommandError(f"{args.file}: pssd info reads point-cloud files; a Zarr array is "
+                           "read by pssd denoise --tile-points")
     cloud = _read(args.file, args, args.format if _is_stdio(args.file) else None)
     points = cloud.points
     low, high = points.min(axis=0), points.max(axis=0)

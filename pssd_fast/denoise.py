@@ -334,7 +334,12 @@ def _method_params(method, method_params):
     defaults = METHOD_DEFAULTS[method]
     unknown = sorted(set(method_params) - set(defaults))
     if unknown:
+        # A parameter of another method: name that method, not the whole list.
+        owners = [m for m in METHOD_DEFAULTS if m != method and set(unknown) <= set(
+            METHOD_DEFAULTS[m])]
+        hint = (f"method {owners[0]!r} takes {'it' if len(unknown) == 1 else 'them'}: pass "
+                f"method={owners[0]!r}" if owners else f"valid: {', '.join(defaults)}")
         raise TypeError(f"unknown parameter(s) {', '.join(unknown)} for method {method!r}; "
-                        f"valid: {', '.join(defaults)}")
+                        f"{hint}")
     params = {**defaults, **method_params}
     return {name: check(name, value) for name, value in params.items()}

@@ -535,7 +535,7 @@ def neighbors(points, k=25, *, n_jobs=None):
     the tree and in later kernels); results are mapped back to the caller's order.
     """
     pts, _ = as_points(interop.coordinates(points))
-    k = check_k(k, pts.shape[0])
+    k = check_k(k, pts.shape[0], denoising=False)
     with threads(n_jobs):
         return caller_order_graph(pts, k)
 

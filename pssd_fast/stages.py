@@ -83,7 +83,7 @@ def _prepare(points, normals_, k, graph, n_jobs, orient=None, estimate=True):
                          f"{n} points")
     nrm = None if normals_ is None else as_normals(normals_, n)
     graph = None if graph is None else check_graph(graph, n)
-    k = None if graph is not None else check_k(k, n)
+    k = None if graph is not None else check_k(k, n, denoising=False)
     with threads(n_jobs):
         order = morton_order(pts)
         pts = pts[order]

@@ -415,12 +415,12 @@ def test_demo_writes_files_and_pictures(tmp_path):
      "--h is not a parameter of method 'bilateral'"),
     (["denoise", "in.xyz", "out.ply", "--h", "0.1"], "h only applies to the paper's pipeline"),
     (["denoise", "in.xyz", "out.ply", "--preset", "paper", "--sigma-n", "0.1"],
-     "sigma_n only applies to the default method (presets 'default' and 'fast')"),
+     "--sigma-n only applies to the default method (presets 'default' and 'fast')"),
     (["denoise", "in.xyz", "out.unknown"], "unknown"),
     (["denoise", "in.xyz", "out.ply", "--k", "5"], "k must be at least 10"),
     (["denoise", "five.xyz", "out.ply"], "the cloud has 5 points; denoising needs at least 11"),
     (["denoise", "in.xyz", "out.ply", "--duplicate-tolerance", "-1"],
-     "duplicate_tolerance must be a finite distance of at least 0"),
+     "--duplicate-tolerance must be a finite distance of at least 0"),
     (["denoise", "in.xyz", "nowhere/out.ply"], "does not exist"),
     (["info", "truncated.ply"], "truncated.ply"),
     (["info", "malformed.xyz"], "malformed.xyz"),
@@ -1092,7 +1092,6 @@ def test_tile_points_read_and_write_zarr(tmp_path):
     (("--k", "30"), "does not take --k"),
     (("--preset", "paper"), "does not take --preset paper"),
     (("--method", "mls"), "does not take --method"),
-    (("--remove-outliers",), "does not take --remove-outliers"),
     (("--keep-normals",), "does not take --keep-normals"),
     (("--no-shift-normals",), "does not take --no-shift-normals"),
 ])
@@ -1102,6 +1101,76 @@ def test_tile_points_name_what_they_do_not_take(tmp_path, small, extra, match):
     status, _, err = pssd("denoise", path, tmp_path / "out.xyz", "--tile-points", "1000",
                           *extra)
     assert status == 1 and match in err
+
+
+def test_tile_points_remove_outliers_in_memory_but_not_out_of_core(tmp_path, small):
+    """In memory the tiles give the in-core file with the outliers dropped; out of core, where
+    the output keeps the input's rows, the option is refused before any work."""
+    path = tmp_path / "small.xyz"
+    np.savetxt(path, small)
+    for name, tiles in (("tiled.xyz", ("--tile-points", "500")), ("whole.xyz", ())):
+        status, _, err = pssd("denoise", path, tmp_path / name, "--remove-outliers", "--quiet",
+                              *tiles)
+        assert status == 0, err
+    assert (tmp_path / "tiled.xyz").read_text() == (tmp_path / "whole.xyz").read_text()
+    np.save(tmp_path / "small.npy", small)
+    status, _, err = pssd("denoise", tmp_path / "small.npy", tmp_path / "out.npy",
+                          "--tile-points", "500", "--remove-outliers")
+    assert_one_line_error(status, err, "--remove-outliers drops rows, which a run out of core")
+    assert not (tmp_path / "out.npy").exists()
+
+
+def test_batch_names_each_output_that_exists_and_writes_the_others(tmp_path, small):
+    names = ("a.xyz", "b.xyz", "c.xyz")
+    for name in names:
+        np.savetxt(tmp_path / name, small)
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("a.xyz", "c.xyz"):
+        (out / name).write_text("kept\n")
+    status, stdout, err = pssd("denoise", *(tmp_path / name for name in names), "-o", out,
+                               "--iterations", "1")
+    lines = err.strip().splitlines()
+    assert status == 1 and len(lines) == 2, err
+    for line, name in zip(lines, ("a.xyz", "c.xyz")):
+        assert line.startswith("pssd: error: ") and f"{out / name} exists; pass --force" in line
+        assert (out / name).read_text() == "kept\n"
+    assert stdout.count(" -> ") == 1 and (out / "b.xyz").exists()
+
+
+@pytest.mark.parametrize("extra, match, python", [
+    (("--lam", "0.5"), "--lam only applies to the paper's pipeline; pass --preset paper",
+     "preset='paper'"),
+    (("--n-jobs", "0"), "--n-jobs must be a positive integer or -1 (all cores)", "None"),
+    (("--sigma-n", "0"), "--sigma-n must be positive", "sigma_n"),
+    (("--duplicate-tolerance", "-1"), "--duplicate-tolerance", "duplicate_tolerance"),
+])
+def test_errors_name_the_options_of_the_command_line(tmp_path, small, extra, match, python):
+    """The library's messages name its keywords; the command line's name its options."""
+    path = tmp_path / "small.xyz"
+    np.savetxt(path, small)
+    status, _, err = pssd("denoise", path, tmp_path / "out.xyz", *extra)
+    assert_one_line_error(status, err, match)
+    assert python not in err
+
+
+def test_a_mistyped_option_shows_its_command_s_usage(capsys):
+    with pytest.raises(SystemExit) as stopped:
+        cli.main(["denoise", "a.xyz", "b.xyz", "--bogus"])
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2
+    assert "usage: pssd denoise" in err
+    assert err.strip().splitlines()[-1] == "pssd denoise: error: unrecognized arguments: --bogus"
+
+
+def test_zarr_needs_tile_points(tmp_path, capsys):
+    status = cli.main(["denoise", str(tmp_path / "in.zarr"), str(tmp_path / "out.zarr")])
+    assert_one_line_error(status, capsys.readouterr().err, "in.zarr: Zarr arrays are read and "
+                          "written out of core only: pass --tile-points")
+    (tmp_path / "in.zarr").mkdir()
+    assert_one_line_error(cli.main(["info", str(tmp_path / "in.zarr")]),
+                          capsys.readouterr().err, "a Zarr array is read by pssd denoise "
+                          "--tile-points")
 
 
 def test_scheduler_needs_tile_points(tmp_path, small):

@@ -575,8 +575,11 @@ def test_baselines_smooth_and_take_their_parameters(method, params):
         assert np.abs(result.points[:, 2]).mean() < 0.6 * np.abs(points[:, 2]).mean()
         assert result.stats["params"] == {**METHOD_DEFAULTS[method],
                                           **kwargs}
-    with pytest.raises(TypeError, match=f"unknown parameter.*for method '{method}'"):
+    with pytest.raises(TypeError, match=f"unknown parameter.*for method '{method}'; method "
+                       "'robust' takes it: pass method='robust'"):
         pssd_fast.denoise(points, method=method, radius_factor=3)
+    with pytest.raises(TypeError, match="unknown parameter.*smoothness.*; valid: "):
+        pssd_fast.denoise(points, method=method, smoothness=3)
 
 
 @pytest.mark.parametrize("preset, names", [

@@ -476,6 +476,11 @@ def test_estimate_normals_follows_orient():
     (lambda p: pssd_fast.filter_normals(p, graph=pssd_fast.neighbors(p[:100], 10)), ValueError,
      "built for these points"),
     (lambda p: pssd_fast.neighbors(p, k=9), ValueError, "k must be at least 10"),
+    # Lists of k, not a denoising, need the points: the message says what k needs.
+    (lambda p: pssd_fast.neighbors(p[:10], k=20), ValueError, r"need at least k \+ 1 = 21 "
+     r"points for k = 20; got 10 points \(k is at least 10: pass a larger cloud\)"),
+    (lambda p: pssd_fast.estimate_normals(p[:15], k=20), ValueError, r"got 15 points \(lower "
+     r"k or pass a larger cloud\)"),
 ])
 def test_stage_arguments_are_checked(call, error, match):
     with pytest.raises(error, match=match):

@@ -45,8 +45,8 @@ class Runner:
         try:
             importlib.import_module("distributed" if self.name == "distributed" else "dask")
         except ImportError as err:
-            raise ImportError("tiled runs need Dask: pip install '.[dask]' in the repository "
-                              "(or 'dask[distributed]')") from err
+            raise ImportError("tiled runs need Dask: pip install 'pssd_fast[dask]' (or "
+                              "'dask[distributed]')") from err
         if isinstance(self.client, str) and self.name == "distributed":
             import distributed
 
