@@ -540,6 +540,11 @@ def _is_stdio(path):
     return str(path) == "-"
 
 
+def _is_zarr(path):
+    """Whether ``path`` names a Zarr array (a folder, so a trailing slash is allowed)."""
+    return Path(path).suffix.lower() == ".zarr"
+
+
 def _jobs(args):
     """The (input, output) pairs of ``pssd denoise``, checked before any work."""
     from . import io
@@ -565,11 +570,11 @@ def _jobs(args):
         raise CommandError("'-' needs --format to name its format (e.g. --format xyz)")
     for inp, out in jobs:
         fmt = args.format if _is_stdio(out) else None
-        zarr = [str(p) for p in (inp, out) if str(p).lower().rstrip("/").endswith(".zarr")]
+        zarr = [path for path in (inp, out) if _is_zarr(path)]
         if zarr and args.tile_points is None:
             raise CommandError(f"{zarr[0]}: Zarr arrays are read and written out of core only: "
                                f"pass --tile-points (e.g. --tile-points 2000000)")
-        if not (args.tile_points is not None and str(out).lower().endswith(".zarr")):
+        if not _is_zarr(out):
             io.storable(out, [], format=fmt)  # an unknown format fails now, not after the work
         if _is_stdio(out):
             continue
@@ -1026,7 +1031,7 @@ def _info(args):
 
     from . import io
 
-    if str(args.file).lower().rstrip("/").endswith(".zarr"):
+    if _is_zarr(args.file):
         raise CommandError(f"{args.file}: pssd info reads point-cloud files; a Zarr array is "
                            "read by pssd denoise --tile-points")
     cloud = _read(args.file, args, args.format if _is_stdio(args.file) else None)

@@ -241,9 +241,10 @@ GRID_K = 128
 #: (docs/DECISIONS.md, "Long lists").
 BOUNDED_GRID_K = 48
 #: ... and from this many points on, or from ``GRID_K`` entries on at any size: below both,
-#: the grid saves a fraction of a second a run (at 60,000 points 0.2 s of 1.6), less than its
-#: kernel's first compile costs (about 11 s); lists of ``GRID_K`` take pykdtree long enough
-#: (the default at 30,000-60,000 points and 1% noise: 13-15% of its run) to pay for it.
+#: the grid saves a fraction of a second a run (the demo at 60,000 points, lists of 83 means:
+#: 0.06 s of 1.26), less than its kernel's first compile costs (about 11 s); lists of
+#: ``GRID_K`` take pykdtree long enough (the default at 30,000-60,000 points and 1% noise:
+#: 13-15% of its run) to pay for it.
 BOUNDED_GRID_POINTS = 100_000
 #: The sample points whose lists set the grid's cell in a bounded query (:func:`_grid_cell`):
 #: its cost, not its lists, depends on them.
