@@ -23,8 +23,10 @@ from .graph import NeighborGraph, candidates, knn_graph, merge_candidates
 #: ``points``: the most points the probe reads (a larger cloud: every ``s``-th point of its
 #: Morton order; a sparser sample would read a smaller cloud's curvature as noise);
 #: ``lengths``: the list lengths read; ``min_ratio``: the fewest noise widths a length's mean
-#: list radius must span for its reading to count.
-PROBE = {"points": 20_000, "lengths": (12, 24, 48), "min_ratio": 2.0}
+#: list radius must span for its reading to count; ``stray``: a list reaching more than this
+#: many times the median radius belongs to a point off the surface (a stray return, a
+#: "no return" row at the origin) and is left out of the mean radius.
+PROBE = {"points": 20_000, "lengths": (12, 24, 48), "min_ratio": 2.0, "stray": 100.0}
 
 #: What each list length reads on a plane with Gaussian noise of standard deviation ``sigma``:
 #: ``(mean list radius / sigma, median reading / sigma)``, from 80,000 uniformly random points
@@ -99,7 +101,7 @@ def probe(points, taken=None):
     scale, radius = core.local_noise(sample_, graph, np.array(lengths, np.int64))
     readings = {}
     for col, length in enumerate(lengths):
-        read, mean_radius = float(np.median(scale[:, col])), float(np.mean(radius[:, col]))
+        read, mean_radius = float(np.median(scale[:, col])), surface_radius(radius[:, col])
         table = CALIBRATION[min(CALIBRATION, key=lambda k: abs(k - length))]
         readings[length] = {"read": read, "radius": mean_radius,
                             "sigma": invert(read, mean_radius, table)}
@@ -110,6 +112,14 @@ def probe(points, taken=None):
     spacing = readings[lengths[-1]]["radius"] * math.sqrt(math.pi / lengths[-1]) / math.sqrt(
         stride)
     return Noise(sigma, spacing, stride, readings)
+
+
+def surface_radius(radius):
+    """The mean of the list ``radius`` of the points on the surface: those within
+    ``PROBE["stray"]`` times the median. One point far from the rest would otherwise set the
+    spacing, and with it every list's bound, alone."""
+    on = radius <= PROBE["stray"] * np.median(radius)
+    return float(np.mean(radius if on.all() else radius[on]))
 
 
 def own_sigma(points, taken, k, bound, radius):

@@ -39,6 +39,12 @@ PRESETS = {
 BASELINE_K = ((0.837, 64), (1.687, 96), (3.236, 160))
 
 
+#: The fewest steps of float64 that must span the points' spacing at the cloud's far corner
+#: (:func:`resolved`): below about 20 the CAD part's error grew with a point far away (1e13
+#: times its size: 7 steps, 24% farther from the truth); at 58 steps it was unchanged.
+RESOLUTION = 20
+
+
 def iterating(preset):
     """The iterations, ``k`` and ``rebuild_graph`` of the paper's pipeline or of a baseline
     under ``preset`` (the paper's pipeline runs under "paper" only)."""
@@ -145,7 +151,7 @@ def make(points, preset, pipeline, *, distinct, low, k=None, iterations=None,
     iterations = setting["iterations"] if iterations is None else iterations
     probed = None
     if k is None and setting["k"] == "probe":
-        k, probed = _baseline_k(points, distinct)
+        k, probed = _baseline_k(points, distinct, low)
     elif k is None and preset == "paper":
         k = setting["k"]  # the paper's, never cut to the cloud
         if distinct < k + 1:
@@ -159,11 +165,33 @@ def make(points, preset, pipeline, *, distinct, low, k=None, iterations=None,
     return Plan(pipeline, iterations, k, rebuild_graph=bool(rebuild), probe=probed)
 
 
-def _baseline_k(points, distinct):
+def resolved(found, low):
+    """``found`` (the probe's :class:`pssd_fast.noise.Noise`) where the positions, relative to
+    the centre of the bounding box whose ``low`` corner this is, resolve its spacing
+    (:func:`check_resolution`)."""
+    check_resolution(found.spacing, float(np.abs(np.asarray(low, np.float64)).max()))
+    return found
+
+
+def check_resolution(spacing, reach):
+    """ValueError where positions as far as ``reach`` from the run's centre resolve the
+    points' ``spacing`` in fewer than :data:`RESOLUTION` steps of float64: points far from the
+    rest (a stray return, a row at the origin) stretch the bounding box until the others'
+    coordinates lose the digits that tell them apart."""
+    step = float(np.spacing(reach))
+    if not spacing >= RESOLUTION * step:
+        raise ValueError(
+            f"the points lie about {spacing:.3g} apart, but the cloud reaches {reach:.3g} "
+            f"from the centre of its bounding box, where float64 resolves steps of "
+            f"{step:.3g}: fewer than {RESOLUTION} across the spacing. Remove the points far "
+            f"from the rest (a stray return, a row at the origin) and run again")
+
+
+def _baseline_k(points, distinct, low):
     """The baselines' ``k`` from the noise probe (:data:`BASELINE_K`), and the probe's record
     for ``stats["auto_k"]``."""
     started = time.perf_counter()
-    found = probe(points)
+    found = resolved(probe(points), low)
     ratio = found.sigma / found.spacing if found.spacing > 0.0 else 0.0
     logs = np.log(np.array(BASELINE_K, dtype=float))
     k = int(round(np.exp(np.interp(np.log(max(ratio, 1e-12)), logs[:, 0], logs[:, 1]))))
@@ -177,7 +205,7 @@ def _default(points, setting, distinct, low, k, iterations):
     list length on the means, or None)."""
     started = time.perf_counter()
     taken = noise.sample(points)
-    found = probe(points, taken)
+    found = resolved(probe(points, taken), low)
     edge = method.cell_edge(found.sigma, found.spacing)
     if k is None:
         k = min(method.list_length(found.sigma, found.spacing, edge), distinct - 1)

@@ -1,6 +1,7 @@
 """A run once its parameters are resolved: the iterations of a pipeline's step, and what it
 returns in the caller's order. :func:`pssd_fast.denoise` and the tiled runs
 (:mod:`pssd_fast.tiled`) share it, so that both give the same bits and the same ``stats``."""
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, NamedTuple, Optional
@@ -14,6 +15,7 @@ from .graph import knn_graph, morton_order, refresh_graph
 from .parameters import BY_NAME
 from .pipelines import STEPS
 from .pipelines.normals import estimated_normals
+from .plan import check_resolution
 from .progress import Clock
 from .stats import Iteration, Stats
 
@@ -187,6 +189,10 @@ def iterate(current, given, plan, request):
         if graph is None or rebuild_graph:
             graph = None  # the last lists go before the new ones are built, not after
             graph = clock.run("neighbors", knn_graph, current, k, False)
+            if iteration == 0:
+                # On a surface k points cover pi r^2 = k s^2; the median ignores stray points.
+                check_resolution(float(np.median(graph.list_radius())) * math.sqrt(math.pi / k),
+                                 float(np.abs(current).max()))
         else:
             graph = clock.run("neighbors", refresh_graph, graph, current)
         if given is not None:

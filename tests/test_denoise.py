@@ -482,6 +482,30 @@ def test_clouds_far_inside_the_range_are_denoised_alike():
                                   pssd_fast.denoise(points, preset="fast").points)
 
 
+@pytest.mark.parametrize("options", [{}, {"preset": "paper"}, {"method": "bilateral"},
+                                     {"method": "mls", "k": 20}])
+def test_a_point_too_far_from_the_rest_to_keep_their_digits_is_named(options):
+    """One point 1e15 times the cloud's size away: relative to the centre of the bounding
+    box the others' coordinates keep none of the digits that tell them apart (a numba error in
+    the PCA, or every point moved onto one, before this check)."""
+    points = datasets.cad_part(n_points=2000, noise=0.003, seed=4).points
+    with pytest.raises(ValueError, match="fewer than 20 across the spacing.*stray return"):
+        pssd_fast.denoise(np.vstack([points, [1e15, 1e15, 1e15]]), **options)
+
+
+def test_a_stray_point_leaves_the_others_as_they_were():
+    """A "no return" row at the origin of a georeferenced cloud: the other rows end as close
+    to the surface as without it (the cells' grid starts at another corner, so not to the
+    bit). The probe read a spacing 4,000 times too large before it left such a point out, and
+    the error grew by 39% on 20,000 points."""
+    cloud = datasets.cad_part(n_points=3000, noise=0.003, seed=4)
+    offset = np.array([5e5, 5e6, 100.0])
+    alone = pssd_fast.denoise(cloud.points + offset).points - offset
+    stray = pssd_fast.denoise(np.vstack([cloud.points + offset, [0.0, 0.0, 0.0]])).points
+    error = [cloud.surface_distance(p).mean() for p in (alone, stray[:-1] - offset)]
+    assert error[1] == pytest.approx(error[0], rel=0.03) and stray[-1].tolist() == [0, 0, 0]
+
+
 def test_bad_normals_are_named(noisy):
     with pytest.raises(ValueError, match=r"\(3, n\) array of normals"):
         pssd_fast.denoise(noisy, np.ascontiguousarray(noisy.T))

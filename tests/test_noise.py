@@ -79,6 +79,24 @@ def test_the_probe_reads_the_spacing_of_a_quiet_plane():
     assert abs(found.spacing / side - 1) < 0.05
 
 
+@pytest.mark.parametrize("far", [[1e6, 1e6, 1e6], [-3e4, 0.0, 0.0]])
+def test_a_stray_point_leaves_the_probe_s_spacing_as_it_was(far):
+    """A point far from the rest (a stray return, a row at the origin of a georeferenced
+    cloud) lists the others from afar; its radius is left out of the mean (``PROBE["stray"]``),
+    which it would otherwise set alone (measured: 31.3 against 0.0071)."""
+    cloud = datasets.make("plane", n_points=20000, noise=0.0005, seed=2)
+    alone = noise.probe(_ordered(cloud.points))
+    found = noise.probe(_ordered(np.vstack([cloud.points, far])))
+    assert found.spacing == pytest.approx(alone.spacing, rel=0.01)
+    assert found.sigma == pytest.approx(alone.sigma, rel=0.01)
+
+
+def test_the_surface_radius_is_the_plain_mean_without_stray_points():
+    radius = np.random.default_rng(0).uniform(1.0, 20.0, 1000)
+    assert noise.surface_radius(radius) == np.mean(radius)
+    assert noise.surface_radius(np.append(radius, 1e5)) == np.mean(radius)
+
+
 @pytest.mark.parametrize("gap", [6.0, 10.0])
 def test_the_probe_reads_one_sheet_s_noise_on_a_thin_plate(gap):
     """Two noisy parallel sheets ``gap`` noise widths apart: the shortest lists wide enough
