@@ -51,10 +51,14 @@ def outward_hints(points):
 #: List entries (the point itself included) over which orientation propagates: enough to
 #: connect a sampled surface, few enough not to bridge close sheets (and to keep it cheap).
 ORIENT_NEIGHBOURS = 10
-#: Neighbours of the outlier score and its two thresholds (docs/DECISIONS.md, "Outliers").
+#: Neighbours of the outlier score and its thresholds (docs/DECISIONS.md, "Outliers"): the
+#: list radius over its median, the offset from the neighbours' plane over its median, and
+#: that offset over the neighbours' own median distance to their plane (an edge's or a
+#: corner's neighbours lie far from any one plane, so its points are not outliers).
 OUTLIER_K = 64
 OUTLIER_RADIUS_RATIO = 2.0
 OUTLIER_OFFSET_RATIO = 6.0
+OUTLIER_SPREAD_RATIO = 3.0
 #: Floor of the outlier score's scales, relative to the bounding-box diagonal (exact clouds).
 OUTLIER_SCALE_FLOOR = 1e-9
 
@@ -100,18 +104,22 @@ def outlier_score(points, graph):
 
     The larger of two ratios: the list radius (distance to the farthest of the ``k``
     neighbours) over ``OUTLIER_RADIUS_RATIO`` times its median over the cloud, and the
-    distance to the plane of the other list members over ``OUTLIER_OFFSET_RATIO`` times its
-    median. The first catches points far from everything, the second points just off the
-    surface. Medians are floored at ``OUTLIER_SCALE_FLOOR`` times the bounding-box diagonal,
-    so that exact (noise-free) samples keep finite scores.
+    distance to the plane of the other list members over the larger of
+    ``OUTLIER_OFFSET_RATIO`` times its median and ``OUTLIER_SPREAD_RATIO`` times those members'
+    own median distance to their plane. The first catches points far from everything, the second
+    points just off the surface, but not where the surface itself bends away from one plane
+    (sharp edges, corners). Medians are floored at ``OUTLIER_SCALE_FLOOR`` times the
+    bounding-box diagonal, so that exact (noise-free) samples keep finite scores.
     """
-    offsets = np.empty(points.shape[0])
-    kernels.outliers.plane_offsets(points, graph.indptr, graph.indices, offsets)
+    offsets, spreads = np.empty(points.shape[0]), np.empty(points.shape[0])
+    kernels.outliers.plane_offsets(points, graph.indptr, graph.indices, offsets, spreads)
     radius = graph.list_radius()
     extent = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     floor = max(OUTLIER_SCALE_FLOOR * extent, np.finfo(np.float64).tiny)
+    off = np.maximum(OUTLIER_OFFSET_RATIO * max(float(np.median(offsets)), floor),
+                     OUTLIER_SPREAD_RATIO * spreads)
     return np.maximum(radius / (OUTLIER_RADIUS_RATIO * max(float(np.median(radius)), floor)),
-                      offsets / (OUTLIER_OFFSET_RATIO * max(float(np.median(offsets)), floor)))
+                      offsets / off)
 
 
 def pca_normals(points, graph, hints):

@@ -514,19 +514,22 @@ def orient_components(points, normals, component, orient):
 
 def outlier_score(points, lists):
     """max(list radius / (2 median), offset from the plane of the other members /
-    (6 median)), medians over the cloud floored at 1e-9 of the bounding-box diagonal."""
+    max(6 median, 3 times the median distance of those members to their plane)), medians over
+    the cloud floored at 1e-9 of the bounding-box diagonal."""
     radius = np.array([np.linalg.norm(points[m[-1]] - points[i]) for i, m in enumerate(lists)])
-    offsets = []
+    offsets, spreads = [], []
     for i, members in enumerate(lists):
         rest = points[members[1:]]
         centre = rest.mean(axis=0)
         w, v = np.linalg.eigh((rest - centre).T @ (rest - centre))
         offsets.append(abs((points[i] - centre) @ v[:, 0]))
+        spreads.append(np.median(np.abs((rest - centre) @ v[:, 0])))
     offsets = np.array(offsets)
     floor = max(1e-9 * np.linalg.norm(points.max(axis=0) - points.min(axis=0)),
                 np.finfo(float).tiny)
     return np.maximum(radius / (2.0 * max(np.median(radius), floor)),
-                      offsets / (6.0 * max(np.median(offsets), floor)))
+                      offsets / np.maximum(6.0 * max(np.median(offsets), floor),
+                                           3.0 * np.array(spreads)))
 
 
 def cell_of(p, low, edge):
