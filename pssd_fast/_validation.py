@@ -201,13 +201,16 @@ def check_size(n_points, minimum=MIN_K):
                          f"needs at least {minimum + 1}")
 
 
-def check_int(value, name, minimum=None):
-    """Return ``value`` as an int, rejecting bools, floats and values below ``minimum``."""
+def check_int(value, name, minimum=None, maximum=None):
+    """Return ``value`` as an int, rejecting bools, floats and values outside ``[minimum,
+    maximum]``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name} must be an integer; got {value!r}")
     value = int(value)
     if minimum is not None and value < minimum:
         raise ValueError(f"{name} must be at least {minimum}; got {value}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{name} must be at most {maximum}; got {value}")
     return value
 
 

@@ -391,6 +391,9 @@ def test_render_size_takes_a_width_and_an_optional_height(tmp_path):
         assert got == shape if shape else (got[1] == 400 and got[0] < 240)
     assert_one_line_error(*pssd("render", path, "-o", tmp_path / "t.png", "--size", 1, 2,
                                 3)[::2], "--size takes WIDTH [HEIGHT]")
+    # A picture of 100,000 pixels a side would need 64 GB before a line is drawn.
+    assert_one_line_error(*pssd("render", path, "-o", tmp_path / "t.png", "--size", 100_000,
+                                100_000)[::2], "width must be at most 8192")
 
 
 def test_demo_writes_files_and_pictures(tmp_path):

@@ -614,6 +614,10 @@ def test_missing_file_and_directory(tmp_path):
     ("# only a comment\n\n", "holds no points"),
     ("3\n1.5 2.5 3.5\n4.5 5.5 6.5\n", "first line says 3 points but the file holds 2"),
     (f"{10**9}\n1 2 3\n", "first line says 1,000,000,000 points, more than"),
+    # Rows that do not read as numbers, after a column-name line: named, not "no points".
+    ("x;y;z\n1,5;2,5;3,5\n4,5;5,5;6,5\n", "no line holds a row of numbers; line 2 reads "
+                                          "as text: '1,5;2,5;3,5'"),
+    ('"x","y","z"\n"1","2","3"\n', "line 2 reads as text: '\"1\",\"2\",\"3\"'"),
 ])
 def test_text_errors(tmp_path, text, match):
     (tmp_path / "a.pts").write_text(text)
@@ -621,6 +625,15 @@ def test_text_errors(tmp_path, text, match):
         pio.read(tmp_path / "a.pts")
     message = str(info.value)
     assert message.startswith(str(tmp_path / "a.pts")) and "\n" not in message
+
+
+def test_a_byte_order_mark_is_not_part_of_the_first_name(tmp_path):
+    """Spreadsheets write "CSV UTF-8" with a byte order mark before the column names."""
+    (tmp_path / "a.csv").write_text("\ufeffx,y,z,intensity\n1,2,3,4\n5,6,7,8\n",
+                                    encoding="utf-8")
+    cloud = pio.read(tmp_path / "a.csv")
+    np.testing.assert_array_equal(cloud.points, [[1, 2, 3], [5, 6, 7]])
+    np.testing.assert_array_equal(cloud.fields["intensity"], [4, 8])
 
 
 @needs_plyfile

@@ -252,6 +252,8 @@ def test_sphere_is_closed_no_back_points_show_through():
     ({"values": np.zeros(5)}, ValueError, r"shape \(3600,\)"),
     ({"view": 30.0}, TypeError, "elevation, azimuth"),
     ({"size": (10, 10)}, ValueError, "at least 64"),
+    ({"size": (100_000, 100_000)}, ValueError, "width must be at most 8192"),
+    ({"size": (1000, 9000)}, ValueError, "height must be at most 8192"),
     ({"vmin": 2.0, "vmax": 1.0}, ValueError, "vmin must not exceed vmax"),
     ({"normals": np.zeros((3600, 3))}, ValueError, "zero-length"),
 ])

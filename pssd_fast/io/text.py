@@ -207,9 +207,10 @@ def read(path, fh, ext, columns=None):
     ------
     PointCloudFileError
         On fewer than three columns, rows of unequal length, a bad number, a header line (or
-        ``columns``) that does not name every column once (x, y and z included), or a
+        ``columns``) that does not name every column once (x, y and z included), a
         point-count line that does not match the rows (or that claims more than the file can
-        hold).
+        hold), or lines of text and no row of numbers (quoted values, decimal commas; a
+        column-name line alone is a file without points).
 
     Warns
     -----
@@ -220,7 +221,7 @@ def read(path, fh, ext, columns=None):
     Notes
     -----
     The separator is the first of ``;`` and ``,`` found on the first data line, else tabs and
-    spaces. ``#`` starts a comment anywhere; a line starting with ``//`` before the data is a
+    spaces. A byte order mark before the first line is dropped. ``#`` starts a comment anywhere; a line starting with ``//`` before the data is a
     comment too. A first line holding a single integer is a point count (as in PTS files). The
     last line before the data names the columns when it is a bare line (``x,y,z,r,g,b``,
     which must then name every column) or a comment listing as many distinct names as there
@@ -236,7 +237,7 @@ def read(path, fh, ext, columns=None):
     ``x y z`` and fields ``col3``... (``.pts``: see ``ext``).
     """
     # Undecodable bytes are kept as surrogates so that comments are written back verbatim.
-    text = fh.read().decode("utf-8", errors="surrogateescape")
+    text = fh.read().decode("utf-8", errors="surrogateescape").removeprefix("\ufeff")
     leading, count, pos, lineno = [], None, 0, 1  # leading: (lineno, line, bare)
     while pos < len(text):
         end = text.find("\n", pos)
@@ -258,6 +259,14 @@ def read(path, fh, ext, columns=None):
         if count:
             raise PointCloudFileError(f"{path}: first line says {count:,} points but the file "
                                       f"holds none")
+        bare = [(at, line) for at, line, is_bare in leading if is_bare]
+        if len(bare) > 1:
+            # Only the last line before the data may name the columns: these are rows that
+            # did not read as numbers.
+            at, line = bare[1]
+            raise PointCloudFileError(f"{path}: no line holds a row of numbers; line {at} "
+                                      f"reads as text: {line.strip()!r} (quoted values and "
+                                      f"decimal commas are not read)")
         return np.empty((0, 3)), None, {}, None
     sep = _separator(content)
     ncols = len(tokens)

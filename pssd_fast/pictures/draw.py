@@ -33,6 +33,9 @@ IMAGE_FORMATS = {".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".tif": "tiff",
                  ".tiff": "tiff", ".webp": "webp"}
 #: ``(width, height)`` in pixels; a height of None follows the cloud (:func:`figure`).
 DEFAULT_SIZE = (1000, None)
+#: The widest and tallest picture in pixels: 8192 x 8192 takes a quarter of a gigabyte a
+#: layer, and matplotlib draws several.
+LARGEST = 8192
 # Bounds of a free height: the drawing at most 1.25 times as high as wide (a standing figure),
 # the picture at least 0.3 times as high as wide (room for the key and the title).
 TALLEST = 1.25
@@ -82,8 +85,9 @@ def _colormap(mpl, cmap):
 def _check_size(size):
     if isinstance(size, (str, bytes)) or not hasattr(size, "__len__") or len(size) != 2:
         raise TypeError(f"size must be a pair (width, height) in pixels; got {size!r}")
-    width = check_int(size[0], "width", minimum=64)
-    return width, None if size[1] is None else check_int(size[1], "height", minimum=64)
+    width = check_int(size[0], "width", minimum=64, maximum=LARGEST)
+    return width, None if size[1] is None else check_int(size[1], "height", minimum=64,
+                                                          maximum=LARGEST)
 
 
 def _as_values(values, n, name="values"):
@@ -195,7 +199,7 @@ def figure(points, values=None, *, field=None, view=None, up="z", normals=None, 
     title : str, optional
         Title above the picture.
     size : (int, int or None), default (1000, None)
-        ``(width, height)`` of the picture in pixels, each at least 64. A height of None
+        ``(width, height)`` of the picture in pixels, each from 64 to 8192. A height of None
         follows the cloud: the drawing is as high as the projected cloud at the width's scale
         (between 0.3 of the width for the whole picture and 1.25 of the width for the drawing),
         so a long survey makes a wide picture that it fills.
