@@ -104,8 +104,12 @@ def stored(result, name):
 
 def outlier_scores(points, n_jobs, k=core.OUTLIER_K):
     """:func:`pssd_fast.outlier_score` of valid ``points`` (float32 or float64), in their
-    dtype; ValueError where ``k`` is too large for them."""
-    k = check_k(k, points.shape[0])
+    dtype; ValueError where they are fewer than the score's lists need."""
+    if points.shape[0] < k + 1:
+        raise ValueError(f"the outlier score reads each point's {k} nearest points and needs "
+                         f"at least {k + 1}; the cloud has {points.shape[0]} "
+                         f"(pssd_fast.outlier_score takes a smaller k; remove_outliers does not "
+                         f"read denoise's k)")
     with threads(n_jobs):
         pts = points.astype(np.float64, copy=False)
         order = morton_order(pts)

@@ -178,8 +178,10 @@ def outlier_score(points, *, k=core.OUTLIER_K, graph=None, n_jobs=None):
     (n,) ndarray
         The larger of two ratios: the distance to the ``k``-th nearest neighbour over twice its
         median over the cloud (points far from everything), and the distance to the
-        least-squares plane of the other neighbours over six times its median (points just
-        off the surface). About 0.5 on a surface; the threshold is 1.
+        least-squares plane of the other neighbours over the larger of six times its median and
+        three times those neighbours' own median distance to their plane (points just off the
+        surface, but not a sharp edge's, whose neighbours lie on two faces). About 0.5 on a
+        surface; the threshold is 1.
 
     Notes
     -----

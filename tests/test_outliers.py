@@ -93,5 +93,8 @@ def test_score_and_kept_without_removal(monkeypatch):
 def test_bad_arguments_are_named():
     with pytest.raises(TypeError, match="remove_outliers must be True or False"):
         pssd_fast.denoise(wavy(), k=10, remove_outliers="yes")
-    with pytest.raises(ValueError, match="need at least k"):
+    with pytest.raises(ValueError, match="needs at least 65; the cloud has 40.*smaller k"):
         pssd_fast.outlier_score(wavy(40))
+    # denoise's k does not size the outlier score's lists: the message says what does.
+    with pytest.raises(ValueError, match="needs at least 65; the cloud has 40.*denoise's k"):
+        pssd_fast.denoise(wavy(40), k=10, remove_outliers=True)
