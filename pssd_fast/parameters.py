@@ -84,8 +84,10 @@ class Parameter:
 
     def check(self, value):
         """``value`` checked, in the form the run uses: None for ``"auto"`` (where it takes
-        it) and for None where None is its default; TypeError or ValueError naming the
-        parameter and the bad value otherwise."""
+        it) and for None where None is its default; None elsewhere read as the default;
+        TypeError or ValueError naming the parameter and the bad value otherwise."""
+        if value is None and not self.auto and self.default is not None:
+            value = self.default
         if self.auto or self.default is None:
             # auto(): None for "auto" and for None, else the value as given.
             left = auto(value) if self.auto else value

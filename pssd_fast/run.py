@@ -10,7 +10,7 @@ import numpy as np
 
 from . import core
 from ._threads import threads
-from ._validation import MIN_K, check_k
+from ._validation import MIN_K
 from .graph import knn_graph, morton_order, refresh_graph
 from .parameters import BY_NAME
 from .pipelines import STEPS

@@ -77,6 +77,13 @@ def test_the_public_names_derive_from_the_declaration():
         **parameters.METHOD_DEFAULTS["robust"], "h": None}
 
 
+def test_none_reads_as_every_parameter_s_default():
+    """``None`` is ``"auto"`` where a parameter takes it, and the declared default elsewhere
+    (``preset=None`` used to be an unknown preset, ``extras=None`` a TypeError)."""
+    for p in PARAMETERS:
+        assert check(p.name, None) == check(p.name, p.default), p.name
+
+
 def test_every_declared_default_passes_its_own_check():
     for p in PARAMETERS:
         checked = check(p.name, p.default)
@@ -147,7 +154,6 @@ BAD = [
     ("duplicate_tolerance", True, TypeError, "duplicate_tolerance must be a real number"),
     ("extras", 1, TypeError, "extras must be True or False; got 1"),
     ("keep_normals", "yes", TypeError, "keep_normals must be True or False; got 'yes'"),
-    ("shift_normals", None, TypeError, "shift_normals must be True or False; got None"),
     ("rebuild_graph", "yes", TypeError, "rebuild_graph must be True, False or 'auto'"),
     ("method", "magic", ValueError,
      "unknown method 'magic'; choose one of 'robust', 'bilateral', 'mls'"),

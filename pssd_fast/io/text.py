@@ -221,13 +221,14 @@ def read(path, fh, ext, columns=None):
     Notes
     -----
     The separator is the first of ``;`` and ``,`` found on the first data line, else tabs and
-    spaces. A byte order mark before the first line is dropped. ``#`` starts a comment anywhere; a line starting with ``//`` before the data is a
-    comment too. A first line holding a single integer is a point count (as in PTS files). The
-    last line before the data names the columns when it is a bare line (``x,y,z,r,g,b``,
-    which must then name every column) or a comment listing as many distinct names as there
-    are columns, x, y and z among them. Names are case-insensitive and common spellings are
-    mapped: ``r g b`` to ``red green blue``, ``i`` to ``intensity``, ``normal_x`` to ``nx``,
-    ``scalar_Intensity`` to ``intensity``...
+    spaces. A byte order mark before the first line is dropped. ``#`` starts a comment
+    anywhere; a line starting with ``//`` before the data is a comment too. A first line
+    holding a single integer is a point count (as in PTS files). The last line before the data
+    names the columns when it is a bare line (``x,y,z,r,g,b``, which must then name every
+    column) or a comment listing as many distinct names as there are columns, x, y and z among
+    them. Names are case-insensitive and common spellings are mapped: ``r g b`` to ``red green
+    blue``, ``i`` to ``intensity``, ``normal_x`` to ``nx``, ``scalar_Intensity`` to
+    ``intensity``...
 
     Without names (no column-name line, no ``columns``), the first three columns are
     ``x y z``. Columns 4-6 of a six-column file are ``red green blue`` where all three are
