@@ -132,7 +132,8 @@ def denoise(points, normals=None, *, method="robust", iterations="auto", k="auto
     DenoiseWarning
         float32 ``points`` so far from the origin that their step exceeds 1% of the spacing
         (docs/DECISIONS.md, "float32 coordinates far from the origin"); default classes too
-        small to denoise; class codes named that no point is of.
+        small to denoise; class codes named that no point is of; a cloud so small that each
+        fit reads more than a quarter of it (docs/DECISIONS.md, "Small clouds").
 
     Notes
     -----

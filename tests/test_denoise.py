@@ -202,13 +202,32 @@ def test_float32_result_is_the_float64_result_rounded(noisy, preset):
 
 
 def _warnings(points, **kwargs):
-    """The :class:`pssd_fast.DenoiseWarning` messages of a short denoise of ``points``."""
+    """The :class:`pssd_fast.DenoiseWarning` messages of a short denoise of ``points`` (but
+    those on how much of a small cloud each fit reads)."""
     import warnings
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         pssd_fast.denoise(points, iterations=1, **kwargs)
-    return [str(w.message) for w in caught if w.category is pssd_fast.DenoiseWarning]
+    return [str(w.message) for w in caught if w.category is pssd_fast.DenoiseWarning
+            and "each fit reads" not in str(w.message)]
+
+
+@pytest.mark.parametrize("options, n", [({}, 300), ({"preset": "paper"}, 80),
+                                        ({"method": "bilateral"}, 80)])
+def test_a_cloud_too_small_for_its_fits_warns(options, n):
+    """Each fit reads more than a quarter of the cloud: 300 points of the CAD part for the
+    default's lists of 80 (its result ends 1.45 times as far from the surface as the input),
+    80 for the paper's 25. At 1,000 points, no warning (the default: 0.64 times)."""
+    small = datasets.cad_part(n_points=n, noise=0.0025, seed=0).points
+    with pytest.warns(pssd_fast.DenoiseWarning, match=f"{n} distinct points and each fit reads"):
+        pssd_fast.denoise(small, **options)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pssd_fast.denoise(datasets.cad_part(n_points=1000, noise=0.0025, seed=0).points,
+                          **options)
 
 
 def test_float32_far_from_the_origin_warns_once(noisy):

@@ -44,9 +44,9 @@ def _each_kernel(points, normals, graph):
              "filter": core.filter_normals(points, normals, graph),
              "bil": core.filter_points(points, normals, graph, 0.0, 0.0),
              "feature": core.feature_intensity(points, normals, graph, 0.08, 0.2, 0.3, 0.3)}
-    offsets = np.empty(len(points))
-    kernels.outliers.plane_offsets(points, graph.indptr, graph.indices, offsets)
-    found["offsets"] = offsets
+    offsets, spreads = np.empty(len(points)), np.empty(len(points))
+    kernels.outliers.plane_offsets(points, graph.indptr, graph.indices, offsets, spreads)
+    found["offsets"] = (offsets, spreads)
     return found
 
 
