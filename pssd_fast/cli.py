@@ -161,7 +161,8 @@ def _parser():
                           "ply.gz, las...")
     _add_columns(den)
     den.add_argument("--fields", default=None, metavar="LIST",
-                     help=f"comma-separated fields to add: {', '.join(RESULT_FIELDS)}; all "
+                     help=f"comma-separated fields to add, in any case: "
+                          f"{', '.join(RESULT_FIELDS)}; all "
                           f"(each the method computes that the output format can hold), or "
                           f"none (default: none, so that OUT has the input's attributes only; "
                           f"an input's own normals are always updated, and normals are added "
@@ -629,8 +630,8 @@ def _added_fields(args, result, cloud, runs, out, say):
 
 
 def _field_names(args):
-    """The names ``--fields`` gives (none by default), or ``"all"``."""
-    names = [] if args.fields is None else [n.strip() for n in args.fields.split(",")
+    """The names ``--fields`` gives (none by default, in any case), or ``"all"``."""
+    names = [] if args.fields is None else [n.strip().lower() for n in args.fields.split(",")
                                             if n.strip()]
     if len(names) > 1 and {"all", "none"} & set(names):
         raise CommandError(f"--fields: all and none stand alone; got {args.fields!r}")

@@ -804,7 +804,7 @@ def test_fields_choose_what_is_added(tmp_path, small, capsys):
     assert cli.main([*base[:2], str(tmp_path / "none.las"), *base[2:], "--fields", "none"]) == 0
     assert cli.main([*base[:2], str(tmp_path / "default.las"), *base[2:]]) == 0
     assert cli.main([*base[:2], str(tmp_path / "some.las"), *base[2:], "--fields",
-                     "displacement,normals"]) == 0
+                     "Displacement,NORMALS"]) == 0  # as column names elsewhere, in any case
     assert cli.main([*base[:2], str(tmp_path / "all.las"), *base[2:], "--fields", "all"]) == 0
     dims = {name: list(laspy.read(tmp_path / f"{name}.las").point_format.extra_dimension_names)
             for name in ("none", "default", "some", "all")}
