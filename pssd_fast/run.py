@@ -10,7 +10,7 @@ import numpy as np
 
 from . import core
 from ._threads import threads
-from ._validation import MIN_K
+from ._validation import MIN_K, check_int
 from .graph import knn_graph, morton_order, refresh_graph
 from .parameters import BY_NAME
 from .pipelines import STEPS
@@ -105,6 +105,7 @@ def stored(result, name):
 def outlier_scores(points, n_jobs, k=core.OUTLIER_K):
     """:func:`pssd_fast.outlier_score` of valid ``points`` (float32 or float64), in their
     dtype; ValueError where they are fewer than the score's lists need."""
+    k = check_int(k, "k", minimum=MIN_K)
     if points.shape[0] < k + 1:
         raise ValueError(f"the outlier score reads each point's {k} nearest points and needs "
                          f"at least {k + 1}; the cloud has {points.shape[0]} "

@@ -95,6 +95,10 @@ def test_bad_arguments_are_named():
         pssd_fast.denoise(wavy(), k=10, remove_outliers="yes")
     with pytest.raises(ValueError, match="needs at least 65; the cloud has 40.*smaller k"):
         pssd_fast.outlier_score(wavy(40))
+    with pytest.raises(TypeError, match="k must be an integer; got 'many'"):
+        pssd_fast.outlier_score(wavy(40), k="many")
+    with pytest.raises(ValueError, match="k must be at least"):
+        pssd_fast.outlier_score(wavy(40), k=2)
     # denoise's k does not size the outlier score's lists: the message says what does.
     with pytest.raises(ValueError, match="needs at least 65; the cloud has 40.*denoise's k"):
         pssd_fast.denoise(wavy(40), k=10, remove_outliers=True)
