@@ -142,6 +142,19 @@ def test_a_cloud_of_one_point_a_cell_tiles_alike():
     _assert_same(got, expected)
 
 
+def test_a_stray_point_tiles_alike(tmp_path):
+    """A "no return" row at the origin of a georeferenced cloud: the probe leaves it out of
+    the spacing in memory and from a file alike."""
+    points = np.vstack([datasets.cad_part(n_points=4_000, noise=0.003, seed=3).points
+                        + [5e5, 5e6, 100.0], [0.0, 0.0, 0.0]])
+    expected = pssd_fast.denoise(points)
+    _assert_same(tiled.denoise(points, tile_points=1000, client="sync"), expected)
+    np.save(tmp_path / "in.npy", points)
+    tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy", tile_points=1000,
+                       client="sync")
+    np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), expected.points)
+
+
 @pytest.mark.parametrize("keep", [False, True])
 def test_given_normals_and_float32_tile_alike(keep):
     cloud = datasets.cad_part(n_points=6_000, noise=0.02, seed=6)
