@@ -627,6 +627,16 @@ def test_text_errors(tmp_path, text, match):
     assert message.startswith(str(tmp_path / "a.pts")) and "\n" not in message
 
 
+def test_a_separator_ending_every_row_opens_no_column(tmp_path):
+    """Some exporters end each row with its separator (``1,2,3,``)."""
+    (tmp_path / "a.csv").write_text("x;y;z;i;\n1;2;3;4;\n5;6;7;8;\n")
+    cloud = pio.read(tmp_path / "a.csv")
+    np.testing.assert_array_equal(cloud.points, [[1, 2, 3], [5, 6, 7]])
+    np.testing.assert_array_equal(cloud.fields["intensity"], [4, 8])
+    (tmp_path / "b.csv").write_text("1,2,3,\n4,5,6,\n")
+    np.testing.assert_array_equal(pio.read(tmp_path / "b.csv").points, [[1, 2, 3], [4, 5, 6]])
+
+
 def test_a_byte_order_mark_is_not_part_of_the_first_name(tmp_path):
     """Spreadsheets write "CSV UTF-8" with a byte order mark before the column names."""
     (tmp_path / "a.csv").write_text("\ufeffx,y,z,intensity\n1,2,3,4\n5,6,7,8\n",

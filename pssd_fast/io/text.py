@@ -65,7 +65,11 @@ def _separator(line):
 
 
 def _split(line, sep):
-    return [t.strip() for t in line.split(sep)] if sep else line.split()
+    """The tokens of ``line``; a separator ending it (``1,2,3,``) opens no column."""
+    if not sep:
+        return line.split()
+    tokens = [t.strip() for t in line.split(sep)]
+    return tokens[:-1] if len(tokens) > 1 and not tokens[-1] else tokens
 
 
 def _is_number(token):
@@ -221,14 +225,14 @@ def read(path, fh, ext, columns=None):
     Notes
     -----
     The separator is the first of ``;`` and ``,`` found on the first data line, else tabs and
-    spaces. A byte order mark before the first line is dropped. ``#`` starts a comment
-    anywhere; a line starting with ``//`` before the data is a comment too. A first line
-    holding a single integer is a point count (as in PTS files). The last line before the data
-    names the columns when it is a bare line (``x,y,z,r,g,b``, which must then name every
-    column) or a comment listing as many distinct names as there are columns, x, y and z among
-    them. Names are case-insensitive and common spellings are mapped: ``r g b`` to ``red green
-    blue``, ``i`` to ``intensity``, ``normal_x`` to ``nx``, ``scalar_Intensity`` to
-    ``intensity``...
+    spaces; a separator ending a row opens no column. A byte order mark before the first line
+    is dropped. ``#`` starts a comment anywhere; a line starting with ``//`` before the data is
+    a comment too. A first line holding a single integer is a point count (as in PTS files).
+    The last line before the data names the columns when it is a bare line
+    (``x,y,z,r,g,b``, which must then name every column) or a comment listing as many
+    distinct names as there are columns, x, y and z among them. Names are case-insensitive and
+    common spellings are mapped: ``r g b`` to ``red green blue``, ``i`` to ``intensity``,
+    ``normal_x`` to ``nx``, ``scalar_Intensity`` to ``intensity``...
 
     Without names (no column-name line, no ``columns``), the first three columns are
     ``x y z``. Columns 4-6 of a six-column file are ``red green blue`` where all three are
@@ -278,9 +282,11 @@ def read(path, fh, ext, columns=None):
         raise PointCloudFileError(f"{path}: first line says {count:,} points, more than the "
                                   f"{len(text) - pos:,} characters after it can hold")
     body = text[pos:]
+    # Rows ending in their separator hold an empty last field, which the tokens drop.
+    trailing = sep is not None and content.rstrip().endswith(sep)
     try:
         data = np.loadtxt(io.StringIO(body), dtype=np.float64, delimiter=sep, comments="#",
-                          ndmin=2)
+                          ndmin=2, usecols=range(ncols) if trailing else None)
     except ValueError as exc:
         raise _text_parse_error(path, text, pos, lineno, ncols, sep, exc) from None
     if count is not None and count != len(data):
