@@ -62,6 +62,9 @@ def test_separators_and_header_variants(tmp_path, sep, header):
      ["intensity", "classification", "Scalar_field"]),
     ("x,y,z,normal_x,normal_y,normal_z,i,scalar_intensity2,a",
      ["intensity", "scalar_intensity2", "alpha"]),
+    # Units after known names are dropped; after other names they stay part of the name.
+    ("x [m],Y (m),z[m],nx,ny,nz,Intensity [dB],temp (C),a",
+     ["intensity", "temp_(C)", "alpha"]),
 ])
 def test_names_are_mapped_case_insensitively(tmp_path, header, expected):
     extra = RNG.integers(0, 9, (5, 3))

@@ -1,4 +1,6 @@
 """Column names of text files: the names other tools write, mapped to the names pssd_fast uses."""
+import re
+
 import numpy as np
 
 # Lower-case spellings -> canonical name. Covers CloudCompare (``//X Y Z R G B``, ``Nx``,
@@ -15,12 +17,18 @@ _ALIASES = {
     "gpstime": "gps_time",
 }
 COLOURS = ("red", "green", "blue", "alpha")
+#: A unit after a name: ``x [m]``, ``Z (ft)``, ``intensity[dB]``.
+_UNIT = re.compile(r"\s*[\[(][^\])]*[\])]$")
 
 
 def canonical(name):
     """The pssd_fast name of a column called ``name`` (case-insensitive aliases, a
-    ``scalar_`` prefix dropped before known names); other names are kept, spaces as ``_``."""
+    ``scalar_`` prefix and a unit in brackets, ``x [m]`` or ``Z (ft)``, dropped around known
+    names); other names are kept, spaces as ``_``."""
     key = name.strip().lower()
+    bare = _UNIT.sub("", key)
+    if bare != key and bare in _ALIASES:
+        key = bare
     if key.startswith("scalar_") and key[7:] in _ALIASES:
         key = key[7:]
     return _ALIASES.get(key, "_".join(name.split()))
