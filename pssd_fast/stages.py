@@ -82,7 +82,7 @@ def _prepare(points, normals_, k, graph, n_jobs, orient=None, estimate=True):
         raise ValueError(f"orient must have one row per point: got {hints.shape[0]} rows for "
                          f"{n} points")
     nrm = None if normals_ is None else as_normals(normals_, n)
-    graph = None if graph is None else check_graph(graph, n)
+    graph = None if graph is None else _of_these(check_graph(graph, n), pts)
     k = None if graph is not None else check_k(k, n, denoising=False)
     with threads(n_jobs):
         order = morton_order(pts)
@@ -94,6 +94,21 @@ def _prepare(points, normals_, k, graph, n_jobs, orient=None, estimate=True):
             hints = core.outward_hints(pts) if hints is None else hints[order]
             nrm, _ = core.pca_normals(pts, graph, hints)
     return _Sorted(order, pts, nrm, graph, dtype)
+
+
+def _of_these(graph, points, rows=256):
+    """``graph``, or ValueError where the distances it holds for up to ``rows`` evenly spread
+    rows are not those of ``points``: a graph of other points (or of these in another order)
+    with the same number of rows."""
+    at = np.unique(np.linspace(0, points.shape[0] - 1, rows).astype(np.int64))
+    for i in at:
+        members = graph.indices[graph.indptr[i]:graph.indptr[i + 1]]
+        held = graph.distances[graph.indptr[i]:graph.indptr[i + 1]]
+        actual = np.sqrt(((points[members] - points[i]) ** 2).sum(axis=1))
+        if not np.allclose(held, actual, rtol=1e-6, atol=1e-9 * max(float(actual.max()), 1e-300)):
+            raise ValueError(f"graph.distances of row {i} are not those of these points: was "
+                             f"the graph built for them, in this order (pssd_fast.neighbors)?")
+    return graph
 
 
 def _fit(points, normals_, k, h, graph, n_jobs):
@@ -115,7 +130,8 @@ def estimate_normals(points, *, k=25, graph=None, orient=None, n_jobs=None):
     k : int, default 25
         Neighbourhood size including the point itself (ignored when ``graph`` is given).
     graph : NeighborGraph, optional
-        Precomputed graph from :func:`pssd_fast.neighbors` for these points.
+        Precomputed graph from :func:`pssd_fast.neighbors` for these points, in this order
+        (its distances are checked on 256 rows; ``k`` is then ignored).
     orient : {"outward", "up"}, array_like of shape (3,) or (n, 3), optional
         How to sign the normals (PCA alone fixes no sign). ``"outward"``, ``"up"`` or a
         viewpoint ``(x, y, z)``: made consistent by propagation over the neighbour graph
@@ -226,7 +242,7 @@ def mls_fit(points, normals=None, *, k=25, h="auto", graph=None, n_jobs=None):
         Gaussian width of ``theta(d) = exp(-d^2 / h^2)``; ``"auto"``: the mean over all points
         of the distance to the farthest of the ``k`` neighbours.
     graph : NeighborGraph, optional
-        Precomputed graph from :func:`pssd_fast.neighbors`.
+        Precomputed graph from :func:`pssd_fast.neighbors` for these points, in this order.
     n_jobs : int or None
         Threads (see :func:`pssd_fast.denoise`).
 

@@ -475,6 +475,9 @@ def test_estimate_normals_follows_orient():
     (lambda p: pssd_fast.estimate_normals(p, orient=p[:5]), ValueError, "orient must have one"),
     (lambda p: pssd_fast.filter_normals(p, graph=pssd_fast.neighbors(p[:100], 10)), ValueError,
      "built for these points"),
+    # A graph of as many other points (here these, reversed) was taken as theirs.
+    (lambda p: pssd_fast.estimate_normals(p[::-1], graph=pssd_fast.neighbors(p, 10)),
+     ValueError, r"graph.distances of row 0 are not those of these points"),
     (lambda p: pssd_fast.neighbors(p, k=9), ValueError, "k must be at least 10"),
     # Lists of k, not a denoising, need the points: the message says what k needs.
     (lambda p: pssd_fast.neighbors(p[:10], k=20), ValueError, r"need at least k \+ 1 = 21 "
