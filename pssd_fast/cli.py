@@ -569,6 +569,9 @@ def _jobs(args):
     uses_stdio = any(_is_stdio(p) for job in jobs for p in job)
     if uses_stdio and args.format is None:
         raise CommandError("'-' needs --format to name its format (e.g. --format xyz)")
+    if args.format is not None and not uses_stdio:
+        raise CommandError("--format names the format of '-' (stdin or stdout) only; a file's "
+                           "format is its extension")
     for inp, out in jobs:
         fmt = args.format if _is_stdio(out) else None
         zarr = [path for path in (inp, out) if _is_zarr(path)]

@@ -772,6 +772,11 @@ def test_info_reads_stdin_with_a_format(small, monkeypatch, capsys):
 def test_dash_needs_a_format(tmp_path, capsys):
     status = cli.main(["denoise", "-", str(tmp_path / "out.ply")])
     assert_one_line_error(status, capsys.readouterr().err, "'-' needs --format")
+    # And --format is for '-' alone: with two named files it used to be ignored unsaid.
+    status = cli.main(["denoise", str(tmp_path / "in.xyz"), str(tmp_path / "out.ply"),
+                       "--format", "xyz"])
+    assert_one_line_error(status, capsys.readouterr().err,
+                          "--format names the format of '-' (stdin or stdout) only")
 
 
 def test_batch_into_a_folder(tmp_path, small):
