@@ -17,7 +17,7 @@ MAD_TO_SIGMA = 1.482602218505602
 
 
 @helper
-def _median_abs(values, count, scratch):
+def median_abs(values, count, scratch):
     """The median of ``|values[:count]|`` (insertion sort into ``scratch``; the lists are
     short)."""
     for t in range(count):
@@ -156,7 +156,7 @@ def local_noise(points, indices, lengths, scale, radius):
                     zs[t] = dx * v[0, 0] + dy * v[1, 0] + dz * v[2, 0]
                     wts[t] = 1.0
                 _weighted_quadratic(xs, ys, zs, wts, count, a, b, phi, res)
-                s = MAD_TO_SIGMA * _median_abs(res, count, scratch)
+                s = MAD_TO_SIGMA * median_abs(res, count, scratch)
                 for _ in range(REFITS):
                     if not s > 0.0:
                         break
@@ -164,5 +164,5 @@ def local_noise(points, indices, lengths, scale, radius):
                         u = res[t] / (WIDTH * s)
                         wts[t] = math.exp(-u * u)
                     _weighted_quadratic(xs, ys, zs, wts, count, a, b, phi, res)
-                    s = MAD_TO_SIGMA * _median_abs(res, count, scratch)
+                    s = MAD_TO_SIGMA * median_abs(res, count, scratch)
                 scale[i, col] = s

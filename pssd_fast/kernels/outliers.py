@@ -6,6 +6,7 @@ from numba import prange
 
 from .config import CHUNK, parallel_kernel
 from .graph import max_degree
+from .noise import median_abs
 from .normals import eigen_scratch, list_eigen
 
 
@@ -32,7 +33,8 @@ def plane_offsets(points, indptr, indices, offsets, spreads):
     longest = max_degree(indptr)
     for c in prange((n + CHUNK - 1) // CHUNK):
         cov, w, v, centre = eigen_scratch()
-        away = np.empty(max(longest - 1, 1))
+        heights = np.empty(max(longest - 1, 1))
+        scratch = np.empty(max(longest - 1, 1))
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             list_eigen(points, indptr, indices, i, 1, cov, w, v, centre)
             nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
@@ -41,7 +43,7 @@ def plane_offsets(points, indptr, indices, offsets, spreads):
             count = indptr[i + 1] - indptr[i] - 1
             for t in range(count):
                 j = indices[indptr[i] + 1 + t]
-                away[t] = math.fabs((points[j, 0] - points[i, 0] - centre[0]) * nx
-                                    + (points[j, 1] - points[i, 1] - centre[1]) * ny
-                                    + (points[j, 2] - points[i, 2] - centre[2]) * nz)
-            spreads[i] = np.median(away[:count]) if count > 0 else 0.0
+                heights[t] = ((points[j, 0] - points[i, 0] - centre[0]) * nx
+                              + (points[j, 1] - points[i, 1] - centre[1]) * ny
+                              + (points[j, 2] - points[i, 2] - centre[2]) * nz)
+            spreads[i] = median_abs(heights, count, scratch) if count > 0 else 0.0
