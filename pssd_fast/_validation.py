@@ -124,8 +124,11 @@ def mean_spacing(points):
     """The mean distance to the nearest other position, estimated cheaply: of up to 1,000 rows
     among up to 20,000 rows taken at a fixed stride (:data:`SPACING_SAMPLE`), times the square
     root of the fraction of rows taken (a surface's spacing goes as one over the square root
-    of its density); 0 where every sampled row has a copy only."""
+    of its density); 0 where every sampled row has a copy only. Stray points are left out as
+    the noise probe leaves them out (:func:`pssd_fast.noise.surface_radius`): one of them would
+    set the mean alone."""
     from ._threads import kdtree  # _threads imports this module
+    from .noise import surface_radius  # noise imports the kernels, which import this module
 
     n = points.shape[0]
     sample = points[::max(1, n // SPACING_SAMPLE[0])]
@@ -135,7 +138,7 @@ def mean_spacing(points):
     distance, _ = kdtree(sample).query(queries, k=2)
     # Copies are one position: the nearest other position is farther than 0.
     found = distance[:, 1][distance[:, 1] > 0]
-    return float(found.mean() * np.sqrt(sample.shape[0] / n)) if found.size else 0.0
+    return surface_radius(found) * float(np.sqrt(sample.shape[0] / n)) if found.size else 0.0
 
 
 def as_normals(normals, n, name="normals"):

@@ -243,6 +243,9 @@ def test_float32_far_from_the_origin_warns_once(noisy):
     labels = np.where(np.arange(len(far)) % 2, 2, 6).astype(np.uint8)
     assert len(_warnings(far.astype(np.float32), classification=labels)) == 1
     assert _warnings(far) == []
+    # A stray row at the origin used to set the sampled spacing alone, and silence it.
+    stray = np.vstack([far, [0.0, 0.0, 0.0]]).astype(np.float32)
+    assert len([m for m in _warnings(stray) if m.startswith("points are float32")]) == 1
 
 
 def test_float32_near_the_origin_does_not_warn(noisy):
