@@ -20,6 +20,11 @@ SPACING_SAMPLE = (20_000, 1_000)
 COORDINATE_RANGE = (1e-100, 1e100)
 
 
+#: A distance more than this many times the median of its kind belongs to a point off the
+#: surface (a stray return, a "no return" row at the origin): :func:`surface_mean`.
+STRAY = 100.0
+
+
 class DenoiseWarning(UserWarning):
     """Something of a run the caller may not expect: coordinates whose float32 steps are coarse
     against the cloud's spacing, or classes too small to denoise, left as they are."""
@@ -120,15 +125,21 @@ def check_precision(points, dtype, stacklevel=3, largest=None):
         DenoiseWarning, stacklevel=stacklevel)
 
 
+def surface_mean(values, stray=STRAY):
+    """The mean of the distances ``values`` of the points on the surface: those within
+    ``stray`` times the median. One point far from the rest would otherwise set it alone."""
+    on = values <= stray * np.median(values)
+    return float(np.mean(values if on.all() else values[on]))
+
+
 def mean_spacing(points):
     """The mean distance to the nearest other position, estimated cheaply: of up to 1,000 rows
     among up to 20,000 rows taken at a fixed stride (:data:`SPACING_SAMPLE`), times the square
     root of the fraction of rows taken (a surface's spacing goes as one over the square root
     of its density); 0 where every sampled row has a copy only. Stray points are left out as
-    the noise probe leaves them out (:func:`pssd_fast.noise.surface_radius`): one of them would
-    set the mean alone."""
+    the noise probe leaves them out (:func:`surface_mean`): one of them would set the mean
+    alone."""
     from ._threads import kdtree  # _threads imports this module
-    from .noise import surface_radius  # noise imports the kernels, which import this module
 
     n = points.shape[0]
     sample = points[::max(1, n // SPACING_SAMPLE[0])]
@@ -138,7 +149,7 @@ def mean_spacing(points):
     distance, _ = kdtree(sample).query(queries, k=2)
     # Copies are one position: the nearest other position is farther than 0.
     found = distance[:, 1][distance[:, 1] > 0]
-    return surface_radius(found) * float(np.sqrt(sample.shape[0] / n)) if found.size else 0.0
+    return surface_mean(found) * float(np.sqrt(sample.shape[0] / n)) if found.size else 0.0
 
 
 def as_normals(normals, n, name="normals"):

@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import core
+from ._validation import STRAY, surface_mean
 from .graph import NeighborGraph, candidates, knn_graph, merge_candidates
 
 #: ``points``: the most points the probe reads (a larger cloud: every ``s``-th point of its
@@ -26,7 +27,7 @@ from .graph import NeighborGraph, candidates, knn_graph, merge_candidates
 #: list radius must span for its reading to count; ``stray``: a list reaching more than this
 #: many times the median radius belongs to a point off the surface (a stray return, a
 #: "no return" row at the origin) and is left out of the mean radius.
-PROBE = {"points": 20_000, "lengths": (12, 24, 48), "min_ratio": 2.0, "stray": 100.0}
+PROBE = {"points": 20_000, "lengths": (12, 24, 48), "min_ratio": 2.0, "stray": STRAY}
 
 #: What each list length reads on a plane with Gaussian noise of standard deviation ``sigma``:
 #: ``(mean list radius / sigma, median reading / sigma)``, from 80,000 uniformly random points
@@ -118,8 +119,7 @@ def surface_radius(radius):
     """The mean of the list ``radius`` of the points on the surface: those within
     ``PROBE["stray"]`` times the median. One point far from the rest would otherwise set the
     spacing, and with it every list's bound, alone."""
-    on = radius <= PROBE["stray"] * np.median(radius)
-    return float(np.mean(radius if on.all() else radius[on]))
+    return surface_mean(radius, PROBE["stray"])
 
 
 def own_sigma(points, taken, k, bound, radius):
