@@ -1,8 +1,11 @@
-"""The 3x3 symmetric eigensolver, the orthonormal frame and the prefix Cholesky."""
+"""The 3x3 symmetric eigensolver, the orthonormal frame, the normal equations and the prefix
+Cholesky."""
 import numpy as np
 import pytest
 
-from pssd_fast.kernels.linalg import cholesky_prefix, cholesky_solve, orthonormal_basis, sym3_eigh
+from pssd_fast.kernels.linalg import (
+    cholesky_prefix, cholesky_solve, normal_equations, orthonormal_basis, sym3_eigh,
+)
 
 
 def _eig(a):
@@ -55,6 +58,32 @@ def test_orthonormal_basis(n):
     frame = np.array([[ux, uy, uz], [vx, vy, vz], n])
     np.testing.assert_allclose(frame @ frame.T, np.eye(3), atol=1e-15)
     assert np.linalg.det(frame) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("m", [1, 3, 6, 10])
+def test_normal_equations_sum_each_entry_in_neighbour_order(m):
+    # Plain loops, one sum after another: the unrolled kernels of the quadratic and the plane
+    # must give these bits, which magnitudes from 1e-12 to 1e12 make depend on the order.
+    rng = np.random.default_rng(m)
+    for count in (0, 1, 7, 154):
+        phi = rng.normal(size=(10, 160)) * 10.0 ** rng.integers(-12, 13, size=(10, 160))
+        wts = rng.random(160)
+        wts[::5] = 0.0
+        zs = rng.normal(size=160) * 10.0 ** rng.integers(-12, 13, size=160)
+        a = np.full((10, 10), np.nan)
+        b = np.full(10, np.nan)
+        normal_equations(phi, wts, zs, count, m, a, b)
+        for p in range(m):
+            s = 0.0
+            for t in range(count):
+                s += wts[t] * phi[p, t] * zs[t]
+            assert b[p] == s
+            for q in range(p + 1):
+                s = 0.0
+                for t in range(count):
+                    s += wts[t] * phi[p, t] * phi[q, t]
+                assert a[p, q] == s
+        assert np.isnan(b[m:]).all() and np.isnan(a[:m][np.triu_indices(m, 1)]).all()
 
 
 def test_cholesky_solves_spd_systems():

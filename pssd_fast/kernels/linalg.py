@@ -142,6 +142,104 @@ def orthonormal_basis(nx, ny, nz):
 
 
 @helper
+def normal_equations(phi, wts, zs, count, m, a, b):
+    """Lower triangle of ``A = Phi W Phi^T`` and ``b = Phi W z`` for the first ``m`` monomials
+    (rows of ``phi``, one column per neighbour), as dot products over the neighbours, each
+    summed in neighbour order."""
+    if m == 6:
+        _quadratic_sums(phi, wts, zs, count, a, b)
+        return
+    if m == 3:
+        _plane_sums(phi, wts, zs, count, a, b)
+        return
+    for p in range(m):
+        s = 0.0
+        for t in range(count):
+            s += wts[t] * phi[p, t] * zs[t]
+        b[p] = s
+        for q in range(p + 1):
+            s = 0.0
+            for t in range(count):
+                s += wts[t] * phi[p, t] * phi[q, t]
+            a[p, q] = s
+
+
+@helper
+def _quadratic_sums(phi, wts, zs, count, a, b):
+    """:func:`normal_equations` of the quadratic: its 27 sums side by side in one pass over the
+    neighbours, each still in neighbour order (the same bits), so that they do not wait on
+    each other's additions (twice as fast as one sum after another)."""
+    b0 = b1 = b2 = b3 = b4 = b5 = 0.0
+    a00 = a10 = a11 = a20 = a21 = a22 = 0.0
+    a30 = a31 = a32 = a33 = a40 = a41 = a42 = a43 = a44 = 0.0
+    a50 = a51 = a52 = a53 = a54 = a55 = 0.0
+    for t in range(count):
+        wt = wts[t]
+        z = zs[t]
+        f0, f1, f2, f3, f4, f5 = phi[0, t], phi[1, t], phi[2, t], phi[3, t], phi[4, t], phi[5, t]
+        w0, w1, w2, w3, w4, w5 = wt * f0, wt * f1, wt * f2, wt * f3, wt * f4, wt * f5
+        b0 += w0 * z
+        b1 += w1 * z
+        b2 += w2 * z
+        b3 += w3 * z
+        b4 += w4 * z
+        b5 += w5 * z
+        a00 += w0 * f0
+        a10 += w1 * f0
+        a11 += w1 * f1
+        a20 += w2 * f0
+        a21 += w2 * f1
+        a22 += w2 * f2
+        a30 += w3 * f0
+        a31 += w3 * f1
+        a32 += w3 * f2
+        a33 += w3 * f3
+        a40 += w4 * f0
+        a41 += w4 * f1
+        a42 += w4 * f2
+        a43 += w4 * f3
+        a44 += w4 * f4
+        a50 += w5 * f0
+        a51 += w5 * f1
+        a52 += w5 * f2
+        a53 += w5 * f3
+        a54 += w5 * f4
+        a55 += w5 * f5
+    b[0], b[1], b[2], b[3], b[4], b[5] = b0, b1, b2, b3, b4, b5
+    a[0, 0] = a00
+    a[1, 0], a[1, 1] = a10, a11
+    a[2, 0], a[2, 1], a[2, 2] = a20, a21, a22
+    a[3, 0], a[3, 1], a[3, 2], a[3, 3] = a30, a31, a32, a33
+    a[4, 0], a[4, 1], a[4, 2], a[4, 3], a[4, 4] = a40, a41, a42, a43, a44
+    a[5, 0], a[5, 1], a[5, 2], a[5, 3], a[5, 4], a[5, 5] = a50, a51, a52, a53, a54, a55
+
+
+@helper
+def _plane_sums(phi, wts, zs, count, a, b):
+    """:func:`normal_equations` of the plane, as :func:`_quadratic_sums`."""
+    b0 = b1 = b2 = 0.0
+    a00 = a10 = a11 = a20 = a21 = a22 = 0.0
+    for t in range(count):
+        wt = wts[t]
+        z = zs[t]
+        f0, f1, f2 = phi[0, t], phi[1, t], phi[2, t]
+        w0, w1, w2 = wt * f0, wt * f1, wt * f2
+        b0 += w0 * z
+        b1 += w1 * z
+        b2 += w2 * z
+        a00 += w0 * f0
+        a10 += w1 * f0
+        a11 += w1 * f1
+        a20 += w2 * f0
+        a21 += w2 * f1
+        a22 += w2 * f2
+    b[0], b[1], b[2] = b0, b1, b2
+    a[0, 0] = a00
+    a[1, 0], a[1, 1] = a10, a11
+    a[2, 0], a[2, 1], a[2, 2] = a20, a21, a22
+
+
+@helper
 def cholesky_prefix(a, m, tol):
     """Factor the leading block of a symmetric positive semi-definite matrix, as far as it goes.
 

@@ -8,7 +8,8 @@ from numba import prange
 from .config import CHUNK, helper, parallel_kernel
 from .graph import max_degree
 from .linalg import (
-    DEGENERATE_RATIO, cholesky_prefix, cholesky_solve, orthonormal_basis, set_sym3, sym3_eigh,
+    DEGENERATE_RATIO, cholesky_prefix, cholesky_solve, normal_equations, orthonormal_basis,
+    set_sym3, sym3_eigh,
 )
 
 # A Cholesky pivot fails when less than this fraction of its column's weighted energy is left
@@ -50,22 +51,6 @@ def _basis(x, y, phi, t):
     phi[7, t] = x * x * y
     phi[8, t] = y * y * y
     phi[9, t] = x * x * x
-
-
-@helper
-def _normal_equations(phi, wts, zs, count, m, a, b):
-    """Lower triangle of ``A = Phi W Phi^T`` and ``b = Phi W z`` for the first ``m`` monomials,
-    as dot products over the neighbours, each summed in neighbour order."""
-    for p in range(m):
-        s = 0.0
-        for t in range(count):
-            s += wts[t] * phi[p, t] * zs[t]
-        b[p] = s
-        for q in range(p + 1):
-            s = 0.0
-            for t in range(count):
-                s += wts[t] * phi[p, t] * phi[q, t]
-            a[p, q] = s
 
 
 @helper
@@ -159,7 +144,7 @@ def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov
         y = (dx * vx + dy * vy + dz * vz) * inv_r
         zs[t] = dx * nx + dy * ny + dz * nz
         _basis(x, y, phi, t)
-    _normal_equations(phi, wts, zs, count, 10, a, b)
+    normal_equations(phi, wts, zs, count, 10, a, b)
 
     # Cubic if the whole system is well posed, else the quadratic, else the plane g = 0.
     rank = cholesky_prefix(a, 10, PIVOT_TOL)
@@ -244,7 +229,7 @@ def _solve(phi, wts, zs, count, top, a, b):
     """Weighted least-squares fit of the first ``top`` (6, 3 or 1) monomials into ``b``: the
     quadratic if well posed, else the plane, else the weighted mean height, else nothing;
     returns the number of coefficients fitted (``b`` is zero beyond them)."""
-    _normal_equations(phi, wts, zs, count, top, a, b)
+    normal_equations(phi, wts, zs, count, top, a, b)
     rank = cholesky_prefix(a, top, PIVOT_TOL)
     if rank == 6:
         m = 6

@@ -6,7 +6,7 @@ import numpy as np
 from numba import prange
 
 from .config import CHUNK, helper, parallel_kernel
-from .linalg import cholesky_prefix, cholesky_solve, set_sym3, sym3_eigh
+from .linalg import cholesky_prefix, cholesky_solve, normal_equations, set_sym3, sym3_eigh
 from .mls import PIVOT_TOL
 
 #: Reweighted fits after the first, and the width of their weights in robust spreads.
@@ -32,41 +32,21 @@ def median_abs(values, count, scratch):
 
 
 @helper
-def _monomials(x, y, phi):
-    """The quadratic's monomials ``1, y, x, xy, y^2, x^2`` at ``(x, y)`` into ``phi``."""
-    phi[0] = 1.0
-    phi[1] = y
-    phi[2] = x
-    phi[3] = x * y
-    phi[4] = y * y
-    phi[5] = x * x
-
-
-@helper
-def _weighted_quadratic(xs, ys, zs, wts, count, a, b, phi, res):
+def _weighted_quadratic(phi, zs, wts, count, a, b, res):
     """The weighted least-squares quadratic (else plane, else mean height) of the heights
-    ``zs`` over ``(xs, ys)``, its residuals left in ``res``."""
+    ``zs`` over the monomials ``1, y, x, xy, y^2, x^2`` of each neighbour (the columns of
+    ``phi``), its residuals left in ``res``."""
     m = 0
     for top in (6, 3, 1):
-        for p in range(top):
-            b[p] = 0.0
-            for q in range(p + 1):
-                a[p, q] = 0.0
-        for t in range(count):
-            _monomials(xs[t], ys[t], phi)
-            for p in range(top):
-                b[p] += wts[t] * phi[p] * zs[t]
-                for q in range(p + 1):
-                    a[p, q] += wts[t] * phi[p] * phi[q]
+        normal_equations(phi, wts, zs, count, top, a, b)
         if cholesky_prefix(a, top, PIVOT_TOL) == top:
             cholesky_solve(a, b, top)
             m = top
             break
     for t in range(count):
-        _monomials(xs[t], ys[t], phi)
         g = 0.0
         for p in range(m):
-            g += b[p] * phi[p]
+            g += b[p] * phi[p, t]
         res[t] = zs[t] - g
 
 
@@ -99,15 +79,13 @@ def local_noise(points, indices, lengths, scale, radius):
     """
     n, longest = indices.shape
     for c in prange((n + CHUNK - 1) // CHUNK):
-        xs = np.empty(longest)
-        ys = np.empty(longest)
+        phi = np.empty((6, longest))
         zs = np.empty(longest)
         wts = np.empty(longest)
         res = np.empty(longest)
         scratch = np.empty(longest)
         a = np.empty((6, 6))
         b = np.empty(6)
-        phi = np.empty(6)
         cov = np.empty((3, 3))
         w = np.empty(3)
         v = np.empty((3, 3))
@@ -151,11 +129,17 @@ def local_noise(points, indices, lengths, scale, radius):
                     dx = points[j, 0] - px
                     dy = points[j, 1] - py
                     dz = points[j, 2] - pz
-                    xs[t] = (dx * v[0, 2] + dy * v[1, 2] + dz * v[2, 2]) * inv_r
-                    ys[t] = (dx * v[0, 1] + dy * v[1, 1] + dz * v[2, 1]) * inv_r
+                    x = (dx * v[0, 2] + dy * v[1, 2] + dz * v[2, 2]) * inv_r
+                    y = (dx * v[0, 1] + dy * v[1, 1] + dz * v[2, 1]) * inv_r
+                    phi[0, t] = 1.0
+                    phi[1, t] = y
+                    phi[2, t] = x
+                    phi[3, t] = x * y
+                    phi[4, t] = y * y
+                    phi[5, t] = x * x
                     zs[t] = dx * v[0, 0] + dy * v[1, 0] + dz * v[2, 0]
                     wts[t] = 1.0
-                _weighted_quadratic(xs, ys, zs, wts, count, a, b, phi, res)
+                _weighted_quadratic(phi, zs, wts, count, a, b, res)
                 s = MAD_TO_SIGMA * median_abs(res, count, scratch)
                 for _ in range(REFITS):
                     if not s > 0.0:
@@ -163,6 +147,6 @@ def local_noise(points, indices, lengths, scale, radius):
                     for t in range(count):
                         u = res[t] / (WIDTH * s)
                         wts[t] = math.exp(-u * u)
-                    _weighted_quadratic(xs, ys, zs, wts, count, a, b, phi, res)
+                    _weighted_quadratic(phi, zs, wts, count, a, b, res)
                     s = MAD_TO_SIGMA * median_abs(res, count, scratch)
                 scale[i, col] = s
