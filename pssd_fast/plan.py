@@ -47,10 +47,15 @@ BASELINE_K = ((0.837, 64), (1.687, 96), (3.236, 160))
 #: surface as their input; at a sixth (500 points) 0.34 to 1.03 times, at a twelfth 0.28 to
 #: 0.64 times.
 SMALL = 1 / 4
-#: The fewest steps of float64 that must span the points' spacing at the cloud's far corner
-#: (:func:`resolved`): below about 20 the CAD part's error grew with a point far away (1e13
-#: times its size: 7 steps, 24% farther from the truth); at 58 steps it was unchanged.
+#: The fewest steps of float64 that must span the points' spacing, and their noise, at the
+#: cloud's far corner (:func:`resolved`): below about 20 the CAD part's error grew with a point
+#: far away (1e13 times its size: 7 steps, 24% farther from the truth); at 58 steps it was
+#: unchanged. Autzen's noise is 0.08 of its spacing: a row 1e15 feet away left 2.7 steps
+#: across its noise, 35 across its spacing, and moved its other points by 0.23 noise widths.
 RESOLUTION = 20
+#: A noise below this share of the spacing counts as this share: the cloud is clean, and its
+#: coordinates need not resolve what noise it has.
+CLEAN = 0.01
 
 
 def iterating(preset):
@@ -193,23 +198,29 @@ def _small(plan, distinct):
 
 def resolved(found, low):
     """``found`` (the probe's :class:`pssd_fast.noise.Noise`) where the positions, relative to
-    the centre of the bounding box whose ``low`` corner this is, resolve its spacing
-    (:func:`check_resolution`)."""
-    check_resolution(found.spacing, float(np.abs(np.asarray(low, np.float64)).max()))
+    the centre of the bounding box whose ``low`` corner this is, resolve its spacing and its
+    noise (:func:`check_resolution`)."""
+    check_resolution(found.spacing, float(np.abs(np.asarray(low, np.float64)).max()),
+                     found.sigma)
     return found
 
 
-def check_resolution(spacing, reach):
+def check_resolution(spacing, reach, noise=None):
     """ValueError where positions as far as ``reach`` from the run's centre resolve the
-    points' ``spacing`` in fewer than :data:`RESOLUTION` steps of float64: points far from the
+    points' ``spacing``, or their ``noise`` where given and smaller (at least :data:`CLEAN`
+    times the spacing), in fewer than :data:`RESOLUTION` steps of float64: points far from the
     rest (a stray return, a row at the origin) stretch the bounding box until the others'
-    coordinates lose the digits that tell them apart."""
+    coordinates lose the digits that tell them apart, or that hold their noise."""
     step = float(np.spacing(reach))
-    if not spacing >= RESOLUTION * step:
+    what, scale = "spacing", spacing
+    if noise is not None and max(noise, CLEAN * spacing) < spacing:
+        what, scale = "noise", max(noise, CLEAN * spacing)
+    if not scale >= RESOLUTION * step:
+        noisy = "" if noise is None else f" with a noise of about {noise:.3g}"
         raise ValueError(
-            f"the points lie about {spacing:.3g} apart, but the cloud reaches {reach:.3g} "
-            f"from the centre of its bounding box, where float64 resolves steps of "
-            f"{step:.3g}: fewer than {RESOLUTION} across the spacing. Remove the points far "
+            f"the points lie about {spacing:.3g} apart{noisy}, but the cloud reaches "
+            f"{reach:.3g} from the centre of its bounding box, where float64 resolves steps of "
+            f"{step:.3g}: fewer than {RESOLUTION} across the {what}. Remove the points far "
             f"from the rest (a stray return, a row at the origin) and run again")
 
 

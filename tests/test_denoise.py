@@ -511,8 +511,34 @@ def test_a_point_too_far_from_the_rest_to_keep_their_digits_is_named(options):
     box the others' coordinates keep none of the digits that tell them apart (a numba error in
     the PCA, or every point moved onto one, before this check)."""
     points = datasets.cad_part(n_points=2000, noise=0.003, seed=4).points
-    with pytest.raises(ValueError, match="fewer than 20 across the spacing.*stray return"):
+    with pytest.raises(ValueError, match="fewer than 20 across the (spacing|noise).*stray ret"):
         pssd_fast.denoise(np.vstack([points, [1e15, 1e15, 1e15]]), **options)
+
+
+def _plane(noise, far):
+    """3,000 points of a plane 1 apart with Gaussian heights of ``noise``, and one row at
+    ``far``."""
+    rng = np.random.default_rng(5)
+    points = np.column_stack([rng.uniform(0, 55, (3000, 2)), rng.normal(0, noise, 3000)])
+    return np.vstack([points, [far, far, far]])
+
+
+@pytest.mark.parametrize("options", [{}, {"method": "bilateral"}])
+def test_a_point_too_far_for_the_others_noise_is_named(options):
+    """Low noise against the spacing (airborne LiDAR: 0.08 of it): a row 1e14 away leaves
+    steps of 0.0078, 130 across the spacing but 6 across the noise, which the positions would
+    no longer hold."""
+    with pytest.raises(ValueError, match="noise of about 0.0[45].*fewer than 20 across the noise"):
+        pssd_fast.denoise(_plane(0.05, 1e14), **options)
+    # 1e12 away the steps are 6.1e-5, 800 across the noise.
+    assert np.isfinite(pssd_fast.denoise(_plane(0.05, 1e12), **options).points).all()
+
+
+def test_a_clean_cloud_need_not_resolve_its_noise():
+    """A noise far below the spacing counts as 1% of it (plan.CLEAN): a clean plane
+    with a row 1e12 away (steps of 6.1e-5, 17,000 across the spacing) runs."""
+    result = pssd_fast.denoise(_plane(0.0, 1e12))
+    assert result.stats["noise"] < 1e-3 and np.isfinite(result.points).all()
 
 
 def test_a_stray_point_leaves_the_others_as_they_were():
