@@ -646,6 +646,16 @@ def test_a_byte_order_mark_is_not_part_of_the_first_name(tmp_path):
     np.testing.assert_array_equal(cloud.fields["intensity"], [4, 8])
 
 
+@pytest.mark.parametrize("mark, codec", [(b"\xff\xfe", "utf-16-le"), (b"\xfe\xff", "utf-16-be")])
+def test_utf16_text_after_its_byte_order_mark_is_read(tmp_path, mark, codec):
+    """PowerShell's ``>`` and Notepad's "Unicode" write UTF-16, little-endian on Windows."""
+    text = "# scan\r\nx y z intensity\r\n1.5 2 3 4\r\n5 6 7 8\r\n"
+    (tmp_path / "a.xyz").write_bytes(mark + text.encode(codec))
+    cloud = pio.read(tmp_path / "a.xyz")
+    np.testing.assert_array_equal(cloud.points, [[1.5, 2, 3], [5, 6, 7]])
+    np.testing.assert_array_equal(cloud.fields["intensity"], [4, 8])
+
+
 @needs_plyfile
 def test_ascii_ply_bad_value_names_the_line(tmp_path):
     (tmp_path / "a.ply").write_text(

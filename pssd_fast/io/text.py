@@ -226,8 +226,9 @@ def read(path, fh, ext, columns=None):
     -----
     The separator is the first of ``;`` and ``,`` found on the first data line, else tabs and
     spaces; a separator ending a row opens no column. A byte order mark before the first line
-    is dropped. ``#`` starts a comment anywhere; a line starting with ``//`` before the data is
-    a comment too. A first line holding a single integer is a point count (as in PTS files).
+    is dropped (after a UTF-16 one the file is read as UTF-16, else as UTF-8). ``#`` starts a
+    comment anywhere; a line starting with ``//`` before the data is a comment too. A first
+    line holding a single integer is a point count (as in PTS files).
     The last line before the data names the columns when it is a bare line
     (``x,y,z,r,g,b``, which must then name every column) or a comment listing as many
     distinct names as there are columns, x, y and z among them. Names are case-insensitive and
@@ -241,8 +242,11 @@ def read(path, fh, ext, columns=None):
     or has no normal (NaN or ``0 0 0``); else fields ``col3`` to ``col5``. Other counts are
     ``x y z`` and fields ``col3``... (``.pts``: see ``ext``).
     """
-    # Undecodable bytes are kept as surrogates so that comments are written back verbatim.
-    text = fh.read().decode("utf-8", errors="surrogateescape").removeprefix("\ufeff")
+    raw = fh.read()
+    # Windows tools (PowerShell's ">", Notepad's "Unicode") write UTF-16 after a byte order
+    # mark. Undecodable bytes are kept as surrogates so that comments are written back verbatim.
+    encoding = "utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8"
+    text = raw.decode(encoding, errors="surrogateescape").removeprefix("\ufeff")
     leading, count, pos, lineno = [], None, 0, 1  # leading: (lineno, line, bare)
     while pos < len(text):
         end = text.find("\n", pos)
