@@ -615,9 +615,9 @@ def test_missing_file_and_directory(tmp_path):
     ("3\n1.5 2.5 3.5\n4.5 5.5 6.5\n", "first line says 3 points but the file holds 2"),
     (f"{10**9}\n1 2 3\n", "first line says 1,000,000,000 points, more than"),
     # Rows that do not read as numbers, after a column-name line: named, not "no points".
-    ("x;y;z\n1,5;2,5;3,5\n4,5;5,5;6,5\n", "no line holds a row of numbers; line 2 reads "
-                                          "as text: '1,5;2,5;3,5'"),
-    ('"x","y","z"\n"1","2","3"\n', "line 2 reads as text: '\"1\",\"2\",\"3\"'"),
+    ("x;y;z\n1.234,5;2;3\n", "no line holds a row of numbers; line 2 reads as text: "
+                             "'1.234,5;2;3'"),
+    ('"x","y","z"\n"a","2","3"\n', "line 2 reads as text: '\"a\",\"2\",\"3\"'"),
 ])
 def test_text_errors(tmp_path, text, match):
     (tmp_path / "a.pts").write_text(text)
@@ -644,6 +644,30 @@ def test_a_byte_order_mark_is_not_part_of_the_first_name(tmp_path):
     cloud = pio.read(tmp_path / "a.csv")
     np.testing.assert_array_equal(cloud.points, [[1, 2, 3], [5, 6, 7]])
     np.testing.assert_array_equal(cloud.fields["intensity"], [4, 8])
+
+
+def test_decimal_commas_between_semicolons_are_read(tmp_path):
+    """Spreadsheets where the comma is the decimal mark write ``1,5;2,25``; whole numbers
+    stay integers."""
+    (tmp_path / "a.csv").write_text("x;y;z;intensity\n1,5;-2,25;3;7\n4;5,125;6e-1;8\n")
+    cloud = pio.read(tmp_path / "a.csv")
+    np.testing.assert_array_equal(cloud.points, [[1.5, -2.25, 3], [4, 5.125, 0.6]])
+    np.testing.assert_array_equal(cloud.fields["intensity"], [7, 8])
+    assert cloud.fields["intensity"].dtype.kind == "i"
+    (tmp_path / "b.csv").write_text("1;2;3\n1,5;2;3\n")  # the first row has no comma
+    with pytest.raises(PointCloudFileError, match=r"bad number '1,5' on line 2"):
+        pio.read(tmp_path / "b.csv")
+
+
+def test_quoted_values_and_names_are_read(tmp_path):
+    """Some exporters quote every value, names and numbers alike."""
+    (tmp_path / "a.csv").write_text('"x","y","z","intensity"\n"1.5","2","3","7"\n'
+                                    '"4","5","6","8"\n')
+    cloud = pio.read(tmp_path / "a.csv")
+    np.testing.assert_array_equal(cloud.points, [[1.5, 2, 3], [4, 5, 6]])
+    np.testing.assert_array_equal(cloud.fields["intensity"], [7, 8])
+    (tmp_path / "b.csv").write_text('"x";"y";"z"\n"1,5";"2";"3"\n')
+    np.testing.assert_array_equal(pio.read(tmp_path / "b.csv").points, [[1.5, 2, 3]])
 
 
 @pytest.mark.parametrize("mark, codec", [(b"\xff\xfe", "utf-16-le"), (b"\xfe\xff", "utf-16-be")])

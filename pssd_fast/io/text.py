@@ -65,11 +65,19 @@ def _separator(line):
 
 
 def _split(line, sep):
-    """The tokens of ``line``; a separator ending it (``1,2,3,``) opens no column."""
-    if not sep:
-        return line.split()
-    tokens = [t.strip() for t in line.split(sep)]
-    return tokens[:-1] if len(tokens) > 1 and not tokens[-1] else tokens
+    """The tokens of ``line``, each without the double quotes around it (``"1.5"``); a
+    separator ending it (``1,2,3,``) opens no column."""
+    tokens = line.split() if not sep else [t.strip() for t in line.split(sep)]
+    if sep and len(tokens) > 1 and not tokens[-1]:
+        tokens = tokens[:-1]
+    return [t[1:-1].strip() if len(t) > 1 and t[0] == t[-1] == '"' else t for t in tokens]
+
+
+def _decimal_comma(content, sep):
+    """Whether a data line separated by ``;`` writes its numbers with decimal commas
+    (``1,5;2,25;3``), as spreadsheets do where the comma is the decimal mark."""
+    return sep == ";" and "," in content and all(
+        _is_number(t.replace(",", ".", 1)) for t in _split(content, sep))
 
 
 def _is_number(token):
@@ -130,8 +138,9 @@ def _given_names(path, columns, ncols, header):
     return names
 
 
-def _text_parse_error(path, text, start, first_line, ncols, sep, exc):
-    """Find the first line numpy refused (slow, only after a failure) and describe it."""
+def _text_parse_error(path, text, start, first_line, ncols, sep, comma, exc):
+    """Find the first line numpy refused (slow, only after a failure) and describe it
+    (``comma``: the numbers are written with decimal commas)."""
     for offset, line in enumerate(text[start:].split("\n")):
         content = line.split("#", 1)[0]
         if not content.strip():
@@ -141,7 +150,7 @@ def _text_parse_error(path, text, start, first_line, ncols, sep, exc):
             return PointCloudFileError(f"{path}: line {first_line + offset} has {len(tokens)} "
                                        f"columns; the first data line has {ncols}")
         for token in tokens:
-            if not _is_number(token):
+            if not _is_number(token.replace(",", ".", 1) if comma else token):
                 return PointCloudFileError(f"{path}: bad number {token!r} on line "
                                            f"{first_line + offset}")
     return PointCloudFileError(f"{path}: {' '.join(str(exc).split())}")
@@ -159,7 +168,7 @@ def _integer_columns(data, body, sep, names):
 
     def parse(cols):
         return np.loadtxt(io.StringIO(body), dtype=np.int64, delimiter=sep, comments="#",
-                          usecols=cols, ndmin=2)
+                          usecols=cols, ndmin=2, quotechar='"')
 
     if not candidates:
         return {}
@@ -213,8 +222,8 @@ def read(path, fh, ext, columns=None):
         On fewer than three columns, rows of unequal length, a bad number, a header line (or
         ``columns``) that does not name every column once (x, y and z included), a
         point-count line that does not match the rows (or that claims more than the file can
-        hold), or lines of text and no row of numbers (quoted values, decimal commas; a
-        column-name line alone is a file without points).
+        hold), or lines of text and no row of numbers (a column-name line alone is a file
+        without points).
 
     Warns
     -----
@@ -225,7 +234,9 @@ def read(path, fh, ext, columns=None):
     Notes
     -----
     The separator is the first of ``;`` and ``,`` found on the first data line, else tabs and
-    spaces; a separator ending a row opens no column. A byte order mark before the first line
+    spaces; a separator ending a row opens no column. Values may stand in double quotes
+    (``"1.5","2"``), and where ``;`` separates them, numbers may be written with a decimal
+    comma (``1,5;2,25``). A byte order mark before the first line
     is dropped (after a UTF-16 one the file is read as UTF-16, else as UTF-8). ``#`` starts a
     comment anywhere; a line starting with ``//`` before the data is a comment too. A first
     line holding a single integer is a point count (as in PTS files).
@@ -257,7 +268,7 @@ def read(path, fh, ext, columns=None):
             leading.append((lineno, line, False))
         elif content.strip():
             tokens = _split(content, _separator(content))
-            if not _is_number(tokens[0]):
+            if not (_is_number(tokens[0]) or _decimal_comma(content, _separator(content))):
                 leading.append((lineno, line, True))
             elif count is None and len(tokens) == 1 and tokens[0].isdigit():
                 count = int(tokens[0])  # a PTS point-count line, before any data
@@ -274,8 +285,7 @@ def read(path, fh, ext, columns=None):
             # did not read as numbers.
             at, line = bare[1]
             raise PointCloudFileError(f"{path}: no line holds a row of numbers; line {at} "
-                                      f"reads as text: {line.strip()!r} (quoted values and "
-                                      f"decimal commas are not read)")
+                                      f"reads as text: {line.strip()!r}")
         return np.empty((0, 3)), None, {}, None
     sep = _separator(content)
     ncols = len(tokens)
@@ -286,13 +296,16 @@ def read(path, fh, ext, columns=None):
         raise PointCloudFileError(f"{path}: first line says {count:,} points, more than the "
                                   f"{len(text) - pos:,} characters after it can hold")
     body = text[pos:]
+    comma = _decimal_comma(content, sep)
+    if comma:
+        body = body.replace(",", ".")
     # Rows ending in their separator hold an empty last field, which the tokens drop.
     trailing = sep is not None and content.rstrip().endswith(sep)
     try:
         data = np.loadtxt(io.StringIO(body), dtype=np.float64, delimiter=sep, comments="#",
-                          ndmin=2, usecols=range(ncols) if trailing else None)
+                          ndmin=2, usecols=range(ncols) if trailing else None, quotechar='"')
     except ValueError as exc:
-        raise _text_parse_error(path, text, pos, lineno, ncols, sep, exc) from None
+        raise _text_parse_error(path, text, pos, lineno, ncols, sep, comma, exc) from None
     if count is not None and count != len(data):
         raise PointCloudFileError(f"{path}: first line says {count:,} points but the file holds "
                                   f"{len(data):,}")
