@@ -149,9 +149,6 @@ def normal_equations(phi, wts, zs, count, m, a, b):
     if m == 6:
         _quadratic_sums(phi, wts, zs, count, a, b)
         return
-    if m == 3:
-        _plane_sums(phi, wts, zs, count, a, b)
-        return
     for p in range(m):
         s = 0.0
         for t in range(count):
@@ -212,31 +209,6 @@ def _quadratic_sums(phi, wts, zs, count, a, b):
     a[3, 0], a[3, 1], a[3, 2], a[3, 3] = a30, a31, a32, a33
     a[4, 0], a[4, 1], a[4, 2], a[4, 3], a[4, 4] = a40, a41, a42, a43, a44
     a[5, 0], a[5, 1], a[5, 2], a[5, 3], a[5, 4], a[5, 5] = a50, a51, a52, a53, a54, a55
-
-
-@helper
-def _plane_sums(phi, wts, zs, count, a, b):
-    """:func:`normal_equations` of the plane, as :func:`_quadratic_sums`."""
-    b0 = b1 = b2 = 0.0
-    a00 = a10 = a11 = a20 = a21 = a22 = 0.0
-    for t in range(count):
-        wt = wts[t]
-        z = zs[t]
-        f0, f1, f2 = phi[0, t], phi[1, t], phi[2, t]
-        w0, w1, w2 = wt * f0, wt * f1, wt * f2
-        b0 += w0 * z
-        b1 += w1 * z
-        b2 += w2 * z
-        a00 += w0 * f0
-        a10 += w1 * f0
-        a11 += w1 * f1
-        a20 += w2 * f0
-        a21 += w2 * f1
-        a22 += w2 * f2
-    b[0], b[1], b[2] = b0, b1, b2
-    a[0, 0] = a00
-    a[1, 0], a[1, 1] = a10, a11
-    a[2, 0], a[2, 1], a[2, 2] = a20, a21, a22
 
 
 @helper

@@ -38,7 +38,7 @@ ROBUST_SAMPLES = (18.0, 6.0)
 
 
 @helper
-def _basis(x, y, phi, t):
+def basis(x, y, phi, t):
     """Monomials of eq. (1) at ``(x, y)`` in coefficient order a0..a9 into column ``t`` of
     ``phi`` (10, m); the first six span the quadratic."""
     phi[0, t] = 1.0
@@ -143,7 +143,7 @@ def _fit_point(i, points, normals, indptr, indices, inv_h2, wts, xs, ys, zs, cov
         x = (dx * ux + dy * uy + dz * uz) * inv_r
         y = (dx * vx + dy * vy + dz * vz) * inv_r
         zs[t] = dx * nx + dy * ny + dz * nz
-        _basis(x, y, phi, t)
+        basis(x, y, phi, t)
     normal_equations(phi, wts, zs, count, 10, a, b)
 
     # Cubic if the whole system is well posed, else the quadratic, else the plane g = 0.
@@ -319,7 +319,7 @@ def _frame_fit(px, py, pz, nx, ny, nz, points, normals, mass, indices, start, co
             wgt *= mass[j]
         zs[t] = z
         base[t] = wgt
-        _basis(x, y, phi, t)
+        basis(x, y, phi, t)
     m = _solve(phi, base, zs, count, 6, a, b)
     leverage = _leverage(a, m, base, phi, zs, count, other)
     _residuals(phi, b, m, zs, count, xs)

@@ -7,7 +7,7 @@ from numba import prange
 
 from .config import CHUNK, helper, parallel_kernel
 from .linalg import cholesky_prefix, cholesky_solve, normal_equations, set_sym3, sym3_eigh
-from .mls import PIVOT_TOL
+from .mls import PIVOT_TOL, basis
 
 #: Reweighted fits after the first, and the width of their weights in robust spreads.
 REFITS = 2
@@ -34,8 +34,8 @@ def median_abs(values, count, scratch):
 @helper
 def _weighted_quadratic(phi, zs, wts, count, a, b, res):
     """The weighted least-squares quadratic (else plane, else mean height) of the heights
-    ``zs`` over the monomials ``1, y, x, xy, y^2, x^2`` of each neighbour (the columns of
-    ``phi``), its residuals left in ``res``."""
+    ``zs`` over the monomials ``1, y, x, xy, y^2, x^2`` of each neighbour (the first rows of
+    ``phi``'s columns), its residuals left in ``res``."""
     m = 0
     for top in (6, 3, 1):
         normal_equations(phi, wts, zs, count, top, a, b)
@@ -79,7 +79,7 @@ def local_noise(points, indices, lengths, scale, radius):
     """
     n, longest = indices.shape
     for c in prange((n + CHUNK - 1) // CHUNK):
-        phi = np.empty((6, longest))
+        phi = np.empty((10, longest))
         zs = np.empty(longest)
         wts = np.empty(longest)
         res = np.empty(longest)
@@ -131,12 +131,7 @@ def local_noise(points, indices, lengths, scale, radius):
                     dz = points[j, 2] - pz
                     x = (dx * v[0, 2] + dy * v[1, 2] + dz * v[2, 2]) * inv_r
                     y = (dx * v[0, 1] + dy * v[1, 1] + dz * v[2, 1]) * inv_r
-                    phi[0, t] = 1.0
-                    phi[1, t] = y
-                    phi[2, t] = x
-                    phi[3, t] = x * y
-                    phi[4, t] = y * y
-                    phi[5, t] = x * x
+                    basis(x, y, phi, t)
                     zs[t] = dx * v[0, 0] + dy * v[1, 0] + dz * v[2, 0]
                     wts[t] = 1.0
                 _weighted_quadratic(phi, zs, wts, count, a, b, res)
