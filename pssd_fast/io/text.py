@@ -236,10 +236,10 @@ def read(path, fh, ext, columns=None):
     The separator is the first of ``;`` and ``,`` found on the first data line, else tabs and
     spaces; a separator ending a row opens no column. Values may stand in double quotes
     (``"1.5","2"``), and where ``;`` separates them, numbers may be written with a decimal
-    comma (``1,5;2,25``). A byte order mark before the first line
-    is dropped (after a UTF-16 one the file is read as UTF-16, else as UTF-8). ``#`` starts a
-    comment anywhere; a line starting with ``//`` before the data is a comment too. A first
-    line holding a single integer is a point count (as in PTS files).
+    comma (``1,5;2,25``). A byte order mark before the first line is dropped (after a UTF-16
+    one the file is read as UTF-16, else as UTF-8). ``#`` starts a comment anywhere; a line
+    starting with ``//`` before the data is a comment too. A first line holding a single
+    integer is a point count (as in PTS files).
     The last line before the data names the columns when it is a bare line
     (``x,y,z,r,g,b``, which must then name every column) or a comment listing as many
     distinct names as there are columns, x, y and z among them. Names are case-insensitive and
@@ -267,8 +267,9 @@ def read(path, fh, ext, columns=None):
         if line.strip().startswith(_COMMENT):
             leading.append((lineno, line, False))
         elif content.strip():
-            tokens = _split(content, _separator(content))
-            if not (_is_number(tokens[0]) or _decimal_comma(content, _separator(content))):
+            sep = _separator(content)
+            tokens = _split(content, sep)
+            if not (_is_number(tokens[0]) or _decimal_comma(content, sep)):
                 leading.append((lineno, line, True))
             elif count is None and len(tokens) == 1 and tokens[0].isdigit():
                 count = int(tokens[0])  # a PTS point-count line, before any data
@@ -287,7 +288,6 @@ def read(path, fh, ext, columns=None):
             raise PointCloudFileError(f"{path}: no line holds a row of numbers; line {at} "
                                       f"reads as text: {line.strip()!r}")
         return np.empty((0, 3)), None, {}, None
-    sep = _separator(content)
     ncols = len(tokens)
     if ncols < 3:
         raise PointCloudFileError(f"{path}: line {lineno} has {ncols} columns; x y z need 3")
