@@ -62,7 +62,7 @@ def test_orthonormal_basis(n):
 
 @pytest.mark.parametrize("m", [1, 3, 6, 10])
 def test_normal_equations_sum_each_entry_in_neighbour_order(m):
-    # Plain loops, one sum after another: the unrolled kernels of the quadratic and the plane
+    # Plain loops, one sum after another: the quadratic's unrolled sums (and the others)
     # must give these bits, which magnitudes from 1e-12 to 1e12 make depend on the order.
     rng = np.random.default_rng(m)
     for count in (0, 1, 7, 154):
