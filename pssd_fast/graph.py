@@ -440,15 +440,17 @@ def _grid_query(points, k, looked=None):
     """Like :func:`_tree_query`, over a grid of cells about the k-th neighbour distance
     (``looked``: :func:`_grid_cell`'s)."""
     n = points.shape[0]
-    low, high = bounds(points)
+    low, high = _grid_box(points)
     extent = high - low
     cell = _grid_cell(points, k, extent, looked)
     dims = (extent / cell).astype(np.int64) + 1
-    # Keys must fit 63 bits: a far outlier on every axis widens the cells instead.
+    # Keys must fit 63 bits: a cloud spread too far on every axis widens the cells instead.
     while float(np.prod(dims.astype(np.float64))) > 2.0**62:
         cell *= 2.0
         dims = (extent / cell).astype(np.int64) + 1
-    coords = np.minimum(((points - low) / cell).astype(np.int64), dims - 1)
+    # Points beyond the box join its border cells: a query finds them among its candidates,
+    # and their own queries widen their block until it covers the grid.
+    coords = np.clip((points - low) / cell, 0, dims - 1).astype(np.int64)
     keys = (coords[:, 0] * dims[1] + coords[:, 1]) * dims[2] + coords[:, 2]
     # The keys are at least 0: as uint64 they sort alike.
     members = code_order(keys.view(np.uint64)).astype(np.int32 if n < 2**31 else np.int64)
@@ -468,6 +470,26 @@ def _grid_query(points, k, looked=None):
     return query
 
 
+#: The most points :func:`_grid_box` and :func:`_grid_cell` read: an evenly spread sample.
+GRID_SAMPLE = 20_000
+#: The grid of :func:`_grid_query` spans the middle of each axis's sample of coordinates,
+#: from the ``OUTSIDE``-th to the ``1 - OUTSIDE``-th quantile, widened by that span on both
+#: sides (and never beyond the bounding box): a stray point far from the rest would otherwise
+#: stretch it, and its cells, until every query scanned the whole cloud (Autzen with a row 1e9
+#: feet away: 117 s in the lists against under a second).
+OUTSIDE = 0.001
+
+
+def _grid_box(points):
+    """Low and high corner of :func:`_grid_query`'s grid (:data:`OUTSIDE`), from the sample
+    :func:`_grid_cell` reads."""
+    low, high = bounds(points)
+    sample = points[::max(1, points.shape[0] // GRID_SAMPLE)]
+    inner_low, inner_high = np.quantile(sample, [OUTSIDE, 1.0 - OUTSIDE], axis=0)
+    span = inner_high - inner_low
+    return np.maximum(low, inner_low - span), np.minimum(high, inner_high + span)
+
+
 def _grid_cell(points, k, extent, looked=None):
     """Cell edge: 1.1 times the 90th percentile of the k-th neighbour distance, estimated on an
     evenly spread sample, so that nearly every query finds its list among the 27 cells around it.
@@ -480,7 +502,7 @@ def _grid_cell(points, k, extent, looked=None):
     sample's edge).
     """
     n = points.shape[0]
-    step = max(1, n // 20000)
+    step = max(1, n // GRID_SAMPLE)
     sample = points[::step]
     m = sample.shape[0]
     cell = 0.0

@@ -14,9 +14,9 @@ from .config import CHUNK, helper, parallel_kernel
 
 @helper
 def _cell_of(value, low, cell, size):
-    """Cell coordinate of ``value`` along one axis, clipped to the grid."""
-    c = int((value - low) / cell)
-    return min(max(c, 0), size - 1)
+    """Cell coordinate of ``value`` along one axis, clipped to the grid (before the conversion
+    to an integer, which a value far beyond the grid would overflow)."""
+    return int(min(max((value - low) / cell, 0.0), size - 1.0))
 
 
 @helper
