@@ -10,6 +10,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import kernels
+from ._validation import STRAY, surface_mean
 
 #: ``likelihood`` forms of docs/ALGORITHM.md and their kernel codes.
 LIKELIHOOD_FORMS = {"exp": kernels.likelihood.EXP, "ratio": kernels.likelihood.RATIO,
@@ -29,17 +30,22 @@ _NO_LEVERAGE = np.empty(0)
 
 
 def default_h(graph, h=None):
-    """MLS width: ``h`` when given, else the mean list radius ``r_i`` (1 if every list is a
-    single location)."""
+    """MLS width: ``h`` when given, else the mean list radius ``r_i`` of the points on the
+    surface, those whose lists reach at most ``STRAY`` times the median radius (one point far
+    from the rest would set the mean alone); 1 if every list is a single location."""
     if h is not None:
         return h
-    h = float(np.mean(graph.list_radius()))
+    h = surface_mean(graph.list_radius())
     return h if h > 0.0 else 1.0
 
 
 def mean_spacing(graph):
-    """``|E|``: mean distance from each point to its nearest other point."""
-    return float(np.mean(graph.nearest_distance()))
+    """``|E|``: mean distance from each point to its nearest other point, over the points on
+    the surface (as :func:`default_h`)."""
+    radius = graph.list_radius()
+    on = radius <= STRAY * np.median(radius)
+    nearest = graph.nearest_distance()
+    return float(np.mean(nearest if on.all() else nearest[on]))
 
 
 def outward_hints(points):
@@ -254,10 +260,12 @@ def project(points, nrm, height, support):
 
 def hold_unsupported(points, moved, support, held=None):
     """``moved`` (in place) with each point that moved farther from ``points`` than its
-    ``support`` (the radius of the list behind its move), or not to a finite place, put back;
-    and the mask of the points held, those of ``held`` included (docs/DECISIONS.md, "No point
-    flung")."""
+    ``support`` (the radius of the list behind its move), or not to a finite place, put back,
+    and each point whose support reaches more than ``STRAY`` times the median, which lies off
+    the surface (a stray return: its list is the surface far away); and the mask of the points
+    held, those of ``held`` included (docs/DECISIONS.md, "No point flung", "Stray points")."""
     far = ~(np.sqrt(np.einsum("ij,ij->i", moved - points, moved - points)) <= support)
+    far |= support > STRAY * np.median(support)
     moved[far] = points[far]
     return moved, far if held is None else far | held
 

@@ -205,6 +205,17 @@ def resolved(found, low):
     return found
 
 
+def check_positions(points, spacing):
+    """:func:`check_resolution` of a run whose plan read no noise (the paper's pipeline, a
+    baseline given its ``k``), at the ``spacing`` its lists read: the probe reads the noise
+    only where the positions ``points`` (relative to the run's centre) could fail to hold it,
+    so that the check costs no run a probe but those with a point far from the rest."""
+    reach = float(np.abs(points).max())
+    check_resolution(spacing, reach)
+    if spacing < RESOLUTION / CLEAN * float(np.spacing(reach)):
+        check_resolution(spacing, reach, probe(points).sigma)
+
+
 def check_resolution(spacing, reach, noise=None):
     """ValueError where positions as far as ``reach`` from the run's centre resolve the
     points' ``spacing``, or their ``noise`` where given and smaller (at least :data:`CLEAN`

@@ -15,7 +15,7 @@ from .graph import knn_graph, morton_order, refresh_graph
 from .parameters import BY_NAME
 from .pipelines import STEPS
 from .pipelines.normals import estimated_normals
-from .plan import check_resolution
+from .plan import check_positions
 from .progress import Clock
 from .stats import Iteration, Stats
 
@@ -196,8 +196,8 @@ def iterate(current, given, plan, request):
             graph = clock.run("neighbors", knn_graph, current, k, False)
             if iteration == 0:
                 # On a surface k points cover pi r^2 = k s^2; the median ignores stray points.
-                check_resolution(float(np.median(graph.list_radius())) * math.sqrt(math.pi / k),
-                                 float(np.abs(current).max()))
+                check_positions(current,
+                                float(np.median(graph.list_radius())) * math.sqrt(math.pi / k))
         else:
             graph = clock.run("neighbors", refresh_graph, graph, current)
         if given is not None:

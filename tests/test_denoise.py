@@ -523,7 +523,8 @@ def _plane(noise, far):
     return np.vstack([points, [far, far, far]])
 
 
-@pytest.mark.parametrize("options", [{}, {"method": "bilateral"}])
+@pytest.mark.parametrize("options", [{}, {"method": "bilateral"}, {"preset": "paper"},
+                                     {"method": "mls", "k": 20}])
 def test_a_point_too_far_for_the_others_noise_is_named(options):
     """Low noise against the spacing (airborne LiDAR: 0.08 of it): a row 1e14 away leaves
     steps of 0.0078, 130 across the spacing but 6 across the noise, which the positions would
@@ -539,6 +540,25 @@ def test_a_clean_cloud_need_not_resolve_its_noise():
     with a row 1e12 away (steps of 6.1e-5, 17,000 across the spacing) runs."""
     result = pssd_fast.denoise(_plane(0.0, 1e12))
     assert result.stats["noise"] < 1e-3 and np.isfinite(result.points).all()
+
+
+@pytest.mark.parametrize("options", [{"preset": "paper"}, {"method": "mls"},
+                                     {"method": "bilateral"}])
+def test_a_stray_point_changes_neither_the_scales_nor_itself(options):
+    """The paper's ``h`` and ``|E|`` and the baselines' ``h`` are means over the points:
+    a "no return" row at the origin of a georeferenced cloud set them alone (Autzen with the
+    paper's pipeline: 15,000 points moved by more than the noise, and 398 s for a row 1e9
+    away). They now leave out lists reaching 100 times the median, and such a point stays."""
+    cloud = datasets.cad_part(n_points=3000, noise=0.003, seed=4)
+    offset = np.array([5e5, 5e6, 100.0])
+    alone = pssd_fast.denoise(cloud.points + offset, **options)
+    stray = pssd_fast.denoise(np.vstack([cloud.points + offset, [0.0, 0.0, 0.0]]), **options)
+    np.testing.assert_allclose(stray.points[:-1], alone.points, rtol=0, atol=1e-6)
+    assert stray.points[-1].tolist() == [0, 0, 0] and stray.held[-1]
+    for name in ("h", "mean_spacing"):
+        before = [getattr(r, name, None) for r in alone.stats.iterations]
+        after = [getattr(r, name, None) for r in stray.stats.iterations]
+        np.testing.assert_allclose(np.array(after, float), np.array(before, float), rtol=1e-4)
 
 
 def test_a_stray_point_leaves_the_others_as_they_were():
