@@ -227,12 +227,16 @@ def check_resolution(spacing, reach, noise=None):
     if noise is not None and max(noise, CLEAN * spacing) < spacing:
         what, scale = "noise", max(noise, CLEAN * spacing)
     if not scale >= RESOLUTION * step:
-        noisy = "" if noise is None else f" with a noise of about {noise:.3g}"
-        raise ValueError(
-            f"the points lie about {spacing:.3g} apart{noisy}, but the cloud reaches "
-            f"{reach:.3g} from the centre of its bounding box, where float64 resolves steps of "
-            f"{step:.3g}: fewer than {RESOLUTION} across the {what}. Remove the points far "
-            f"from the rest (a stray return, a row at the origin) and run again")
+        reaches = (f"the cloud reaches {reach:.3g} from the centre of its bounding box, where "
+                   f"float64 resolves steps of {step:.3g}")
+        if spacing > 0.0:
+            noisy = "" if noise is None else f" with a noise of about {noise:.3g}"
+            problem = (f"the points lie about {spacing:.3g} apart{noisy}, but {reaches}: "
+                       f"fewer than {RESOLUTION} across the {what}")
+        else:  # the positions relative to the centre no longer differ at all
+            problem = f"{reaches}, and the points' positions no longer tell them apart"
+        raise ValueError(f"{problem}. Remove the points far from the rest (a stray return, a "
+                         f"row at the origin) and run again")
 
 
 def _baseline_k(points, distinct, low):

@@ -513,6 +513,10 @@ def test_a_point_too_far_from_the_rest_to_keep_their_digits_is_named(options):
     points = datasets.cad_part(n_points=2000, noise=0.003, seed=4).points
     with pytest.raises(ValueError, match="fewer than 20 across the (spacing|noise).*stray ret"):
         pssd_fast.denoise(np.vstack([points, [1e15, 1e15, 1e15]]), **options)
+    # 1e20 away every other position is one: no spacing to speak of ("0 apart" before).
+    with pytest.raises(ValueError, match=r"steps of 8.19e\+03, and the points' positions no "
+                                         r"longer tell them apart\. Remove the points far"):
+        pssd_fast.denoise(np.vstack([points, [1e20, 1e20, 1e20]]), **options)
 
 
 def _plane(noise, far):
