@@ -583,6 +583,25 @@ def test_las_normals_and_fields_from_another_format(tmp_path):
     np.testing.assert_array_equal(back.fields["intensity"], np.arange(N))
 
 
+@needs_laspy
+def test_a_new_las_file_refuses_a_scale_coarser_than_the_spacing_allows(tmp_path):
+    """One row 1e15 away stretched a new file's extent, and its scale (1e6) wrote every other
+    point at one position without a word; 1e6 away the scale (0.001) leaves thousands of steps
+    across their spacing (about 7), and the file is written."""
+    rng = np.random.default_rng(8)
+    points = np.column_stack([rng.uniform(0, 1000, (5000, 2)), rng.normal(0, 0.1, 5000)])
+    for far, scale in ((1e15, "1e\\+06"), (1e6, "0.001")):
+        cloud = PointCloud(np.vstack([points, [far, far, far]]))
+        if far > 1e9:
+            with pytest.raises(PointCloudFileError, match=rf"b\.las: .* need a scale of {scale}: "
+                                                          r"fewer than 100 steps across"):
+                pio.write(tmp_path / "b.las", cloud)
+            assert not (tmp_path / "b.las").exists()
+        else:
+            pio.write(tmp_path / "b.las", cloud)
+            assert laspy.read(str(tmp_path / "b.las")).header.scales.max() == float(scale)
+
+
 # ---------------------------------------------------------------------------------------------
 # Errors
 

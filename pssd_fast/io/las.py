@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validation import mean_spacing
 from ._common import INSTALL, NORMALS, PointCloudFileError, Source, fit_dtype, need, stream_size
 
 # LAS point records are read in pieces, the first of 4 MiB and each next as large as all read
@@ -298,6 +299,12 @@ def describe(source):
             f"{len(header.evlrs or [])} EVLRs"]
 
 
+#: The fewest steps of a new LAS file's scale across the points' mean spacing: a scale of a
+#: hundredth of the spacing moves a point by at most 0.005 spacings, far below any noise a
+#: denoiser keeps.
+SPACING_STEPS = 100
+
+
 def _quantise(path, coords, scales, offsets):
     """Integer LAS coordinates; unmodified coordinates give back their integers exactly.
 
@@ -326,16 +333,33 @@ def _scales_offsets(points, source):
     return 10.0 ** np.ceil(np.log10(np.maximum((hi - lo) / 2, 1e-3) / 2**30)), (lo + hi) / 2
 
 
+def _new_scales(path, points):
+    """:func:`_scales_offsets` of a new file, refused where the scale would leave fewer than
+    :data:`SPACING_STEPS` steps across the points' spacing."""
+    scales, offsets = _scales_offsets(points, None)
+    spacing = mean_spacing(points) if points.shape[0] > 1 else 0.0
+    if spacing > 0.0 and (scales > spacing / SPACING_STEPS).any():
+        extent = float((points.max(axis=0) - points.min(axis=0)).max())
+        raise PointCloudFileError(
+            f"{path}: a LAS file holds coordinates as 32-bit integers, and these points, "
+            f"{extent:.3g} across, need a scale of {scales.max():.3g}: fewer than "
+            f"{SPACING_STEPS} steps across their spacing of about {spacing:.3g}. Points far "
+            f"from the rest (a stray return, a row at the origin) stretch the extent: remove "
+            f"them, or write another format (.ply, .npy)")
+    return scales, offsets
+
+
 def stored(path, points, source):
     """``points`` as a LAS output holds them (:func:`payload`): rounded to its scale."""
-    scales, offsets = _scales_offsets(points, source)
+    scales, offsets = (_scales_offsets(points, source) if source is not None
+                       else _new_scales(path, points))
     return _quantise(path, points, scales, offsets) * scales + offsets
 
 
-def _new_las(laspy, points):
-    """LAS 1.4, point format 6, with :func:`_scales_offsets`."""
+def _new_las(laspy, path, points):
+    """LAS 1.4, point format 6, with :func:`_new_scales`."""
     header = laspy.LasHeader(version="1.4", point_format=6)
-    header.scales, header.offsets = _scales_offsets(points, None)
+    header.scales, header.offsets = _new_scales(path, points)
     return laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(len(points),
                                                                           header=header))
 
@@ -401,14 +425,15 @@ def payload(path, ext, points, normals, fields, source):
     Raises
     ------
     PointCloudFileError
-        If coordinates do not fit the int32 range, a field is named ``X``, ``Y`` or ``Z``, a
-        new name is longer than 32 bytes, or a value does not fit its dimension.
+        If coordinates do not fit the int32 range, a new file's scale would leave fewer than
+        :data:`SPACING_STEPS` steps across their spacing, a field is named ``X``, ``Y`` or
+        ``Z``, a new name is longer than 32 bytes, or a value does not fit its dimension.
     ImportError
         If ``laspy`` is not installed, or ``.laz`` output lacks its lazrs backend.
     """
     laspy = _need_laspy(ext, "Writing")
     if source is None:
-        las = _new_las(laspy, points)
+        las = _new_las(laspy, path, points)
     else:
         header = copy.deepcopy(source.header)  # laspy's writer edits the header it writes
         las = laspy.LasData(header, points=laspy.PackedPointRecord(source.records.copy(),
