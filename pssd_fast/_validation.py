@@ -125,11 +125,19 @@ def check_precision(points, dtype, stacklevel=3, largest=None):
         DenoiseWarning, stacklevel=stacklevel)
 
 
-def surface_mean(values, stray=STRAY):
-    """The mean of the distances ``values`` of the points on the surface: those within
-    ``stray`` times the median. One point far from the rest would otherwise set it alone."""
-    on = values <= stray * np.median(values)
-    return float(np.mean(values if on.all() else values[on]))
+def on_surface(values, stray=STRAY):
+    """The mask of the points on the surface: those whose distances ``values`` are within
+    ``stray`` times their median."""
+    return values <= stray * np.median(values)
+
+
+def surface_mean(values, stray=STRAY, of=None):
+    """The mean of ``of`` (by default the distances ``values`` themselves) over the points on
+    the surface (:func:`on_surface`). One point far from the rest would otherwise set it
+    alone."""
+    of = values if of is None else of
+    on = on_surface(values, stray)
+    return float(np.mean(of if on.all() else of[on]))
 
 
 def mean_spacing(points):

@@ -10,7 +10,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import kernels
-from ._validation import STRAY, surface_mean
+from ._validation import on_surface, surface_mean
 
 #: ``likelihood`` forms of docs/ALGORITHM.md and their kernel codes.
 LIKELIHOOD_FORMS = {"exp": kernels.likelihood.EXP, "ratio": kernels.likelihood.RATIO,
@@ -42,10 +42,7 @@ def default_h(graph, h=None):
 def mean_spacing(graph):
     """``|E|``: mean distance from each point to its nearest other point, over the points on
     the surface (as :func:`default_h`)."""
-    radius = graph.list_radius()
-    on = radius <= STRAY * np.median(radius)
-    nearest = graph.nearest_distance()
-    return float(np.mean(nearest if on.all() else nearest[on]))
+    return surface_mean(graph.list_radius(), of=graph.nearest_distance())
 
 
 def outward_hints(points):
@@ -265,7 +262,7 @@ def hold_unsupported(points, moved, support, held=None):
     the surface (a stray return: its list is the surface far away); and the mask of the points
     held, those of ``held`` included (docs/DECISIONS.md, "No point flung", "Stray points")."""
     far = ~(np.sqrt(np.einsum("ij,ij->i", moved - points, moved - points)) <= support)
-    far |= support > STRAY * np.median(support)
+    far |= ~on_surface(support)
     moved[far] = points[far]
     return moved, far if held is None else far | held
 
