@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, atomic
-from ._validation import check_precision
+from ._validation import STRAY, check_precision
 from .parameters import BY_NAME, PARAMETERS
 from .plan import PRESETS
 from .progress import Names, STAGE_WIDTH, TimeLeft, describe, label
@@ -1050,8 +1050,15 @@ def _info(args):
           f"{diagonal:.{decimals}f}")
     if len(points) > 1:
         dist, _ = kdtree(points).query(points, k=2)
+        nearest = dist[:, 1]
+        # Copies are 0 apart: the median of the others decides which points are stray.
+        apart = nearest[nearest > 0]
+        stray = nearest > STRAY * (np.median(apart) if apart.size else np.inf)
+        count = int(stray.sum())
+        left_out = (f"; {count:,} point{'s' * (count > 1)} farther than {STRAY:g} times the "
+                    f"median from every other left out (stray?)") if count else ""
         print(f"average spacing (mean distance to the nearest other point): "
-              f"{dist[:, 1].mean():.6g}")
+              f"{nearest[~stray].mean():.6g}{left_out}")
     attributes = (["normals"] if cloud.normals is not None else []) + [
         f"{name} ({values.dtype})" for name, values in cloud.fields.items()]
     print("attributes: " + (", ".join(attributes) if attributes else "none"))

@@ -51,7 +51,8 @@ SMALL = 1 / 4
 #: cloud's far corner (:func:`resolved`): below about 20 the CAD part's error grew with a point
 #: far away (1e13 times its size: 7 steps, 24% farther from the truth); at 58 steps it was
 #: unchanged. Autzen's noise is 0.08 of its spacing: a row 1e15 feet away left 2.7 steps
-#: across its noise, 35 across its spacing, and moved its other points by 0.23 noise widths.
+#: across its noise, 35 across its spacing, and moved its other points' coordinates by 0.23
+#: noise widths on average.
 RESOLUTION = 20
 #: A noise below this share of the spacing counts as this share: the cloud is clean, and its
 #: coordinates need not resolve what noise it has.
@@ -227,8 +228,8 @@ def check_resolution(spacing, reach, noise=None):
     if noise is not None and max(noise, CLEAN * spacing) < spacing:
         what, scale = "noise", max(noise, CLEAN * spacing)
     if not scale >= RESOLUTION * step:
-        reaches = (f"the cloud reaches {reach:.3g} from the centre of its bounding box, where "
-                   f"float64 resolves steps of {step:.3g}")
+        reaches = (f"the cloud reaches {reach:.3g} along an axis from the centre of its "
+                   f"bounding box, where float64 resolves steps of {step:.3g}")
         if spacing > 0.0:
             noisy = "" if noise is None else f" with a noise of about {noise:.3g}"
             problem = (f"the points lie about {spacing:.3g} apart{noisy}, but {reaches}: "

@@ -172,6 +172,15 @@ def test_info_and_render(tmp_path, ply_with_extras):
     status, out, err = pssd("info", path)
     assert status == 0, err
     assert "3,000 points" in out and "red (uint8)" in out and "average spacing" in out
+    # One stray row set the average alone (1.49 to 11.1 on Autzen): it is left out, and said.
+    cloud = pssd_fast.io.read(path)
+    spacing = float(re.search(r"other point\): ([0-9.e+-]+)", out).group(1))
+    far = np.vstack([cloud.points, [1e9, 1e9, 1e9]])
+    pssd_fast.io.write(tmp_path / "far.xyz", pssd_fast.io.PointCloud(far))
+    status, far_out, err = pssd("info", tmp_path / "far.xyz")
+    assert status == 0, err
+    assert re.search(rf"other point\): {spacing:.6g}; 1 point farther than 100 times the median "
+                     r"from every other left out \(stray\?\)", far_out), far_out
     assert "other elements: face (2)" in out
     jpg = tmp_path / "feature.jpg"
     status, out, err = pssd("render", path, "-o", jpg, "--color", "feature", "--preset", "fast")

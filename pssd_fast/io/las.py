@@ -317,7 +317,9 @@ def _quantise(path, coords, scales, offsets):
     info = np.iinfo(np.int32)
     if q.size and (q.min() < info.min or q.max() > info.max):
         raise PointCloudFileError(f"{path}: coordinates outside what a LAS file with scale "
-                                  f"{scales.tolist()} and offset {offsets.tolist()} can hold")
+                                  f"{scales.tolist()} and offset {offsets.tolist()} can hold "
+                                  f"(points far from the rest, a stray return or a row at the "
+                                  f"origin? or write another format, .ply or .npy)")
     return q.astype(np.int32)
 
 
