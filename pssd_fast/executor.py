@@ -60,7 +60,7 @@ def group(current, given, plan, store, tile_points=None):
     cell, their places ``gid`` in ``current`` and their cell ``cell``; ``("cells", i, 0)``:
     its cell means, the points they hold and their places), in tiles of at most
     ``tile_points`` points (None: one tile) cut as out of core: between bins of the first bits
-    of the cells' codes (:func:`pssd_fast.regions.cuts`). Returns the :class:`Tile` list."""
+    of the cells' codes (:func:`pssd_fast.regions.parts`). Returns the :class:`Tile` list."""
     cells = method.cells_of(current, given, plan.edge, plan.low)
     ends = np.concatenate(([0], np.cumsum(cells.counts)))
     tiles = []
@@ -87,14 +87,13 @@ def _cuts(current, cells, plan, tile_points):
     if tile_points is None:
         return np.array([0, m])
     shift, prefix = regions.code_shifts(current.max(axis=0), plan.low, plan.edge)
-    bins = cell_keys(current[cells.order[cells.starts[:-1]]], plan.low, plan.edge,
-                     shift)[0] >> np.uint64(prefix)
-    found, inverse = np.unique(bins, return_inverse=True)
-    firsts = regions.cuts(regions.histogram(
+    codes = cell_keys(current[cells.order[cells.starts[:-1]]], plan.low, plan.edge, shift)[0]
+    found, inverse = np.unique(codes >> np.uint64(prefix), return_inverse=True)
+    firsts = regions.parts(regions.histogram(
         [(found, np.bincount(inverse, cells.counts, found.shape[0]).astype(np.int64))]),
-        tile_points)
+        prefix, tile_points, lambda split: [regions.binned(codes, split, cells.counts)])
     # The cells are in the order of their codes: each tile's are consecutive.
-    return np.searchsorted(regions.part_of(firsts, bins), np.arange(firsts.shape[0] + 1))
+    return np.searchsorted(regions.part_of(firsts, codes), np.arange(firsts.shape[0] + 1))
 
 
 def run(plan, request, tiles, store, runner=None):

@@ -57,19 +57,59 @@ def histogram(sparse):
     return summed
 
 
-def cuts(summed, most):
-    """The first bin of each part of the histogram ``summed``: consecutive bins, at most
-    ``most`` points a part (a fuller bin alone)."""
-    firsts = []
+def binned(codes, split, weights=None):
+    """The sparse histogram ``(firsts, counts)`` of the ``codes`` (uint64) inside the ranges
+    ``split`` of :func:`parts`, each range's binned by its finer shift, each bin named by its
+    first code; the codes outside every range left out. ``weights``: each code's count (1)."""
+    starts, shifts, finer = split
+    at = np.searchsorted(starts, codes, side="right") - 1
+    inside = at >= 0
+    at = np.maximum(at, 0)
+    inside &= ((codes - starts[at]) >> shifts[at]) == 0  # wraps below the first: masked above
+    at = at[inside]
+    keys = (codes[inside] >> finer[at]) << finer[at]
+    found, inverse = np.unique(keys, return_inverse=True)
+    counts = np.bincount(inverse, None if weights is None else weights[inside], found.shape[0])
+    return found, counts.astype(np.int64)
+
+
+def parts(summed, shift, most, refine):
+    """The first code of each part of the codes whose first bits (``code >> shift``) the
+    histogram ``summed`` counts: runs of consecutive codes of at most ``most`` points (more
+    only where they share one code). A bin of more than ``most`` points is split by
+    ``refine(split)``, which returns the sparse histograms (:func:`binned`) of the codes in
+    the ranges ``split`` (first codes, shifts of their widths and the next
+    :data:`PREFIX_BITS` bits' shifts, all uint64); so a far point, which leaves every other
+    in one bin of the first bits, costs a pass or two over the codes, not the tiles' size."""
+    found = np.flatnonzero(summed)
+    counts = summed[found]
+    shifts = np.full(found.shape[0], shift, np.uint64)
+    firsts = found.astype(np.uint64) << shifts
+    while True:
+        split = (counts > most) & (shifts > 0)
+        if not split.any():
+            break
+        finer = np.maximum(shifts[split].astype(np.int64) - PREFIX_BITS, 0).astype(np.uint64)
+        pieces = list(refine((firsts[split], shifts[split], finer)))
+        keys = np.concatenate([piece[0] for piece in pieces])
+        keys, inverse = np.unique(keys, return_inverse=True)
+        sub = np.bincount(inverse, np.concatenate([piece[1] for piece in pieces]),
+                          keys.shape[0]).astype(np.int64)
+        sub_shifts = finer[np.searchsorted(firsts[split], keys, side="right") - 1]
+        order = np.argsort(np.concatenate((firsts[~split], keys)), kind="stable")
+        firsts = np.concatenate((firsts[~split], keys))[order]
+        counts = np.concatenate((counts[~split], sub))[order]
+        shifts = np.concatenate((shifts[~split], sub_shifts))[order]
+    starts = []
     filled = 0
-    for b in np.flatnonzero(summed):
-        if not firsts or (filled and filled + summed[b] > most):
-            firsts.append(b)
+    for b, count in enumerate(counts.tolist()):
+        if not starts or (filled and filled + count > most):
+            starts.append(b)
             filled = 0
-        filled += summed[b]
-    return np.array(firsts, np.int64)
+        filled += count
+    return firsts[np.array(starts, np.int64)]
 
 
-def part_of(firsts, found):
-    """The part (:func:`cuts`) of each of the bins ``found`` (bins that hold points)."""
-    return np.searchsorted(firsts, found.astype(np.int64), side="right") - 1
+def part_of(firsts, codes):
+    """The part (:func:`parts`) of each of the ``codes``."""
+    return np.searchsorted(firsts, codes, side="right") - 1

@@ -616,28 +616,68 @@ def test_regions_near_holds_a_hair_more():
     assert regions.near(points[:0], centres, 0.2).shape == (0,)
 
 
+def _parts_reference(codes, weights, shift, most):
+    """The bins of :func:`pssd_fast.regions.parts` by recursion on Python integers: a bin of
+    more than ``most`` points split into bins of the next ``PREFIX_BITS`` bits, then a greedy
+    walk over the bins in order; the first code of each part."""
+    from pssd_fast.regions import PREFIX_BITS
+
+    def leaves(members, first, width):
+        if sum(weights[i] for i in members) <= most or width == 0:
+            return [(first, sum(weights[i] for i in members))]
+        finer = max(0, width - PREFIX_BITS)
+        found = {}
+        for i in members:
+            found.setdefault(int(codes[i]) >> finer << finer, []).append(i)
+        return [leaf for key in sorted(found) for leaf in leaves(found[key], key, finer)]
+
+    top = {}
+    for i in range(len(codes)):
+        top.setdefault(int(codes[i]) >> shift << shift, []).append(i)
+    bins = [leaf for key in sorted(top) for leaf in leaves(top[key], key, shift)]
+    firsts, filled = [], 0
+    for first, count in bins:
+        if not firsts or (filled and filled + count > most):
+            firsts.append(first)
+            filled = 0
+        filled += count
+    return firsts
+
+
 @pytest.mark.parametrize("most", [1, 5, 12, 1000])
-def test_regions_cut_bins_into_parts_of_at_most_most_points(most):
-    """Parts are runs of bins that hold points, as full as fit ``most``; a fuller bin alone."""
+@pytest.mark.parametrize("shift", [0, 7, 42])
+@pytest.mark.parametrize("crowded", [False, True])
+def test_regions_cut_codes_into_parts_of_at_most_most_points(most, shift, crowded):
+    """Parts are runs of codes as full as fit ``most``; a bin of the first bits that holds more
+    is split by the next bits (crowded: most codes within one bin of the first bits, as a far
+    point leaves them), so only points of one code make a fuller part."""
     from pssd_fast import regions
 
-    rng = np.random.default_rng(most)
-    found = np.unique(rng.integers(0, 1 << regions.PREFIX_BITS, 40)).astype(np.uint64)
-    counts = rng.integers(1, 9, found.shape[0])
-    counts[3] = 20
+    rng = np.random.default_rng(most + shift)
+    top = 1 << (regions.PREFIX_BITS + shift)
+    codes = rng.integers(0, top, 60).astype(np.uint64)
+    if crowded:
+        codes[:50] = rng.integers(0, max(1, top >> 30), 50).astype(np.uint64)
+    codes[5:9] = codes[4]  # points of one code
+    weights = rng.integers(1, 9, codes.shape[0])
+    found, inverse = np.unique(codes >> np.uint64(shift), return_inverse=True)
+    counts = np.bincount(inverse, weights).astype(np.int64)
     summed = regions.histogram([(found[:20], counts[:20]), (found[20:], counts[20:])])
-    firsts = regions.cuts(summed, most)
-    part = regions.part_of(firsts, found)
-    want, filled = [], 0
-    for c in counts:  # a plain greedy walk over the bins in order
-        if not want or (filled and filled + c > most):
-            want.append(want[-1] + 1 if want else 0)
-            filled = 0
-        else:
-            want.append(want[-1])
-        filled += c
-    np.testing.assert_array_equal(part, want)
-    assert ((np.bincount(part, counts) <= most) | (np.bincount(part) == 1)).all()
+    calls = []
+
+    def refine(split):
+        calls.append(split)
+        half = codes.shape[0] // 2  # two tasks' histograms
+        return [regions.binned(codes[:half], split, weights[:half]),
+                regions.binned(codes[half:], split, weights[half:])]
+
+    firsts = regions.parts(summed, shift, most, refine)
+    assert firsts.tolist() == _parts_reference(codes, weights, shift, most)
+    part = regions.part_of(firsts, codes)
+    held = np.bincount(part, weights)
+    distinct = np.array([np.unique(codes[part == p]).shape[0] for p in range(firsts.shape[0])])
+    assert ((held <= most) | (distinct == 1)).all()
+    assert bool(calls) == bool(shift and (counts > most).any())
 
 
 @pytest.mark.parametrize("shift", [0, 3])

@@ -8,7 +8,7 @@ import pytest
 
 import pssd_fast
 from pssd_fast import datasets, executor, graph, method, tiled
-from pssd_fast.tiled import ondisk
+from pssd_fast.tiled import binning, ondisk
 
 from .conftest import refuse_new_files
 
@@ -142,17 +142,32 @@ def test_a_cloud_of_one_point_a_cell_tiles_alike():
     _assert_same(got, expected)
 
 
-def test_a_stray_point_tiles_alike(tmp_path):
+@pytest.mark.usefixtures("small_chunks")
+@pytest.mark.parametrize("offset, most", [([5e5, 5e6, 100.0], 3_999),
+                                          ([300.0, 200.0, 100.0], 1_000)])
+def test_a_stray_point_tiles_alike(tmp_path, monkeypatch, offset, most):
     """A "no return" row at the origin of a georeferenced cloud: the probe leaves it out of
-    the spacing in memory and from a file alike."""
-    points = np.vstack([datasets.cad_part(n_points=4_000, noise=0.003, seed=3).points
-                        + [5e5, 5e6, 100.0], [0.0, 0.0, 0.0]])
+    the spacing in memory and from a file alike, and the other points, all in one bin of the
+    codes' first bits, are split by the next bits into tiles (and buckets) of at most
+    ``tile_points``, as far as their cells have codes of their own (5e6 away they span more
+    than 2**21 cells: runs of cells share a coarser code, which a tile holds whole; so the
+    far case is only held below one tile of every point)."""
+    points = np.vstack([datasets.cad_part(n_points=4_000, noise=0.003, seed=3).points + offset,
+                        [0.0, 0.0, 0.0]])
     expected = pssd_fast.denoise(points)
-    _assert_same(tiled.denoise(points, tile_points=1000, client="sync"), expected)
+    got = tiled.denoise(points, tile_points=1000, client="sync")
+    _assert_same(got, expected)
     np.save(tmp_path / "in.npy", points)
-    tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy", tile_points=1000,
-                       client="sync")
+    buckets = []
+    made = binning.Buckets.__init__
+    monkeypatch.setattr(binning.Buckets, "__init__",
+                        lambda self, *args: (buckets.append(self), made(self, *args))[1])
+    stats = tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy", tile_points=1000,
+                               client="sync")
     np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), expected.points)
+    for tiles in (got.stats["tiles"], stats["tiles"]):
+        assert tiles["count"] >= 3 and tiles["most_points"] <= most
+    assert np.diff(buckets[0].starts).max() <= most
 
 
 @pytest.mark.parametrize("keep", [False, True])

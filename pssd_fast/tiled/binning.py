@@ -12,7 +12,9 @@ passes:
    ``denoise``);
 2. per chunk, a sparse histogram of the top bits of the Morton code of each point's position
    (:func:`pssd_fast.duplicates.codes`); the driver groups consecutive bins into *buckets* of
-   at most ``tile_points`` points;
+   at most ``tile_points`` points, a fuller bin split by another pass of histograms of its
+   codes' next bits (:func:`pssd_fast.regions.parts`: a far row leaves every other point in
+   one bin of the first bits);
 3. per chunk, its records sorted by bucket into a file of its own;
 4. per bucket, its pieces of every chunk in input order, sorted by code: their concatenation
    is ``denoise``'s Morton order, so the noise probe reads its evenly spread sample (every
@@ -21,7 +23,8 @@ passes:
    (:mod:`pssd_fast.duplicates`);
 5. per bucket, a sparse histogram of the first bits of the plan's cell codes (as many bits as
    the high corner's code has, less :data:`~pssd_fast.regions.PREFIX_BITS`); the driver
-   groups them into *tiles* of whole cells, as in core (:func:`pssd_fast.executor.group`);
+   groups them into *tiles* of whole cells, as in core (:func:`pssd_fast.executor.group`), a
+   fuller bin split as in 2;
 6. per bucket, its records sorted by tile; per tile, its pieces grouped by cell (which numbers
    its cells), then its store entries written with the cells numbered from the tiles before.
 """
@@ -82,10 +85,12 @@ class Buckets:
         # core.
         self.corner = low - self.centre
         codes = (low, high, tolerance)  # of the cubes of the tolerance
-        histogram = regions.histogram(runner.map("histogram", *BEFORE, _code_prefixes,
-                                          [(*chunk, codes) for chunk in chunks]))
-        firsts = regions.cuts(histogram, tile_points)
-        del histogram
+        firsts = regions.parts(
+            regions.histogram(runner.map("histogram", *BEFORE, _code_prefixes,
+                                         [(*chunk, codes) for chunk in chunks])),
+            int(_CODE_SHIFT), tile_points,
+            lambda split: runner.map("finer histogram", *BEFORE, _code_bins,
+                                     [(*chunk, codes, split) for chunk in chunks]))
         pieces = [folder / f"chunk_{i}.bin" for i in range(len(chunks))]
         counts = ondisk.offsets(runner.map("bin", *BEFORE, _bin_chunk, [
             (*chunk, codes, firsts, self.dtype, path) for chunk, path in zip(chunks, pieces)]))
@@ -171,19 +176,22 @@ class Buckets:
         :func:`pssd_fast.executor.group` puts them (each entry also with the points' input
         ``row``), by tasks: each point's cell code, a histogram of the codes' first bits, and
         the points binned by those bits into tiles of whole cells of at most ``tile_points``
-        points (a fuller bin alone), in the order of their cells. Returns the tiles
-        (:class:`pssd_fast.executor.Tile`)."""
+        points (a fuller bin split by its codes' next bits), in the order of their cells.
+        Returns the tiles (:class:`pssd_fast.executor.Tile`)."""
         runner = self.runner
         # One shift for every bucket, from the whole cloud's high corner, as in core.
         shift, prefix = regions.code_shifts(self.high, plan.low, plan.edge)
         grid = (self.centre, plan.low, plan.edge, shift)
         buckets = [(path, self.dtype, grid) for path in self.paths]
-        firsts = regions.cuts(regions.histogram(runner.map(
-            "cell histogram", *BEFORE, _cell_prefixes,
-            [(*bucket, prefix) for bucket in buckets])), tile_points)
+        firsts = regions.parts(
+            regions.histogram(runner.map("cell histogram", *BEFORE, _cell_prefixes,
+                                         [(*bucket, prefix) for bucket in buckets])),
+            prefix, tile_points,
+            lambda split: runner.map("finer cell histogram", *BEFORE, _cell_bins,
+                                     [(*bucket, split) for bucket in buckets]))
         pieces = [self.folder / f"cells_of_{i}.bin" for i in range(len(buckets))]
         counts = ondisk.offsets(runner.map("cell bin", *BEFORE, _bin_cells, [
-            (*bucket, prefix, firsts, int(self.starts[i]), path)
+            (*bucket, firsts, int(self.starts[i]), path)
             for i, (bucket, path) in enumerate(zip(buckets, pieces))]))
         record = _cell_record(self.dtype)
         grouped = [self.folder / f"cells_{t}.bin" for t in range(firsts.shape[0])]
@@ -288,6 +296,13 @@ def _code_prefixes(array, start, stop, mask, codes, n_jobs):
     return np.unique(duplicates.codes(points, *codes) >> _CODE_SHIFT, return_counts=True)
 
 
+def _code_bins(array, start, stop, mask, codes, split, n_jobs):
+    """The sparse histogram of a chunk's position codes in the ranges ``split``
+    (:func:`pssd_fast.regions.binned`)."""
+    _, points, _ = ondisk.chunk(array, start, stop, mask)
+    return regions.binned(duplicates.codes(points, *codes), split)
+
+
 def _bin_chunk(array, start, stop, mask, codes, firsts, dtype, path, n_jobs):
     """A chunk's records (:data:`RECORD`) sorted by bucket (stably: in input order within
     one) into a file at ``path``; the count of each bucket."""
@@ -298,7 +313,7 @@ def _bin_chunk(array, start, stop, mask, codes, firsts, dtype, path, n_jobs):
     records["xyz"] = points
     if normals is not None:
         records["nrm"] = normals
-    return ondisk.sorted_save(records, regions.part_of(firsts, code >> _CODE_SHIFT),
+    return ondisk.sorted_save(records, regions.part_of(firsts, code),
                               firsts.shape[0], path)
 
 
@@ -339,6 +354,12 @@ def _cell_prefixes(path, dtype, grid, prefix, n_jobs):
                      return_counts=True)
 
 
+def _cell_bins(path, dtype, grid, split, n_jobs):
+    """The sparse histogram of a bucket's cell codes in the ranges ``split``
+    (:func:`pssd_fast.regions.binned`)."""
+    return regions.binned(_keys(np.fromfile(path, dtype), grid)[0], split)
+
+
 def _cell_record(dtype):
     """A point on its way to a tile: its rank in the Morton order (``gid``), its cell code
     and the rest of its bucket record."""
@@ -346,7 +367,7 @@ def _cell_record(dtype):
         (name, dtype[name]) for name in dtype.names if name != "code"]])
 
 
-def _bin_cells(path, dtype, grid, prefix, firsts, first_rank, out, n_jobs):
+def _bin_cells(path, dtype, grid, firsts, first_rank, out, n_jobs):
     """A bucket's points as :func:`_cell_record` records sorted by tile into a file at
     ``out``; the count of each tile."""
     records = np.fromfile(path, dtype)
@@ -356,7 +377,7 @@ def _bin_cells(path, dtype, grid, prefix, firsts, first_rank, out, n_jobs):
     for name in records.dtype.names:
         if name != "code":
             found[name] = records[name]
-    return ondisk.sorted_save(found, regions.part_of(firsts, code >> np.uint64(prefix)),
+    return ondisk.sorted_save(found, regions.part_of(firsts, code),
                               firsts.shape[0], out)
 
 
