@@ -10,7 +10,7 @@ import threading
 import numba
 
 from ._validation import check_int
-from .jit import cache
+from .jit import cache, refuse_kernels
 
 #: The idle spin of the OpenMP pools the library loads (``GOMP_SPINCOUNT``): pykdtree and numba's
 #: kernels each bring their own OpenMP (libgomp) thread pool, and at libgomp's default of
@@ -20,6 +20,14 @@ from .jit import cache
 SPIN_COUNT = 10_000
 _pools_lock = threading.Lock()
 _pools = {}
+#: What a process forked from one whose pools had loaded is told at its first kernel or
+#: neighbour query (:func:`_forked_child`).
+FORKED = ("this process was forked from one that had run pssd_fast: the OpenMP thread pools "
+          "(GNU libgomp, pykdtree's and numba's) cannot run in a forked copy of a process that "
+          "started them; start worker processes with the 'spawn' or 'forkserver' method "
+          "(multiprocessing.get_context('spawn'), ProcessPoolExecutor(mp_context=...))")
+#: Whether this process is such a child.
+_forked = []
 
 
 def configure_threads(spin_count=SPIN_COUNT):
@@ -46,6 +54,8 @@ def configure_threads(spin_count=SPIN_COUNT):
         ``spin_count``: the spin the library set (None where the caller's environment decided),
         and ``loaded_before``: the pools that were running before the first call.
     """
+    if _forked:
+        raise RuntimeError(FORKED)
     with _pools_lock:
         if not _pools:
             caller = "GOMP_SPINCOUNT" in os.environ or "OMP_WAIT_POLICY" in os.environ
@@ -62,7 +72,15 @@ def configure_threads(spin_count=SPIN_COUNT):
                 if not caller:
                     del os.environ["GOMP_SPINCOUNT"]
             _pools.update(spin_count=None if caller else int(spin_count), loaded_before=before)
+            os.register_at_fork(after_in_child=_forked_child)
         return dict(_pools)
+
+
+def _forked_child():
+    """In a forked child, every kernel and neighbour query raises (:data:`FORKED`) where
+    libgomp would kill the process, or hang it, at the first."""
+    _forked.append(True)
+    refuse_kernels(FORKED)
 
 
 #: The oldest TBB numba's TBB layer runs on (``TBB_INTERFACE_VERSION``, TBB 2021 update 6).

@@ -1,6 +1,7 @@
 """Argument checks, run before any kernel: each error names the bad value and how to fix it."""
 import numbers
 import os
+import sys
 import warnings
 
 import numpy as np
@@ -28,6 +29,20 @@ STRAY = 100.0
 class DenoiseWarning(UserWarning):
     """Something of a run the caller may not expect: coordinates whose float32 steps are coarse
     against the cloud's spacing, or classes too small to denoise, left as they are."""
+
+
+#: This package's folder: a warning names the first caller outside it (:func:`warn`).
+_PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def warn(message):
+    """A :class:`DenoiseWarning` of ``message`` at the first caller outside this package, however
+    deep in it the warning arises (a class's run, a tiled run, the plan): so that a caller's
+    filters by module and its once-per-place warnings apply."""
+    frame, level = sys._getframe(1), 2
+    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, DenoiseWarning, stacklevel=level)
 
 
 def as_points(points, name="points"):
@@ -103,7 +118,7 @@ def check_range(low, high):
             f"centre and divide by its extent) and scale the result back")
 
 
-def check_precision(points, dtype, stacklevel=3, largest=None):
+def check_precision(points, dtype, largest=None):
     """Warn (:class:`DenoiseWarning`) where ``points`` (float64, as :func:`as_points` returns
     them) came as float32 whose step at their largest absolute coordinate (``largest``, or
     theirs) exceeds :data:`STEP_OF_SPACING` of the cloud's mean spacing
@@ -117,12 +132,11 @@ def check_precision(points, dtype, stacklevel=3, largest=None):
         return
     against = (f"{step / spacing:.0%} of the cloud's mean spacing ({spacing:.3g})" if spacing
                else "more than the spacing of its points, which share positions")
-    warnings.warn(
+    warn(
         f"points are float32 and reach {largest:.7g}, where float32 values are {step:.3g} "
         f"apart: {against}, so the coordinates lost detail that denoising works at, and the "
         f"float32 result is rounded to that step; pass float64 coordinates, or subtract an "
-        f"offset (such as the bounding box's low corner) before converting them to float32",
-        DenoiseWarning, stacklevel=stacklevel)
+        f"offset (such as the bounding box's low corner) before converting them to float32")
 
 
 def on_surface(values, stray=STRAY):

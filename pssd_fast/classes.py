@@ -3,14 +3,13 @@
 import dataclasses
 import numbers
 import time
-import warnings
 from contextlib import contextmanager
 
 import numpy as np
 
-from ._validation import MIN_K, DenoiseWarning, as_normals, check_int
+from ._validation import MIN_K, as_normals, check_int, warn
 from .plan import PRESETS
-from .run import Deferred, DenoiseResult, stored
+from .run import Deferred, DenoiseResult, FewPositions, stored
 
 #: The ASPRS LAS 1.4 classes that are surfaces, denoised by default: each on its own.
 SURFACE_CLASSES = {2: "ground", 6: "building", 9: "water", 10: "rail", 11: "road surface",
@@ -27,8 +26,8 @@ SUMMED = ("n_points", "duplicates", "held_points")
 def select(classification, classes, n, options):
     """The runs of a call of :func:`pssd_fast.denoise` with ``classification`` and
     ``classes`` on ``n`` points: ``(code, rows)`` for each class to denoise on its own (rows
-    increasing; code None and every row for one cloud); ``(code, points)`` of the classes too
-    small to denoise; what ``stats["classes"]["classes"]`` says; and the fewest points a run
+    increasing; code None and every row for one cloud); ``(code, points, None)`` of the classes
+    too small to denoise; what ``stats["classes"]["classes"]`` says; and the fewest points a run
     takes. ValueError or TypeError naming what is wrong. ``options``: the call's other
     options (``k`` and ``preset`` decide what is too small)."""
     least = least_points(options)
@@ -56,7 +55,7 @@ def check_classes(classification, classes):
 
 def choose(codes, sizes, classes, least):
     """The classes of a classification to denoise, each on its own: their codes (increasing;
-    None where the cloud runs as one) and ``(code, points)`` of those too small to run
+    None where the cloud runs as one) and ``(code, points, None)`` of those too small to run
     (fewer than ``least`` points; 0 for a class asked for that no point is of); ``codes``:
     the classes present, increasing, with their ``sizes``. ValueError or TypeError naming
     what is wrong."""
@@ -82,11 +81,11 @@ def choose(codes, sizes, classes, least):
             raise ValueError(f"no point is of class {', '.join(map(str, asked))}; the classes "
                              f"present are {present}")
         # Classes asked for that no point is of: a pipeline over many files names them all.
-        small = [(int(c), 0) for c in np.setdiff1d(asked, codes)]
+        small = [(int(c), 0, None) for c in np.setdiff1d(asked, codes)]
     chosen = [(int(c), int(size)) for c, size, w in zip(codes, sizes, wanted) if w]
     if classes is None or _name(classes) == "each":
         # Classes the library chose: those too small for a run are left as they are.
-        small = [(c, size) for c, size in chosen if size < least]
+        small = [(c, size, None) for c, size in chosen if size < least]
         chosen = [(c, size) for c, size in chosen if size >= least]
         if not chosen:
             raise ValueError(f"no class to denoise has the {least} points a run needs; the "
@@ -94,38 +93,61 @@ def choose(codes, sizes, classes, least):
     return [c for c, _ in chosen], small
 
 
-def warn_small(small, least, stacklevel):
-    """One :class:`DenoiseWarning` naming the classes too small to denoise, if any (those of
-    no point among them: asked for, absent)."""
-    absent = [str(code) for code, size in small if size == 0]
-    few = [f"{code} ({size:,} points)" for code, size in small if size > 0]
+def warn_small(small, least):
+    """One :class:`DenoiseWarning` naming the classes too small to denoise, if any
+    (``(code, points, distinct positions or None)``; those of no point among them: asked
+    for, absent)."""
+    absent = [str(code) for code, size, _ in sorted(small) if size == 0]
+    few = [f"{code} ({size:,} points" + ("" if distinct is None else
+                                         f" at {distinct:,} distinct position"
+                                         f"{'s' * (distinct != 1)}") + ")"
+           for code, size, distinct in sorted(small) if size > 0]
     said = ([f"no point is of class {' or '.join(absent)}"] if absent else []) + (
         [f"class{'es' * (len(few) > 1)} {', '.join(few)}: fewer points than a run needs "
          f"({least}); left as they are"] if few else [])
     if said:
-        warnings.warn("; ".join(said), DenoiseWarning, stacklevel=stacklevel + 1)
+        warn("; ".join(said))
 
 
-def denoise_each(pts, dtype, normals, classification, classes, options, denoise, started,
-                 stacklevel):
+def denoise_each(pts, dtype, normals, classification, classes, options, denoise, started):
     """Each class that ``classification`` and ``classes`` choose denoised on its own by
-    ``denoise(points, normals)``, the other points kept as they are (:func:`merge`).
+    ``denoise(points, normals)``, the other points kept as they are (:func:`merge`); a class
+    the library chose and too small for a run is left as it is, with a warning.
     ``pts``: float64 coordinates, returned as ``dtype``; ``options``: the call's other
-    options (:func:`select`); ``stacklevel``: that of the caller's caller, for the warning
-    on classes too small to denoise."""
+    options (:func:`select`)."""
     n = pts.shape[0]
     runs, small, described, least = select(classification, classes, n, options)
-    warn_small(small, least, stacklevel=stacklevel + 1)
     chosen = np.zeros(n, np.bool_)
     for _, rows in runs:
         chosen[rows] = True
     given = given_normals(normals, n, chosen)
     done = []
     for code, rows in runs:
-        with naming(code):
-            part = denoise(pts[rows], None if given is None else given[rows])
-        done.append((code, rows, part))
+        with naming(code), too_few(code, rows.shape[0], classes, small):
+            done.append((code, rows, denoise(pts[rows], None if given is None else given[rows])))
+    warn_small(small, least)
+    check_some(done, least)
     return merge(pts, dtype, given, done, small, described, started)
+
+
+@contextmanager
+def too_few(code, size, classes, small):
+    """A class the library chose (``classes`` None or "each") whose ``size`` points have too
+    few distinct positions for a run (:class:`pssd_fast.run.FewPositions`) is added to
+    ``small`` and left as it is, as one of too few points is (:func:`choose`)."""
+    try:
+        yield
+    except FewPositions as exc:
+        if code is None or not (classes is None or _name(classes) == "each"):
+            raise
+        small.append((code, size, exc.distinct))
+
+
+def check_some(done, least):
+    """ValueError where no class was denoised: each the library chose had too few distinct
+    positions (:func:`too_few`)."""
+    if not done:
+        raise ValueError(f"no class to denoise has the {least} distinct positions a run needs")
 
 
 @contextmanager
@@ -205,7 +227,8 @@ def summary(runs, untouched, small, described, started):
         outliers=_outliers([run[2]["outliers"] for run in runs]),
         total_seconds=time.perf_counter() - started,
         classes={"classes": described, "denoised": int(sum(run[1] for run in runs)),
-                 "untouched": untouched, "too_small": [code for code, size in small if size],
+                 "untouched": untouched,
+                 "too_small": sorted(code for code, size, _ in small if size),
                  "runs": {} if described == "all" else {code: found for code, _, found in runs}})
 
 

@@ -12,6 +12,7 @@ import sys
 import threading
 import time
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -537,6 +538,16 @@ def _check_output(path, force):
         raise CommandError(f"{exc.strerror}; choose another output") from None
 
 
+@contextmanager
+def _appeared(path):
+    """An output that appeared at ``path`` during the run is refused as one before it is
+    (:func:`_check_output`), naming the option rather than the Python keyword."""
+    try:
+        yield
+    except FileExistsError:
+        raise CommandError(f"{path} exists; pass --force to overwrite it") from None
+
+
 def _is_stdio(path):
     return str(path) == "-"
 
@@ -881,8 +892,9 @@ def _denoise_file(args, params, inp, out, say):
         # The points outside the classes keep the file's normals, as they keep their records.
         normals[~chosen] = cloud.normals[~chosen]
     points = result.points.astype(np.float64)
-    io.write(out, cloud, points=points, normals=normals, fields=fields, overwrite=args.force,
-             format=fmt if _is_stdio(out) else None)
+    with _appeared(out):
+        io.write(out, cloud, points=points, normals=normals, fields=fields,
+                 overwrite=args.force, format=fmt if _is_stdio(out) else None)
     if not args.quiet:
         # The method's moves, as out of core reports them (LAS then rounds to its scale).
         disp = np.linalg.norm(points - cloud.points, axis=1)
@@ -1025,7 +1037,8 @@ def _demo_files(args, noisy, result):
                                                       "normals": result.normals,
                                                       "fields": fields})):
         path = args.out / (name + suffix)
-        io.write(path, source, overwrite=args.force, **kwargs)
+        with _appeared(path):
+            io.write(path, source, overwrite=args.force, **kwargs)
         written.append(path)
     return written
 

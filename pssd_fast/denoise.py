@@ -231,7 +231,7 @@ def _run(points, normals, runner, tile_points, store, **options):
                                              o["params"], o["lam"])
     k, iterations, orient, n_jobs = o["k"], o["iterations"], o["orient"], o["n_jobs"]
     pts, dtype = as_points(points)
-    check_precision(pts, dtype, stacklevel=5)
+    check_precision(pts, dtype)
     n = pts.shape[0]
     if k is None:
         # The caller chose no k: the message is about the cloud's size, not about k (the
@@ -300,10 +300,10 @@ def _by_class(points, normals, classification, classes, options, runner, tile_po
     own, the other points kept as they are (see its ``classification``)."""
     started = time.perf_counter()
     pts, dtype = as_points(points)
-    check_precision(pts, dtype, stacklevel=5)
+    check_precision(pts, dtype)
     return lidar.denoise_each(pts, dtype, normals, classification, classes, options,
                               lambda part, given: _run(part, given, runner, tile_points, store,
-                                                       **options), started, stacklevel=3)
+                                                       **options), started)
 
 
 def _check_pipeline_params(method, preset, pipeline, explicit, lam, rebuild_graph):

@@ -61,8 +61,9 @@ def morton_order(points):
 
     Parameters
     ----------
-    points : (n, 3) float64
-        Finite coordinates.
+    points : (n, 3) array_like
+        Finite coordinates, at least one point (checked: a ValueError or TypeError names
+        what is wrong).
 
     Returns
     -------
@@ -70,6 +71,11 @@ def morton_order(points):
         ``points[order]`` visits the cloud along the curve, so that neighbours in space are
         mostly neighbours in memory. Ties keep the input order (stable sort): deterministic.
     """
+    return curve_order(as_points(interop.coordinates(points))[0])
+
+
+def curve_order(points):
+    """:func:`morton_order` of valid float64 ``points``."""
     return code_order(morton_cells(points))
 
 
@@ -566,7 +572,7 @@ def neighbors(points, k=25, *, n_jobs=None):
 def caller_order_graph(points, k):
     """:func:`neighbors` on validated float64 points: query in Morton order, map back."""
     n = points.shape[0]
-    order = morton_order(points)
+    order = curve_order(points)
     graph = knn_graph(points[order], k)
     indices = np.empty_like(graph.indices)
     distances = np.empty_like(graph.distances)

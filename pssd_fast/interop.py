@@ -318,11 +318,14 @@ def _length(cloud):
 
 def _rows(result, n_like, n_result):
     """The rows of ``like`` the result holds: None for all of them, or ``result.kept`` where
-    ``remove_outliers`` dropped some."""
+    ``remove_outliers`` dropped some (``like`` then has the rows kept and those dropped)."""
     if n_like == n_result:
         return None
     kept = getattr(result, "kept", None)
-    if kept is not None and len(kept) == n_result and n_result and kept[-1] < n_like:
+    outliers = getattr(getattr(result, "stats", None), "outliers", None)
+    removed = outliers["removed"] if outliers else 0
+    if (kept is not None and len(kept) == n_result and n_result and kept[-1] < n_like
+            and n_like == n_result + removed):
         return np.asarray(kept)
     raise ValueError(f"like has {n_like} points and the result {n_result}; pass the cloud "
                      f"that was denoised")

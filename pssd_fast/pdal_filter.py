@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 
 import pssd_fast
-from pssd_fast.classes import SURFACE_CLASSES
+from pssd_fast.classes import SURFACE_CLASSES, UNCLASSIFIED
+from pssd_fast.run import FewPositions
 #: The fewest points of a class that are denoised (the library's least cloud); a smaller
 #: class in a view keeps its coordinates, with a line in PDAL's log.
 MIN_POINTS = 11
@@ -62,9 +63,9 @@ def denoise(ins, outs):
     The module global ``pdalargs`` (PDAL's ``pdalargs`` option) may hold ``classes``: a list
     of class codes, each denoised as a cloud of its own, so that no point of one class is
     another's neighbour (default: the surface classes present in the view,
-    :data:`pssd_fast.classes.SURFACE_CLASSES`, as :func:`pssd_fast.denoise` takes them; a view
-    with none is left as it is), or ``"all"``:
-    every point as one cloud, whatever its class. Without a ``Classification`` dimension
+    :data:`pssd_fast.classes.SURFACE_CLASSES`, as :func:`pssd_fast.denoise` takes them: a view
+    of classes 0 and 1 alone is one cloud, one of other classes alone is left as it is), or
+    ``"all"``: every point as one cloud, whatever its class. Without a ``Classification`` dimension
     every point is one cloud. Any other key is a keyword of :func:`pssd_fast.denoise`
     (``preset``, ``k``, ``iterations``, ``duplicate_tolerance``, ``n_jobs``...), except
     those in :data:`REFUSED`. Points outside the classes keep their exact coordinates.
@@ -81,7 +82,16 @@ def denoise(ins, outs):
                   f"left as they are")
             continue
         started = time.perf_counter()
-        moved[rows] = pssd_fast.denoise(xyz[rows], **options).points
+        try:
+            moved[rows] = pssd_fast.denoise(xyz[rows], **options).points
+        except FewPositions as exc:
+            if classes is not None or code is None:
+                raise
+            # A surface class the stage chose, as denoise leaves it.
+            print(f"pssd_fast: {name}: {rows.shape[0]} points at {exc.distinct} distinct "
+                  f"position{'s' * (exc.distinct != 1)}, fewer than {MIN_POINTS}; left as "
+                  f"they are")
+            continue
         changed = True
         print(f"pssd_fast: {name}: {rows.shape[0]} points denoised in "
               f"{time.perf_counter() - started:.1f} s")
@@ -147,6 +157,8 @@ def _groups(labels, classes, n):
                              "none (pass 'all' to denoise every point)")
         return [(None, np.arange(n))]
     labels = np.asarray(labels)
+    if classes is None and np.isin(labels, UNCLASSIFIED).all():
+        return [(None, np.arange(n))]  # classes 0 and 1 alone: no classification, as denoise
     if classes is None:
         wanted = [code for code in SURFACE_CLASSES if (labels == code).any()]
     else:

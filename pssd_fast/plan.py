@@ -8,14 +8,13 @@ reads (:mod:`pssd_fast.method`). The paper's pipeline and the baselines iterate 
 over lists of ``k`` nearest neighbours.
 """
 import time
-import warnings
 from dataclasses import dataclass, field
 from typing import NamedTuple, Optional
 
 import numpy as np
 
 from . import method, noise
-from ._validation import DenoiseWarning
+from ._validation import warn
 from .noise import Noise, probe
 
 #: Presets: the pipeline of the robust method; for the default method whether it refines
@@ -188,12 +187,12 @@ def _small(plan, distinct):
     cells = 1.0 if plan.edge is None else max(1.0, (plan.edge / plan.noise.spacing) ** 2)
     share = plan.k * cells / distinct
     if share > SMALL:
-        warnings.warn(
-            f"the cloud has {distinct:,} distinct points and each fit reads {share:.0%} of it: "
+        warn(
+            f"the cloud has {distinct:,} distinct points and each fit reads "
+            f"{'all' if share >= 1.0 else f'{share:.0%}'} of it: "
             f"fits over so much of a surface are bent by its shape, and the result may end "
             f"farther from the surface than the input (the CAD part at 300 points and 0.25% "
-            f"noise: 1.45 times as far; at 1,000 points 0.64); denoise larger clouds",
-            DenoiseWarning, stacklevel=6)  # the caller of denoise
+            f"noise: 1.45 times as far; at 1,000 points 0.64); denoise larger clouds")
     return plan
 
 

@@ -3,7 +3,7 @@ returns in the caller's order. :func:`pssd_fast.denoise` and the tiled runs
 (:mod:`pssd_fast.tiled`) share it, so that both give the same bits and the same ``stats``."""
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Callable, NamedTuple, Optional
 
 import numpy as np
@@ -11,7 +11,7 @@ import numpy as np
 from . import core
 from ._threads import threads
 from ._validation import MIN_K, check_int
-from .graph import knn_graph, morton_order, refresh_graph
+from .graph import curve_order, knn_graph, refresh_graph
 from .parameters import BY_NAME
 from .pipelines import STEPS
 from .pipelines.normals import estimated_normals
@@ -25,7 +25,9 @@ class DenoiseResult:
     """Output of :func:`pssd_fast.denoise`; arrays are in the caller's point order and float
     dtype.
 
-    Results compare by identity; compare their arrays with :func:`numpy.array_equal`.
+    Results compare by identity; compare their arrays with :func:`numpy.array_equal`. A result
+    pickles (a worker process can return it) with ``likelihood`` and ``feature_intensity``
+    computed first where they were not yet read.
 
     Attributes
     ----------
@@ -87,6 +89,11 @@ class DenoiseResult:
             object.__setattr__(self, name, value)
         return value
 
+    def __getstate__(self):
+        # Pickled (for a worker process to return it) with its deferred fields computed: what
+        # they compute from does not travel.
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
 
 class Deferred:
     """A field of a :class:`DenoiseResult` computed when it is first read: ``compute()`` gives
@@ -113,7 +120,7 @@ def outlier_scores(points, n_jobs, k=core.OUTLIER_K):
                          f"read denoise's k)")
     with threads(n_jobs):
         pts = points.astype(np.float64, copy=False)
-        order = morton_order(pts)
+        order = curve_order(pts)
         pts = pts[order]
         score = np.empty(pts.shape[0])
         score[order] = core.outlier_score(pts, knn_graph(pts, k))
@@ -297,14 +304,24 @@ def stats(request, plan, n, distinct, n_threads, records, held, outliers=None, t
     )
 
 
+class FewPositions(ValueError):
+    """A cloud of enough points at too few distinct positions (:func:`check_distinct`); a
+    class the library chose to denoise is left as it is instead (:mod:`pssd_fast.classes`).
+    ``distinct``: the positions."""
+
+    def __init__(self, message, distinct):
+        super().__init__(message)
+        self.distinct = distinct
+
+
 def check_distinct(distinct, n, k):
     """``distinct``, the positions among ``n`` points, checked against ``k`` (None: the
-    preset chooses it)."""
+    preset chooses it); :class:`FewPositions` where too few."""
     if distinct < n and distinct < (MIN_K if k is None else k) + 1:
-        raise ValueError(f"the cloud has {n} points but only {distinct} distinct "
-                         f"position{'s' * (distinct != 1)}; "
-                         f"denoising needs at least {(MIN_K if k is None else k) + 1}"
-                         + ("" if k is None else f" for k = {k} (lower k)"))
+        raise FewPositions(f"the cloud has {n} points but only {distinct} distinct "
+                           f"position{'s' * (distinct != 1)}; "
+                           f"denoising needs at least {(MIN_K if k is None else k) + 1}"
+                           + ("" if k is None else f" for k = {k} (lower k)"), distinct)
     return distinct
 
 

@@ -13,7 +13,7 @@ from . import core, interop
 from ._threads import threads
 from ._validation import (as_normals, as_points, auto, check_choice, check_float, check_k,
                           check_orient)
-from .graph import NeighborGraph, check_graph, knn_graph, morton_order
+from .graph import NeighborGraph, check_graph, curve_order, knn_graph
 from .run import outlier_scores
 
 class MLSFit(NamedTuple):
@@ -85,7 +85,7 @@ def _prepare(points, normals_, k, graph, n_jobs, orient=None, estimate=True):
     graph = None if graph is None else _of_these(check_graph(graph, n), pts)
     k = None if graph is not None else check_k(k, n, denoising=False)
     with threads(n_jobs):
-        order = morton_order(pts)
+        order = curve_order(pts)
         pts = pts[order]
         graph = knn_graph(pts, k) if graph is None else _sorted_graph(graph, order)
         if nrm is not None:

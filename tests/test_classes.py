@@ -1,5 +1,8 @@
 """LiDAR classes kept apart: ``classification=``, ``classes=`` and ``pssd denoise
 --classes``."""
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -474,3 +477,47 @@ def test_pssd_denoise_classes_needs_a_classification(tmp_path):
     status, _, err = pssd("denoise", tmp_path / "in.xyz", tmp_path / "out.xyz", "--classes",
                           "ground")
     assert status == 2 and "comma-separated class numbers such as 2,6, each or all" in err
+
+
+def test_a_class_at_few_positions_is_left_as_a_small_class_is(tmp_path, survey):
+    """A class the library chose, with enough rows at fewer distinct positions than a run
+    needs (a roof's returns repeated), is left as it is with the warning, in memory, tiled
+    and from a file, not the whole call refused; a class named is refused. The warning names
+    the caller's line, however deep in the library it arises."""
+    points, labels = survey
+    roof = labels == 6
+    stacked = points.copy()
+    stacked[roof] = points[roof][np.arange(roof.sum()) % 2]  # 600 rows at 2 positions
+    runs = [lambda: pssd_fast.denoise(stacked, classification=labels, **QUICK),
+            lambda: pssd_fast.denoise(stacked, classification=labels, classes="each", **QUICK)]
+    tiled = None
+    if importlib.util.find_spec("dask") is not None:
+        from pssd_fast import tiled
+        runs.append(lambda: tiled.denoise(stacked, classification=labels, tile_points=1000,
+                                          client="sync", **QUICK))
+    results = []
+    for run in runs:
+        with pytest.warns(pssd_fast.DenoiseWarning,
+                          match=r"6 \(600 points at 2 distinct positions\)") as caught:
+            results.append(run())
+        assert {Path(w.filename) for w in caught} == {Path(__file__)}
+    for result in results:
+        np.testing.assert_array_equal(result.points[roof], stacked[roof])
+        assert 6 in result.stats["classes"]["too_small"]
+        assert result.stats["classes"]["untouched"] >= roof.sum()
+    ground = labels == 2
+    np.testing.assert_array_equal(results[0].points[ground],
+                                  pssd_fast.denoise(stacked[ground], **QUICK).points)
+    if tiled is not None:
+        np.save(tmp_path / "in.npy", stacked)
+        with pytest.warns(pssd_fast.DenoiseWarning, match="2 distinct positions"):
+            stats = tiled.denoise_file(tmp_path / "in.npy", tmp_path / "out.npy",
+                                       classification=labels, tile_points=1000,
+                                       client="sync", iterations=1)
+        with pytest.warns(pssd_fast.DenoiseWarning, match="2 distinct positions"):
+            in_core = pssd_fast.denoise(stacked, classification=labels, iterations=1)
+        np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), in_core.points)
+        assert 6 in stats["classes"]["too_small"]
+    with pytest.raises(ValueError, match="the points of class 6: the cloud has 600 points but "
+                                         "only 2 distinct positions"):
+        pssd_fast.denoise(stacked, classification=labels, classes=[2, 6], **QUICK)

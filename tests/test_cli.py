@@ -104,6 +104,26 @@ def test_denoise_ply_keeps_every_other_attribute(tmp_path, ply_with_extras):
     assert pssd("denoise", path, out, "--force", "--quiet", "--iterations", "1")[0] == 0
 
 
+def test_an_output_that_appears_during_the_run_is_kept(tmp_path, small, monkeypatch, capsys):
+    """Another program writes the output while the cloud is denoised: its file is kept, and
+    the refusal names --force, as the check before the run does, not the Python keyword."""
+    from pssd_fast import io
+
+    np.savetxt(tmp_path / "in.xyz", small)
+    out = tmp_path / "out.xyz"
+    write = io.write
+
+    def late(path, *args, **kwargs):
+        out.write_text("OTHER")
+        return write(path, *args, **kwargs)
+
+    monkeypatch.setattr(io, "write", late)
+    status = cli.main(["denoise", str(tmp_path / "in.xyz"), str(out), "--iterations", "1"])
+    err = capsys.readouterr().err
+    assert_one_line_error(status, err, f"{out} exists; pass --force to overwrite it")
+    assert "overwrite=True" not in err and out.read_text() == "OTHER"
+
+
 def test_denoise_las_keeps_records_and_georeference(tmp_path, cloud):
     header = laspy.LasHeader(point_format=3, version="1.2")
     header.scales = [0.001, 0.001, 0.001]
@@ -729,6 +749,36 @@ def test_a_reader_that_stops_early_is_no_error(tmp_path, small):
     err = done.stderr.decode()
     assert done.returncode == 0, err
     assert "Broken pipe" not in err and "Traceback" not in err
+
+
+class Leaving:
+    """A pipe's end whose reader takes the first 100 bytes and goes away: a large write is
+    taken in part (its count says how much), the next one raises, as the system's pipe."""
+
+    def __init__(self):
+        self.taken = b""
+
+    def write(self, data):
+        if self.taken:
+            raise BrokenPipeError(32, "Broken pipe")
+        self.taken = bytes(data[:100])
+        return len(self.taken)
+
+    def flush(self):
+        pass
+
+
+def test_data_cut_short_on_stdout_is_an_error(tmp_path, small, monkeypatch, capsys):
+    """The reader of the denoised cloud went away part way: the command fails, rather than
+    saying it wrote the cloud and exiting 0."""
+    np.savetxt(tmp_path / "small.xyz", small)
+    out = Stdio()
+    out.buffer = Leaving()
+    monkeypatch.setattr(sys, "stdout", out)
+    status = cli.main(["denoise", str(tmp_path / "small.xyz"), "-", "--format", "xyz",
+                       "--iterations", "1"])
+    assert_one_line_error(status, capsys.readouterr().err, "Broken pipe")
+    assert len(out.buffer.taken) == 100
 
 
 def test_stdin_csv_to_stdout_ply_in_process(small, monkeypatch, capsys):

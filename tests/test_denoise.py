@@ -1,6 +1,7 @@
 """The public denoise() call: agreement with the reference, determinism, dtypes, errors."""
 import dataclasses
 import json
+import pickle
 import re
 import subprocess
 import sys
@@ -168,6 +169,20 @@ def test_fields_not_asked_for_are_computed_when_first_read(noisy, monkeypatch):
     assert pssd_fast.denoise(noisy, method="bilateral").likelihood is None
 
 
+@pytest.mark.parametrize("classes", [False, True])
+def test_a_result_pickles_with_its_fields_computed(noisy, classes):
+    """A worker process can return a result: pickled, the fields computed when first read are
+    computed first, to the bits ``extras=True`` gives."""
+    labels = {"classification": np.where(noisy[:, 2] > np.median(noisy[:, 2]), 2, 6)} \
+        if classes else {}
+    asked = pssd_fast.denoise(noisy, extras=True, **labels)
+    back = pickle.loads(pickle.dumps(pssd_fast.denoise(noisy, **labels)))
+    for name in ("points", "normals", "likelihood", "feature_intensity", "displacement",
+                 "held", "kept"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(asked, name))
+    assert back.stats.to_dict().keys() == asked.stats.to_dict().keys()
+
+
 def test_input_untouched_and_dtype_followed(noisy):
     for dtype in (np.float64, np.float32):
         points = noisy.astype(dtype)
@@ -220,8 +235,14 @@ def test_a_cloud_too_small_for_its_fits_warns(options, n):
     default's lists of 80 (its result ends 1.45 times as far from the surface as the input),
     80 for the paper's 25. At 1,000 points, no warning (the default: 0.64 times)."""
     small = datasets.cad_part(n_points=n, noise=0.0025, seed=0).points
-    with pytest.warns(pssd_fast.DenoiseWarning, match=f"{n} distinct points and each fit reads"):
+    with pytest.warns(pssd_fast.DenoiseWarning,
+                      match=f"{n} distinct points and each fit reads") as caught:
         pssd_fast.denoise(small, **options)
+    assert caught[0].filename == __file__  # the caller's line, not the library's
+    if not options:  # cells wider than the spacing hold more than the cloud: all, not 887%
+        with pytest.warns(pssd_fast.DenoiseWarning, match="11 distinct points and each fit "
+                                                          "reads all of it"):
+            pssd_fast.denoise(np.random.default_rng(0).random((11, 3)))
     import warnings
 
     with warnings.catch_warnings():

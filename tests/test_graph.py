@@ -136,6 +136,18 @@ def test_morton_order_is_a_locality_preserving_permutation():
     np.testing.assert_array_equal(morton_order(np.zeros((5, 3))), np.arange(5))
 
 
+@pytest.mark.parametrize("points, error, match", [
+    (np.zeros((3, 100)), ValueError, r"shape \(n, 3\); got shape \(3, 100\).*transpose"),
+    (np.full((4, 3), np.nan), ValueError, "NaN or Inf in 4 row"),
+    (np.zeros((0, 3)), ValueError, "points is empty"),
+    (np.zeros((4, 3), complex), TypeError, "must hold real numbers"),
+])
+def test_morton_order_names_bad_points(points, error, match):
+    """The public morton_order checks its points as denoise does."""
+    with pytest.raises(error, match=match):
+        pssd_fast.morton_order(points)
+
+
 @pytest.mark.parametrize("name", sorted(CLOUDS))
 def test_morton_order_matches_the_reference(name):
     points = CLOUDS[name]() * 1e3 + [5e5, -4e6, 300.0]

@@ -118,6 +118,16 @@ def test_outliers_removed_keep_the_rows_of_the_input(part):
     np.testing.assert_array_equal(back["X"], result.points[:, 0])
     with pytest.raises(ValueError, match="like has 2000 points and the result"):
         interop.to_structured(result, like=cloud[:2000])
+    # A larger cloud than the one denoised is refused too, not paired with its first rows.
+    with pytest.raises(ValueError, match=f"like has {noisy.shape[0] + 7} points"):
+        interop.to_structured(result, like=np.concatenate([cloud, cloud[:7]]))
+
+
+def test_a_like_larger_than_the_cloud_denoised_is_refused(part, expected):
+    cloud = records(part, extra=[("Intensity", "u2")])
+    with pytest.raises(ValueError, match=f"like has {part.shape[0] + 7} points and the result "
+                                         f"{part.shape[0]}; pass the cloud that was denoised"):
+        interop.to_structured(expected, like=np.concatenate([cloud[::-1], cloud[:7]]))
 
 
 def test_the_stage_functions_take_a_structured_array(part):

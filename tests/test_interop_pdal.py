@@ -100,6 +100,17 @@ def test_a_view_without_classification_is_one_cloud(view):
         pdal_like.run_stage(pdal_filter.stage(classes=[2]), bare)
 
 
+@pytest.mark.parametrize("codes", [[0], [0, 1]])
+def test_a_view_of_unclassified_points_is_one_cloud(view, codes):
+    """Classes 0 and 1 alone are no classification, as pssd_fast.denoise takes them."""
+    unclassified = dict(view, Classification=np.resize(np.array(codes, np.uint8),
+                                                        view["X"].shape[0]))
+    out = pdal_like.run_stage(pdal_filter.stage(**FAST), unclassified)
+    np.testing.assert_array_equal(xyz(out), pssd_fast.denoise(
+        xyz(view), classification=unclassified["Classification"], **FAST).points)
+    assert not np.array_equal(xyz(out), xyz(view))
+
+
 def test_nothing_changes_without_a_surface_class(view, capsys):
     trees = {name: values[view["Classification"] == 5] for name, values in view.items()}
     outs = {}
@@ -109,6 +120,12 @@ def test_nothing_changes_without_a_surface_class(view, capsys):
     out = pdal_like.run_stage(pdal_filter.stage(**FAST), few)
     np.testing.assert_array_equal(xyz(out, slice(2000, None)), xyz(few, slice(2000, None)))
     assert "class 6: 8 points, fewer than 11; left as they are" in capsys.readouterr().out
+    # Enough points of a class at too few positions: left as they are too, as denoise does.
+    few["X"][2000:], few["Y"][2000:], few["Z"][2000:] = few["X"][2000], few["Y"][2000], 9.0
+    few = {name: np.concatenate([values, values[2000:]]) for name, values in few.items()}
+    out = pdal_like.run_stage(pdal_filter.stage(**FAST), few)
+    np.testing.assert_array_equal(xyz(out, slice(2000, None)), xyz(few, slice(2000, None)))
+    assert "class 6: 16 points at 1 distinct position, fewer than 11" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("pdalargs, error, match", [

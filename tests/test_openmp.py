@@ -112,3 +112,34 @@ def test_open3d_first_gives_no_tbb_warning():
                           "import pssd_fast\n" + DENOISE], capture_output=True, text=True,
                          check=True)
     assert "TBB" not in run.stderr
+
+
+FORK = """
+import multiprocessing, numpy as np, pssd_fast
+points = np.random.default_rng(0).normal(size=(500, 3)) * [1, 1, 0.01]
+def job(_):
+    try:
+        return pssd_fast.denoise(points, preset="fast").points.shape
+    except RuntimeError as exc:
+        return str(exc)
+if __name__ == "__main__":
+    pssd_fast.denoise(points, preset="fast")
+    for method in ("fork", "spawn"):
+        with multiprocessing.get_context(method).Pool(1) as pool:
+            print(method, pool.apply(job, (0,)))
+"""
+
+
+def test_a_forked_worker_is_told_to_spawn_instead_of_killed(tmp_path):
+    """A process forked after the parent's first run cannot run the OpenMP pools: its first
+    kernel raises, saying how to start workers, where libgomp would kill it; a spawned one
+    runs."""
+    script = tmp_path / "workers.py"
+    script.write_text(FORK)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=300)
+    lines = done.stdout.splitlines()
+    assert done.returncode == 0, done.stderr
+    assert lines[0].startswith("fork this process was forked from one that had run pssd_fast")
+    assert "'spawn' or 'forkserver'" in lines[0]
+    assert lines[1] == "spawn (500, 3)"

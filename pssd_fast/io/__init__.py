@@ -467,7 +467,11 @@ def write(path, cloud, *, points=None, normals=None, fields=None, overwrite=Fals
     if target.path is None:
         buffer = io.BytesIO()
         payload(buffer)
-        sys.stdout.buffer.write(buffer.getvalue())
+        left = buffer.getbuffer()
+        while left:
+            # A pipe whose reader went away takes part of a large write and says how much;
+            # the next write raises (BrokenPipeError) rather than the output ending unseen.
+            left = left[sys.stdout.buffer.write(left):]
         sys.stdout.buffer.flush()
         return STDIO
     atomic_write(name, payload, overwrite, cloud)

@@ -10,4 +10,10 @@ from .cache import clear_stale
 
 Kernel.loader = cache.prepare
 
-__all__ = ["clear_stale"]
+
+def refuse_kernels(why):
+    """Every kernel call from now on raises a RuntimeError saying ``why``."""
+    Kernel.refused = why
+
+
+__all__ = ["clear_stale", "refuse_kernels"]

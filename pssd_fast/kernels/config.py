@@ -38,6 +38,9 @@ class Kernel:
     #: ``loader(kernel, types)`` compiles or loads the signature ``types`` (numba types) of
     #: ``kernel``; None: numba compiles it on the call.
     loader = None
+    #: Where not None, why no kernel may run in this process: every call raises a
+    #: RuntimeError saying so (a forked copy of a process whose thread pools had started).
+    refused = None
 
     def __init__(self, dispatcher):
         self.dispatcher = dispatcher
@@ -52,6 +55,8 @@ class Kernel:
         return getattr(self.dispatcher, name)
 
     def __call__(self, *args):
+        if Kernel.refused is not None:
+            raise RuntimeError(Kernel.refused)
         # A cheap key first: numba.typeof of every argument costs about 15 us each, a few
         # milliseconds a run on a small cloud.
         key = tuple(_type_key(a) for a in args)

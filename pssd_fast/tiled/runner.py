@@ -284,17 +284,21 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
                     classified = None  # classes 0 and 1 only: no classification
                 else:
                     runs = found
-            lidar.warn_small(small, least, stacklevel=2)
             setting = _FileRun(array, dtype, tile_points, settings, report, runner, n_threads,
                                ondisk.Blocks.of(array.shape[0]))
             done = []
             for code in runs:
-                with lidar.naming(code):
+                with lidar.naming(code), lidar.too_few(
+                        code, None if code is None else int(counts[codes == code][0]),
+                        options.get("classes"), small):
                     done.append((code, _file_run(setting, None, folder, started)
                                  if code is None else
                                  _file_run(setting, lambda a, b, code=code:
                                            rows_of(a, b, (code,), False),
                                            folder / f"class_{code}", time.perf_counter())))
+            lidar.warn_small(small, least)
+            lidar.check_some(done, least)
+            runs = [code for code, _ in done]
             last = done[-1][1].stats
             stage = (last["n_iterations"] - 1, last["n_iterations"])
             sources = [source for _, run in done for source in run.parts]
@@ -398,7 +402,7 @@ def _file_run(setting, keep, folder, started):
                       settings["duplicate_tolerance"], keep, runner)
     n = check_distinct(cloud.shape[0], cloud.rows, None)
     # As denoise warns of a float32 array: the spacing from a sample of the buckets.
-    check_precision(cloud, setting.dtype, 4, float(np.abs(
+    check_precision(cloud, setting.dtype, float(np.abs(
         np.stack([cloud.low, cloud.high]) + cloud.centre).max()))
     check_orient_estimated(settings["orient"], cloud.normals is not None,
                            f"the normals of {setting.array.path}", "drop orient")
