@@ -518,6 +518,7 @@ def test_a_class_at_few_positions_is_left_as_a_small_class_is(tmp_path, survey):
             in_core = pssd_fast.denoise(stacked, classification=labels, iterations=1)
         np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), in_core.points)
         assert 6 in stats["classes"]["too_small"]
+        assert stats["classes"]["classes"] == in_core.stats["classes"]["classes"]
     with pytest.raises(ValueError, match="the points of class 6: the cloud has 600 points but "
                                          "only 2 distinct positions"):
         pssd_fast.denoise(stacked, classification=labels, classes=[2, 6], **QUICK)

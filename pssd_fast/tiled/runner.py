@@ -298,15 +298,15 @@ def denoise_file(source, destination, *, tile_points=2_000_000, client=None, fie
                                            folder / f"class_{code}", time.perf_counter())))
             lidar.warn_small(small, least)
             lidar.check_some(done, least)
-            runs = [code for code, _ in done]
             last = done[-1][1].stats
             stage = (last["n_iterations"] - 1, last["n_iterations"])
             sources = [source for _, run in done for source in run.parts]
             if classified is not None:
                 ranges = setting.blocks.ranges()
                 kept = [folder / f"kept_{start}.bin" for start, _ in ranges]
+                denoised = tuple(code for code, _ in done)  # not those left as too few
                 sources += zip(kept, runner.map("kept", *stage, ondisk.unmoved, [
-                    (array, start, stop, rows_of(start, stop, tuple(runs), True), path,
+                    (array, start, stop, rows_of(start, stop, denoised, True), path,
                      setting.blocks, _columns(array))
                     for (start, stop), path in zip(ranges, kept)]))
             clock = Clock(report, *stage)
