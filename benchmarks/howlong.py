@@ -19,7 +19,6 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import tempfile
 import textwrap
@@ -28,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .stages import RESULTS, knn_query_seconds, write_cad_part, write_results
+from .stages import RESULTS, child_result, knn_query_seconds, write_cad_part, write_results
 
 #: Below this many points the run and the reference query are repeated (best of three).
 REPEAT_BELOW = 1_000_000
@@ -61,9 +60,8 @@ def measure(path, threads, repeats=None):
     """The child's result for the cloud saved at ``path`` with ``threads`` threads."""
     env = dict(os.environ, NUMBA_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads))
     repeat = [] if repeats is None else ["--repeats", str(repeats)]
-    out = subprocess.run([sys.executable, "-m", "benchmarks.howlong", "--child", str(path),
-                          *repeat], env=env, capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return child_result([sys.executable, "-m", "benchmarks.howlong", "--child", str(path),
+                         *repeat], env)
 
 
 def cpu():

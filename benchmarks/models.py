@@ -69,11 +69,16 @@ def mesh_dir():
     return folder if folder.is_dir() else None
 
 
-def available():
-    """Whether the mesh folder holds every model (tests and benchmarks skip the models
-    otherwise)."""
+def available(names=None):
+    """Whether the mesh folder holds the models ``names`` (None: every model; tests and
+    benchmarks skip the models otherwise)."""
     folder = mesh_dir()
-    return folder is not None and all((folder / f).exists() for f in MESH_FILES)
+    return folder is not None and all((folder / f).exists() for f in files(names))
+
+
+def files(names=None):
+    """The files of the models ``names`` (None: every model)."""
+    return [MODELS[name][0] for name in (MODELS if names is None else names)]
 
 
 def load(name, n_points=None, seed=0):

@@ -41,7 +41,6 @@ import json
 import math
 import os
 import resource
-import subprocess
 import sys
 import tempfile
 import time
@@ -52,7 +51,8 @@ import numpy as np
 from pssd_fast.run import stored
 
 from .scaling import OUTPUTS, _resident_bytes
-from .stages import RESULTS, knn_query_seconds, machine, write_cad_part, write_results
+from .stages import (RESULTS, child_result, knn_query_seconds, machine, write_cad_part,
+                     write_results)
 
 UNIT = 1e-4
 
@@ -148,11 +148,9 @@ def _denoise(points, preset, iterations, repeats):
 
 def measure(path, noise, preset, iterations, threads):
     env = dict(os.environ, NUMBA_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads))
-    out = subprocess.run([sys.executable, "-m", "benchmarks.presets", "--child", str(path),
-                          "--noise", str(noise), "--presets", preset,
-                          "--paper-iterations", str(iterations or 0)],
-                         env=env, capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return child_result([sys.executable, "-m", "benchmarks.presets", "--child", str(path),
+                         "--noise", str(noise), "--presets", preset,
+                         "--paper-iterations", str(iterations or 0)], env)
 
 
 def table(cells):
@@ -304,6 +302,9 @@ def main(argv=None):
         return
     if args.grid:
         args.sizes, args.noises = list(GRID_SIZES), list(GRID_NOISES)
+    if args.against is not None and not (RESULTS / f"{args.against}.json").is_file():
+        parser.error(f"--against {args.against}: no {RESULTS / args.against}.json (the stems "
+                     f"there: {', '.join(sorted(p.stem for p in RESULTS.glob('*.json')))})")
     baseline = None if args.against is None else json.loads(
         (RESULTS / f"{args.against}.json").read_text())["cells"]
 

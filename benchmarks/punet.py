@@ -50,7 +50,7 @@ import pssd_fast
 from . import meshes, versus
 from .metrics import chamfer_squared, point_to_mesh_squared
 from .models import data_folder
-from .stages import add_output, machine, save_rows
+from .stages import add_output, machine, positive, save_rows
 
 RESULTS = Path(__file__).resolve().parent / "results"
 PEER_CACHE = RESULTS / "punet_peers.json"
@@ -307,8 +307,8 @@ def markdown(rows, compile_seconds):
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--meshes", nargs="+", default=list(MESHES), choices=MESHES)
-    parser.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
-    parser.add_argument("--noise", type=float, nargs="+", default=list(NOISE_LEVELS))
+    parser.add_argument("--sizes", type=positive(int), nargs="+", default=list(SIZES))
+    parser.add_argument("--noise", type=positive(float), nargs="+", default=list(NOISE_LEVELS))
     parser.add_argument("--data", type=Path, default=data_folder("punet"),
                         help="the folder of the PU-Net meshes (*.off.gz)")
     parser.add_argument("--peers", nargs="*", default=list(versus.FAMILIES),

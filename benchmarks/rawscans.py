@@ -36,7 +36,7 @@ from pssd_fast import io
 from . import meshes, peers, versus
 from .metrics import surface_distance
 from .models import data_folder
-from .stages import add_output, machine, save_rows
+from .stages import add_output, machine, positive, save_rows
 
 VIEWS = ("bun000", "bun180", "top3")
 REFERENCE = "bun_zipper.obj.gz"
@@ -179,7 +179,7 @@ def parse_args(argv=None):
                         help="the folder of the views, bun.conf and the reference")
     parser.add_argument("--peers", nargs="*", default=list(FAMILIES), choices=FAMILIES,
                         help="the peer families to run (default both; none: the library only)")
-    parser.add_argument("--every", type=int, default=1,
+    parser.add_argument("--every", type=positive(int), default=1,
                         help="keep every N-th point of each view (a quick run; default 1)")
     add_output(parser, "rawscans")
     args = parser.parse_args(argv)

@@ -19,7 +19,6 @@ import argparse
 import json
 import os
 import resource
-import subprocess
 import sys
 import tempfile
 import time
@@ -28,7 +27,8 @@ import numpy as np
 
 from pssd_fast.run import stored
 
-from .stages import RESULTS, STAGES, cad_parts, knn_query_seconds, machine, write_results
+from .stages import (RESULTS, STAGES, cad_parts, child_result, knn_query_seconds, machine,
+                     write_results)
 
 THREADS = (1, 2, 4, 8, 16)
 #: The result's arrays a run returns (the bytes of its output); fields a run of "default" or
@@ -73,11 +73,9 @@ def _resident_bytes():
 
 def measure(path, threads, k, method, preset, repeats):
     env = dict(os.environ, NUMBA_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads))
-    out = subprocess.run([sys.executable, "-m", "benchmarks.scaling", "--child", str(path),
-                          "--k", str(k), "--method", method, "--preset", preset,
-                          "--repeats", str(repeats)],
-                         env=env, capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return child_result([sys.executable, "-m", "benchmarks.scaling", "--child", str(path),
+                         "--k", str(k), "--method", method, "--preset", preset,
+                         "--repeats", str(repeats)], env)
 
 
 def exponent(sizes, seconds):

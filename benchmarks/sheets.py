@@ -11,9 +11,10 @@ their own sheet, in units of ``sigma``, away from the borders (``0.1 <= x, y <= 
 for the noisy input; a denoiser that pulls the sheets together scores above it. Methods:
 ``default``, ``paper``, ``fast``, and CGAL's ``jet`` (k=48, 2 passes) and ``bilateral``
 (k=120, 3 passes, sharpness 25 degrees; ``pip install cgal``). Writes
-``benchmarks/results/sheets.md`` and ``.json``.
+``sheets.md`` and ``.json`` into ``--out`` (``benchmarks/results``).
 """
 import argparse
+from pathlib import Path
 
 import numpy as np
 
@@ -38,6 +39,10 @@ def score(points, height, clean_xy):
     return float(np.abs(points[inside, 2] - height[inside]).mean() / SIGMA)
 
 
+#: The columns: the presets, then CGAL's jet smoothing (48 points, 2 passes) and bilateral.
+METHODS = ("default", "paper", "fast", "jet", "bilateral")
+
+
 def run(method, points):
     """The method's denoised points."""
     import pssd_fast
@@ -55,8 +60,10 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--gaps", type=float, nargs="+", default=[4.0, 7.5, 15.0])
     parser.add_argument("--points", type=int, default=50_000, help="points per sheet")
-    parser.add_argument("--methods", nargs="+",
-                        default=["default", "paper", "fast", "jet", "bilateral"])
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    parser.add_argument("--out", type=Path, default=RESULTS,
+                        help="folder for sheets.md/.json (benchmarks/results: the committed "
+                             "results and docs/benchmarks.md's table)")
     args = parser.parse_args(argv)
     rows = []
     for gap in args.gaps:
@@ -74,7 +81,7 @@ def main(argv=None):
             f"isotropic noise sigma = {SIGMA}; mean distance to the own sheet in sigmas, away "
             f"from the borders.\n\n" + "\n".join(lines) + "\n")
     print(text)
-    write_results(RESULTS, "sheets", text, {"rows": rows, "points": args.points})
+    write_results(args.out, "sheets", text, {"rows": rows, "points": args.points})
 
 
 if __name__ == "__main__":

@@ -142,13 +142,45 @@ def save_rows(args, text, rows, compile_seconds, log):
 def write_results(folder, stem, text, data, indent=2):
     """``stem.md`` (``text``) and ``stem.json`` (``data`` with the machine first) in
     ``folder``, each written atomically; in ``benchmarks/results/``, docs/benchmarks.md's
-    tables are then rebuilt (:func:`benchmarks.report.update`)."""
+    tables are then rebuilt (:func:`benchmarks.report.update`). Says so on stderr: a run
+    into the committed results replaces them."""
     folder.mkdir(parents=True, exist_ok=True)
     write_atomic(folder / f"{stem}.md", text)
     write_atomic(folder / f"{stem}.json",
                  json.dumps({"machine": machine(), **data}, indent=indent))
-    if folder.resolve() == report.RESULTS:
+    rebuilt = folder.resolve() == report.RESULTS
+    if rebuilt:
         report.update()
+    print(f"wrote {folder / stem}.md and .json" + (
+        "; docs/benchmarks.md's tables rebuilt from benchmarks/results (--out elsewhere keeps "
+        "them)" if rebuilt else ""), file=sys.stderr)
+
+
+def positive(kind):
+    """An argparse type: a number of ``kind`` (int or float) above 0, else argparse's one-line
+    usage error naming the option."""
+    def parse(text):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"{text} is not above 0")
+        return value
+    parse.__name__ = f"positive {kind.__name__}"
+    return parse
+
+
+def child_result(command, env=None):
+    """The JSON of the last line a benchmark's child process prints; where the child fails,
+    the run stops with the child's own last line of error, not a CalledProcessError that
+    hides it."""
+    done = subprocess.run(command, env=env, capture_output=True, text=True)
+    if done.returncode:
+        said = done.stderr.strip().splitlines()
+        raise SystemExit(f"{command[2]} failed: "
+                         f"{said[-1] if said else f'exit status {done.returncode}'}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def write_atomic(path, text):

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .stages import RESULTS, cad_parts, machine, write_results
+from .stages import RESULTS, cad_parts, child_result, machine, write_results
 
 NOISE = 0.005
 
@@ -127,11 +127,9 @@ def as_laz(source):
 
 
 def measure(kind, source, out, tile_points, workers):
-    done = subprocess.run([sys.executable, "-m", "benchmarks.tiled", "--child", kind,
-                           str(source), str(out), "--tile-points", str(tile_points),
-                           "--workers", str(workers)],
-                          capture_output=True, text=True, check=True)
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    return child_result([sys.executable, "-m", "benchmarks.tiled", "--child", kind,
+                         str(source), str(out), "--tile-points", str(tile_points),
+                         "--workers", str(workers)])
 
 
 def table(cells):

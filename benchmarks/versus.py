@@ -183,8 +183,9 @@ def peer_cell(case, key, cache_path, refresh, log, families=FAMILIES):
 LIBRARY = {"jet": "cgal", "bilateral": "cgal", "o3d_mls": "open3d", "o3d_bilateral": "open3d"}
 
 
-def missing_peers(families):
-    """A message naming the libraries ``families`` need that do not import, or ``""``."""
+def missing_peers(families, instead="leave those peers out with --peers"):
+    """A message naming the libraries ``families`` need that do not import, or ``""``
+    (``instead``: what else the user can do)."""
     from . import peers
     have = peers.available()
     absent = sorted({LIBRARY[f] for f in families if not have[LIBRARY[f]]})
@@ -192,8 +193,8 @@ def missing_peers(families):
         return ""
     return (f"the peers {', '.join(f for f in families if LIBRARY[f] in absent)} need "
             f"{' and '.join(absent)}, which do not import here: install them with "
-            "pip install \".[compare]\" (Open3D also needs the system's libusb-1.0), or "
-            "leave those peers out with --peers")
+            f"pip install \".[compare]\" (Open3D also needs the system's libusb-1.0), or "
+            f"{instead}")
 
 
 def check_inputs(parser, args, what, names):
@@ -400,8 +401,8 @@ def parse_args(argv=None):
     parser.add_argument("--peers-only", action="store_true", help="only fill the peer cache")
     parser.add_argument("--repeats", type=int, default=1, help="timed runs of ours per cell")
     parser.add_argument("--cad-points", type=int, default=CAD_POINTS,
-                        help="points of the generated part without --sizes (cached peers are "
-                             "per cell: use --out elsewhere when changing it)")
+                        help="points of the generated part without --sizes (its peers are "
+                             "cached per size)")
     parser.add_argument("--out", type=Path, default=RESULTS,
                         help="folder for the results and the peer cache")
     parser.add_argument("--seed", type=int, default=0,
@@ -412,8 +413,9 @@ def parse_args(argv=None):
         args.shapes = list(SIZED_SHAPES if args.sizes else SHAPES)
     elif not args.sizes and not set(args.shapes) <= set(SHAPES):
         parser.error(f"without --sizes the shapes are {', '.join(SHAPES)}")
-    if not models.available() and set(args.shapes) & set(models.MODELS):
-        parser.exit(1, models.missing("meshes", models.MESH_FILES) + "\n")
+    asked = [shape for shape in args.shapes if shape in models.MODELS]
+    if asked and not models.available(asked):
+        parser.exit(1, models.missing("meshes", models.files(asked)) + "\n")
     return args
 
 
@@ -422,8 +424,10 @@ def cells(args):
     if args.sizes:
         return [(shape, noise, n, _key(shape, noise, n, args.seed))
                 for shape in args.shapes for n in args.sizes for noise in args.noise]
+    # The part's peers are cached per size: a size other than the table's is its own cell.
     return [(shape, noise, args.cad_points if shape == "cad_part" else None,
-             _key(shape, noise, seed=args.seed))
+             _key(shape, noise, args.cad_points if shape == "cad_part"
+                  and args.cad_points != CAD_POINTS else None, args.seed))
             for shape in args.shapes for noise in args.noise]
 
 
@@ -431,6 +435,12 @@ def main(argv=None):
     args = parse_args(argv)
     log = (lambda line: None) if args.quiet else print
     cache_path = args.out / PEER_CACHE.name
+    cached = {} if args.refresh_peers else load_peer_cache(cache_path)["cells"]
+    absent = missing_peers(sorted({family for *_, key in cells(args) for family in FAMILIES
+                                   if family not in cached.get(key, {})}),
+                           "use a peer cache (--out) that holds these cells")
+    if absent:  # before any run: the table needs every family
+        raise SystemExit(f"benchmarks.versus: {absent}")
     compile_seconds = None if args.peers_only else pssd_fast.warmup()
     model_cache = {}
     rows = []

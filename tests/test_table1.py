@@ -51,3 +51,28 @@ def test_table1_writes_markdown_and_json(tmp_path):
     assert "| fandisk | 0.50% | Robust | 1 |" in text and "Ablations" in text
     saved = json.loads((tmp_path / "table1.json").read_text())
     assert len(saved["rows"]) == len(rows)
+
+
+def test_the_verdict_takes_the_most_iterations_run_where_2_was_not():
+    """--iterations 1 with a peer installed: the verdict compares the run made, rather than
+    stopping on the 2 iterations it would have preferred, after all the work."""
+    row = {"model": "fandisk", "noise": 0.005, "variant": None, "mean_dist": 1.0,
+           "edge_dist": 2.0}
+    rows = [{**row, "method": "Robust", "iterations": 1},
+            {**row, "method": "CGAL jet", "iterations": None, "mean_dist": 0.5}]
+    lines = table1.verdict(rows)
+    assert "1 iteration," in lines[0]
+    assert lines[-1] == "| fandisk | 0.50% | CGAL jet | 0.5 | 1.0 | lose | 2.0 | 2.0 | lose |"
+    assert table1.verdict(rows[:1]) == [
+        "No peer row: none installed (pip install -e '.[compare]'), or --no-peers."]
+
+
+def test_a_folder_of_the_models_asked_for_is_enough(tmp_path, monkeypatch):
+    """A data folder holding Fandisk alone runs --models fandisk, and names what it lacks for
+    the others."""
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "fandisk.obj.gz").write_bytes(
+        (models.mesh_dir() / "fandisk.obj.gz").read_bytes())
+    monkeypatch.setenv("PSSD_DATA", str(tmp_path))
+    assert models.available(["fandisk"]) and not models.available()
+    assert models.files(["dragon", "igea"]) == ["dragon.obj.gz", "igea.obj.gz"]

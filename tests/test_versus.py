@@ -19,7 +19,7 @@ def test_best_of_takes_each_column_separately():
 
 def test_versus_writes_the_table_from_a_peer_cache(tmp_path):
     fake = {"mean": 1e9, "edge": 0.0, "seconds": 1.0}  # peers win every edge, lose every mean
-    cells = {versus._key("cad_part", 0.005): {
+    cells = {versus._key("cad_part", 0.005, 3000): {
         family: {label: dict(fake) for label in settings}
         for family, settings in versus.PEER_SETTINGS.items()}}
     (tmp_path / versus.PEER_CACHE.name).write_text(json.dumps({"machine": "test",
@@ -83,6 +83,17 @@ def test_another_seed_draws_other_cells_and_files(tmp_path):
     assert not (tmp_path / "versus_sparse.md").exists()
 
 
+def test_the_part_at_another_size_is_a_cell_of_its_own():
+    """--cad-points other than the table's keys the part's peers by that size, so that a run
+    is never scored against peers of another size."""
+    keys = [key for *_, key in versus.cells(versus.parse_args(
+        ["--shapes", "cad_part", "--noise", "0.0025", "0.005", "--cad-points", "10000"]))]
+    assert keys == ["cad_part|0.0025|10000", "cad_part|0.005|10000"]
+    keys = [key for *_, key in versus.cells(versus.parse_args(
+        ["--shapes", "cad_part", "--noise", "0.0025"]))]
+    assert keys == ["cad_part|0.0025"]
+
+
 def test_a_cached_cell_runs_only_the_families_it_lacks(tmp_path, monkeypatch):
     fake = {"mean": 1.0, "edge": 1.0, "seconds": 1.0}
     cached = {family: {label: dict(fake) for label in versus.PEER_SETTINGS[family]}
@@ -105,3 +116,18 @@ def test_a_cached_cell_runs_only_the_families_it_lacks(tmp_path, monkeypatch):
     assert len(ran) == 1
     versus.peer_cell(case, "cube|0.005", path, True, print)  # refresh: every family again
     assert ran[-1] == versus.FAMILIES
+
+
+def test_a_peer_library_missing_for_cells_not_cached_stops_before_any_run(tmp_path,
+                                                                         monkeypatch):
+    """Without Open3D and without its cells in the cache, the run stops at once, naming the
+    library, rather than after the CGAL runs with a traceback."""
+    from benchmarks import peers
+
+    monkeypatch.setattr(peers, "available", lambda: {"cgal": True, "pymeshlab": False,
+                                                     "open3d": False})
+    monkeypatch.setattr(versus.pssd_fast, "warmup", lambda: pytest.fail("ran"))
+    with pytest.raises(SystemExit, match="o3d_bilateral, o3d_mls need open3d"):
+        versus.main(["--shapes", "cad_part", "--noise", "0.005", "--cad-points", "2000",
+                     "--out", str(tmp_path), "--quiet"])
+    assert list(tmp_path.iterdir()) == []
