@@ -87,6 +87,7 @@ def orient_normals(points, nrm, graph, orient):
         agree = np.einsum("ij,ij->i", nrm, orient - points)
     vote = np.bincount(component, weights=agree, minlength=count)
     nrm *= np.where(vote[component] < 0.0, -1.0, 1.0)[:, None]
+    nrm += 0.0  # -0 to 0: a normal turned twice here ends as one left alone pointwise
     return count
 
 
@@ -100,6 +101,7 @@ def orient_pointwise(points, nrm, orient, centroid):
     else:
         agree = np.einsum("ij,ij->i", nrm, orient - points)
     nrm *= np.where(agree < 0.0, -1.0, 1.0)[:, None]
+    nrm += 0.0  # -0 to 0, as orient_normals leaves them
 
 
 def outlier_score(points, graph):

@@ -39,7 +39,8 @@ class TimeLeft:
 
     The estimate is the mean duration of the finished iterations times the iterations left,
     less the time already spent in the current one; there is none before the first iteration
-    has finished.
+    has finished, nor once the current one has run past it (the default method's last
+    iteration also tests and refits: "about 0 s left" would be said for most of a run).
     """
 
     def __init__(self):
@@ -64,7 +65,8 @@ class TimeLeft:
         left = None
         if self.durations:
             mean = sum(self.durations) / len(self.durations)
-            left = max(0.0, mean * (iterations - iteration + 1) - (now - self.iteration_started))
+            left = mean * (iterations - iteration + 1) - (now - self.iteration_started)
+            left = left if left > 0.0 else None
         return now - self.started, left
 
 

@@ -5,6 +5,7 @@ records the tasks write in the scratch folder, and the outputs of the input's ki
 """
 import copy
 import os
+import threading
 from pathlib import Path
 from typing import NamedTuple
 
@@ -103,6 +104,8 @@ class LasFile:
         self.dtype = np.dtype(np.float64)
         self.has_normals = set(NORMALS) <= set(self.header.point_format.dimension_names)
         self._cursor = None  # (reader, row it is at) between calls of chunk()
+        # Tasks on threads share this object, and with it the reader: one reads at a time.
+        self._lock = threading.Lock()
 
     def __getitem__(self, rows):
         return self.chunk(rows.start or 0, rows.stop)[0]
@@ -134,13 +137,14 @@ class LasFile:
 
     def __getstate__(self):
         # For a task in another process: laspy is imported again there, no reader is kept.
-        return {**self.__dict__, "laspy": None, "_cursor": None}
+        return {**self.__dict__, "laspy": None, "_cursor": None, "_lock": None}
 
     def __setstate__(self, state):
         from ..io.las import _need_laspy
 
         self.__dict__.update(state)
         self.laspy = _need_laspy(Path(self.path).suffix.lower(), "Reading")
+        self._lock = threading.Lock()
 
     def classification(self, start, stop):
         """The class of each of rows ``start..stop-1`` (the ``classification`` field, as
@@ -149,6 +153,11 @@ class LasFile:
 
     def _records(self, start, stop):
         """The records of rows ``start..stop-1`` (see :meth:`chunk`)."""
+        with self._lock:
+            return self._locked_records(start, stop)
+
+    def _locked_records(self, start, stop):
+        """:meth:`_records`, the reader held by this thread alone."""
         from ..io.las import corrupt, failures, read_records
 
         stop = min(stop, self.shape[0])
@@ -174,7 +183,8 @@ class LasFile:
                                                 header.offsets)
 
     def close(self):
-        """Close the reader :meth:`chunk` keeps open between calls, if any."""
+        """Close the reader :meth:`chunk` keeps open between calls, if any (called with
+        the lock held, or where no task reads)."""
         if self._cursor is not None:
             self._cursor[0].close()
             self._cursor = None
