@@ -96,8 +96,9 @@ def parts(summed, shift, most, refine):
         sub = np.bincount(inverse, np.concatenate([piece[1] for piece in pieces]),
                           keys.shape[0]).astype(np.int64)
         sub_shifts = finer[np.searchsorted(firsts[split], keys, side="right") - 1]
-        order = np.argsort(np.concatenate((firsts[~split], keys)), kind="stable")
-        firsts = np.concatenate((firsts[~split], keys))[order]
+        firsts = np.concatenate((firsts[~split], keys))
+        order = np.argsort(firsts, kind="stable")
+        firsts = firsts[order]
         counts = np.concatenate((counts[~split], sub))[order]
         shifts = np.concatenate((shifts[~split], sub_shifts))[order]
     starts = []

@@ -152,35 +152,33 @@ class LasFile:
         return np.asarray(self._records(start, stop)["classification"], np.uint8)
 
     def _records(self, start, stop):
-        """The records of rows ``start..stop-1`` (see :meth:`chunk`)."""
-        with self._lock:
-            return self._locked_records(start, stop)
-
-    def _locked_records(self, start, stop):
-        """:meth:`_records`, the reader held by this thread alone."""
+        """The records of rows ``start..stop-1`` (see :meth:`chunk`), read by one thread at
+        a time."""
         from ..io.las import corrupt, failures, read_records
 
-        stop = min(stop, self.shape[0])
-        try:
-            if self._cursor is None or self._cursor[1] != start:
+        with self._lock:
+            stop = min(stop, self.shape[0])
+            try:
+                if self._cursor is None or self._cursor[1] != start:
+                    self.close()
+                    self._cursor = (self.laspy.open(self.path), start)
+                    if start:
+                        self._cursor[0].seek(start)
+                reader = self._cursor[0]
+                records = read_records(reader, stop - start)
+            except failures(self.laspy) as exc:
                 self.close()
-                self._cursor = (self.laspy.open(self.path), start)
-                if start:
-                    self._cursor[0].seek(start)
-            reader = self._cursor[0]
-            records = read_records(reader, stop - start)
-        except failures(self.laspy) as exc:
-            self.close()
-            raise corrupt(self.path, exc) from None
-        self._cursor = (reader, stop)
-        if stop == self.shape[0]:
-            self.close()
-        if len(records) != stop - start:
-            raise ValueError(f"{self.path}: truncated; its header claims {self.shape[0]:,} "
-                             f"points, but point {start + len(records):,} is missing")
-        header = self.header
-        return self.laspy.ScaleAwarePointRecord(records, header.point_format, header.scales,
-                                                header.offsets)
+                raise corrupt(self.path, exc) from None
+            self._cursor = (reader, stop)
+            if stop == self.shape[0]:
+                self.close()
+            if len(records) != stop - start:
+                raise ValueError(f"{self.path}: truncated; its header claims "
+                                 f"{self.shape[0]:,} points, but point "
+                                 f"{start + len(records):,} is missing")
+            header = self.header
+            return self.laspy.ScaleAwarePointRecord(records, header.point_format,
+                                                    header.scales, header.offsets)
 
     def close(self):
         """Close the reader :meth:`chunk` keeps open between calls, if any (called with
