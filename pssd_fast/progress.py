@@ -39,8 +39,9 @@ class TimeLeft:
 
     The estimate is the mean duration of the finished iterations times the iterations left,
     less the time already spent in the current one; there is none before the first iteration
-    has finished, nor once the current one has run past it (the default method's last
-    iteration also tests and refits: "about 0 s left" would be said for most of a run).
+    has finished, nor within half a second of the estimate's end or past it (the default
+    method's last iteration also tests and refits: "about 0 s left" would be said for most of
+    a run).
     """
 
     def __init__(self):
@@ -66,7 +67,7 @@ class TimeLeft:
         if self.durations:
             mean = sum(self.durations) / len(self.durations)
             left = mean * (iterations - iteration + 1) - (now - self.iteration_started)
-            left = left if left > 0.0 else None
+            left = left if left >= 0.5 else None  # never "about 0 s left"
         return now - self.started, left
 
 

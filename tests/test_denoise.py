@@ -1094,6 +1094,11 @@ def test_time_left_is_the_mean_iteration_times_the_iterations_to_go(monkeypatch)
     assert elapsed == 15.0 and left == 12.0 * 3 - 3.0
     now[0] = 150.0  # past the estimate (a last iteration that also refits): none, not 0 s
     assert clock(4, 4, 10.0)[1] is None
+    now[0] = 112.0  # two iterations: the first 12 s long
+    clock = progress.TimeLeft()
+    clock(1, 2, 12.0)
+    now[0] = 123.6  # 11.6 s into the second: 0.4 s left would read "about 0 s left"
+    assert clock(2, 2, 11.6)[1] is None
 
 
 @pytest.mark.parametrize("preset", ["default", "paper"])
